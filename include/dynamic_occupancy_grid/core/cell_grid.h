@@ -1,0 +1,165 @@
+#pragma once
+// Storage of the per-cell state: square tiles of 64 x 64 cells, allocated only where
+// something was observed, each a struct of arrays (a field of all cells is contiguous).
+// Cells are addressed by lattice coordinates (x, y): cell (0, 0) has its lower-left
+// corner at the anchor point, x grows with the world x axis, y with the world y axis.
+// The map window handed to publishers is row-major like nav_msgs/OccupancyGrid.
+
+#include <array>
+#include <cstdint>
+#include <limits>
+#include <memory>
+#include <optional>
+#include <vector>
+
+#include "dynamic_occupancy_grid/core/traversal.h"
+
+namespace dynamic_occupancy_grid {
+namespace core {
+
+/// last_step of a cell that was never observed.
+constexpr std::int32_t kNeverObserved = std::numeric_limits<std::int32_t>::min();
+
+/// An axis-aligned, inclusive box of cells; empty() when nothing is in it.
+struct CellBox {
+  std::int32_t min_x = std::numeric_limits<std::int32_t>::max();
+  std::int32_t min_y = std::numeric_limits<std::int32_t>::max();
+  std::int32_t max_x = std::numeric_limits<std::int32_t>::min();
+  std::int32_t max_y = std::numeric_limits<std::int32_t>::min();
+
+  bool empty() const { return min_x > max_x || min_y > max_y; }
+  std::int64_t width() const { return empty() ? 0 : std::int64_t{max_x} - min_x + 1; }
+  std::int64_t height() const { return empty() ? 0 : std::int64_t{max_y} - min_y + 1; }
+  bool contains(std::int32_t x, std::int32_t y) const {
+    return x >= min_x && x <= max_x && y >= min_y && y <= max_y;
+  }
+  void include(std::int32_t x, std::int32_t y);
+  void include(const CellBox& other);
+};
+
+/// The world placement of a rectangular block of cells, as in nav_msgs/MapMetaData:
+/// origin = world position of the lower-left corner of cell (0, 0) of the block,
+/// index of cell (col, row) = row * width + col.
+struct MapWindow {
+  double resolution_m = 0.0;
+  double origin_x_m = 0.0;
+  double origin_y_m = 0.0;
+  CellBox cells;  ///< lattice cells covered; width/height of the block are its extent
+};
+
+/// The state of one cell (THEORY.md §1–4). Floats keep a cell at 28 bytes; the filter
+/// math runs in double and rounds once per stored step.
+struct CellState {
+  float p_occ;                   ///< belief p(occ) at last_step
+  std::int32_t last_step;        ///< step of the last update, kNeverObserved if none
+  float log_odds;                ///< standard occupancy grid baseline (clamped log-odds)
+  float p_occ_given_free;        ///< p_of of the cell, per step
+  float p_free_given_occ;        ///< p_fo of the cell, per step
+};
+
+class CellGrid {
+ public:
+  static constexpr int kTileBits = 6;
+  static constexpr std::int32_t kTileSize = 1 << kTileBits;  // cells per tile side
+  static constexpr int kTileCells = kTileSize * kTileSize;
+
+  /// Struct of arrays for the cells of one tile; index = (y & 63) * 64 + (x & 63).
+  struct Tile {
+    std::array<float, kTileCells> p_occ;
+    std::array<std::int32_t, kTileCells> last_step;
+    std::array<float, kTileCells> log_odds;
+    std::array<float, kTileCells> p_occ_given_free;
+    std::array<float, kTileCells> p_free_given_occ;
+    // Evidence gathered in the current time step, applied when the step closes.
+    std::array<std::uint16_t, kTileCells> pending_hits;
+    std::array<std::uint16_t, kTileCells> pending_misses;
+    // (scan id << 1) | hit: which scan last touched the cell and how, so that one scan
+    // counts a cell once and a hit wins over a miss of the same scan.
+    std::array<std::uint32_t, kTileCells> scan_mark;
+    std::int32_t tile_x;  ///< lattice coordinates of the tile (cell x >> kTileBits)
+    std::int32_t tile_y;
+
+    std::int32_t cellX(int offset) const { return (tile_x << kTileBits) + (offset & (kTileSize - 1)); }
+    std::int32_t cellY(int offset) const { return (tile_y << kTileBits) + (offset >> kTileBits); }
+  };
+
+  /// Initial values of a freshly allocated cell.
+  struct CellDefaults {
+    float p_occ_given_free;
+    float p_free_given_occ;
+  };
+
+  /// A grid anchored at world point (anchor_x_m, anchor_y_m). With `fixed_cells` set, only
+  /// those lattice cells exist and nothing ever grows; otherwise the covered area grows in
+  /// whole tiles, up to max_cells_per_side along each axis.
+  CellGrid(double resolution_m, double anchor_x_m, double anchor_y_m,
+           std::optional<CellBox> fixed_cells, std::int32_t max_cells_per_side,
+           CellDefaults defaults);
+
+  double resolution() const { return resolution_m_; }
+  double anchorX() const { return anchor_x_m_; }
+  double anchorY() const { return anchor_y_m_; }
+  /// World coordinate -> continuous lattice coordinate (in cells).
+  double toLatticeX(double x_m) const { return (x_m - anchor_x_m_) * inverse_resolution_; }
+  double toLatticeY(double y_m) const { return (y_m - anchor_y_m_) * inverse_resolution_; }
+
+  /// Cells that may hold data: the fixed box, or the tiles allocated so far (empty box for a
+  /// growing grid that has seen nothing).
+  CellBox bounds() const;
+  MapWindow window() const { return window(bounds()); }
+  MapWindow window(const CellBox& cells) const;
+  bool isFixed() const { return fixed_cells_.has_value(); }
+
+  /// Makes every cell of `box` addressable (growing the tile index if allowed) and returns
+  /// the part of `box` that is inside the grid's limits.
+  CellBox reserve(const CellBox& box);
+  /// The tile holding (x, y), allocating it on first use; nullptr outside the grid.
+  /// Call reserve() first for the area: this only allocates inside the reserved index.
+  Tile* tileForWriting(std::int32_t x, std::int32_t y);
+  /// The tile holding (x, y) if it was ever allocated.
+  const Tile* findTile(std::int32_t x, std::int32_t y) const;
+  /// The cell (x, y), or std::nullopt if it was never observed.
+  std::optional<CellState> cell(std::int32_t x, std::int32_t y) const;
+
+  /// Calls fn(Tile&) for every allocated tile.
+  template <class Fn>
+  void forEachTile(Fn&& fn) {
+    for (auto& tile : tiles_) {
+      if (tile) fn(*tile);
+    }
+  }
+
+  bool insideLimits(std::int32_t x, std::int32_t y) const;
+  static int offsetOf(std::int32_t x, std::int32_t y) {
+    return ((y & (kTileSize - 1)) << kTileBits) | (x & (kTileSize - 1));
+  }
+
+  std::size_t allocatedTiles() const { return allocated_tiles_; }
+  /// Bytes of cell storage per allocated cell (the tile struct over its cell count).
+  static constexpr double bytesPerCell() { return static_cast<double>(sizeof(Tile)) / kTileCells; }
+
+ private:
+  std::unique_ptr<Tile>* slot(std::int32_t tile_x, std::int32_t tile_y);
+  const std::unique_ptr<Tile>* slot(std::int32_t tile_x, std::int32_t tile_y) const;
+
+  double resolution_m_;
+  double inverse_resolution_;
+  double anchor_x_m_;
+  double anchor_y_m_;
+  std::optional<CellBox> fixed_cells_;
+  std::int32_t max_cells_per_side_;
+  CellDefaults defaults_;
+  // Tile index: a dense row-major array of tile pointers over the tile box
+  // [tile_min_x_, tile_min_x_ + tiles_w_) x [tile_min_y_, tile_min_y_ + tiles_h_).
+  // Growing moves pointers only; cells never move.
+  std::int32_t tile_min_x_ = 0;
+  std::int32_t tile_min_y_ = 0;
+  std::int32_t tiles_w_ = 0;
+  std::int32_t tiles_h_ = 0;
+  std::vector<std::unique_ptr<Tile>> tiles_;
+  std::size_t allocated_tiles_ = 0;
+  CellBox allocated_cells_;
+};
+
+}  // namespace core
+}  // namespace dynamic_occupancy_grid

@@ -1,0 +1,39 @@
+#pragma once
+// The map layers the package publishes, evaluated lazily from the cell state at a given
+// step (THEORY.md §3): nothing is stored per layer, unobserved cells are brought to the
+// requested step in closed form when read.
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "dynamic_occupancy_grid/core/cell_grid.h"
+
+namespace dynamic_occupancy_grid {
+namespace core {
+
+enum class Layer {
+  kBelief,          ///< p(occ) at the requested step
+  kPredicted,       ///< p(occ) at the requested step + horizon
+  kStationary,      ///< long-run p(occ); a static cell keeps its belief
+  kOccGivenFree,    ///< p_of per step
+  kFreeGivenOcc,    ///< p_fo per step
+  kStatic,          ///< standard occupancy grid baseline, p(occ) of the clamped log-odds
+};
+
+/// Name used for topics and files ("belief", "predicted", ...).
+std::string layerName(Layer layer);
+
+/// Values of `layer` over `box` (row-major, row = y from box.min_y, like
+/// nav_msgs/OccupancyGrid), NaN for cells never observed. `step` is "now";
+/// `horizon_steps` is used by kPredicted only.
+void evaluateLayer(const CellGrid& grid, Layer layer, std::int64_t step,
+                   std::int64_t horizon_steps, const CellBox& box, std::vector<float>* values);
+
+/// The one scaling to nav_msgs/OccupancyGrid values: NaN -> -1 (unknown), otherwise
+/// round(100 * value / full_scale) clamped to 0..100. Probabilities use full_scale = 1.
+void toOccupancyValues(const std::vector<float>& values, float full_scale,
+                       std::vector<std::int8_t>* occupancy);
+
+}  // namespace core
+}  // namespace dynamic_occupancy_grid

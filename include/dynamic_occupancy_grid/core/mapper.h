@@ -1,0 +1,110 @@
+#pragma once
+// The mapping pipeline of the core: scans in, per-cell HMM beliefs and the static log-odds
+// baseline out. Scans are grouped into time steps (THEORY.md §4); within a step each
+// touched cell gathers hit and miss counts; when a scan of a later step arrives the step is
+// applied to the touched cells only (THEORY.md §3: untouched cells cost nothing).
+
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "dynamic_occupancy_grid/core/cell_grid.h"
+#include "dynamic_occupancy_grid/core/cell_model.h"
+#include "dynamic_occupancy_grid/core/scan.h"
+#include "dynamic_occupancy_grid/core/step_clock.h"
+
+namespace dynamic_occupancy_grid {
+namespace core {
+
+struct MapperConfig {
+  double resolution_m = 0.05;         ///< cell side, metres
+  double time_step_s = 1.0;           ///< one HMM step, seconds of sensor time
+  double p_hit_given_occ = 0.7;       ///< sensor model: a beam ends in an occupied cell
+  double p_hit_given_free = 0.2;      ///< sensor model: a beam ends in a free cell
+  /// Transition probabilities every cell starts with (per step).
+  TransitionParams prior_transitions{0.01, 0.01};
+  double initial_p_occ = 0.5;         ///< belief of a cell before its first observation
+  LogOddsClamp static_clamp;          ///< clamping of the static baseline
+  /// Beams without return (range >= range_max or +inf) clear cells up to this distance
+  /// (and never beyond the scan's range_max); 0 ignores such beams.
+  double max_free_range_m = 10.0;
+  double origin_x_m = 0.0;            ///< world position of the lattice's cell (0, 0) corner
+  double origin_y_m = 0.0;
+  /// Fixed bounds: only [origin, origin + size) is mapped and nothing grows.
+  bool fixed_bounds = false;
+  double width_m = 0.0;               ///< fixed bounds only
+  double height_m = 0.0;              ///< fixed bounds only
+  /// A growing map stays inside origin +- max_map_size_m / 2 along each axis.
+  double max_map_size_m = 1000.0;
+
+  /// Throws std::invalid_argument naming the first bad field.
+  void validate() const;
+};
+
+enum class ScanStatus {
+  kIntegrated,
+  kRejectedInvalid,        ///< malformed scan (see ScanResult::error)
+  kRejectedTimeBackwards,  ///< stamp in a step before the one being gathered
+};
+
+struct ScanResult {
+  ScanStatus status = ScanStatus::kIntegrated;
+  std::string error;                 ///< why a scan was rejected
+  std::size_t beams_hit = 0;         ///< finite range in [range_min, range_max)
+  std::size_t beams_no_return = 0;   ///< range >= range_max or +inf: free space only
+  std::size_t beams_ignored = 0;     ///< NaN, -inf, < range_min
+  std::size_t cells_outside = 0;     ///< beam cells beyond the map's bounds, dropped
+};
+
+class Mapper {
+ public:
+  /// Throws std::invalid_argument for a bad configuration.
+  explicit Mapper(const MapperConfig& config);
+
+  const MapperConfig& config() const { return config_; }
+  const ObservationModel& sensor() const { return sensor_; }
+  const StepClock& clock() const { return clock_; }
+  const CellGrid& grid() const { return grid_; }
+
+  /// Adds a scan's evidence to the step its stamp falls in; applies the previous step first
+  /// when the scan starts a new one. A rejected scan changes nothing.
+  ScanResult integrate(const Scan& scan);
+  /// Applies the step being gathered now (end of the data; nothing to do if none).
+  void finishStep();
+
+  /// The last step applied to the grid: maps show the state at the end of this step.
+  std::optional<std::int64_t> lastAppliedStep() const { return last_applied_step_; }
+  /// The step scans are being gathered into.
+  std::optional<std::int64_t> gatheringStep() const { return gathering_step_; }
+  /// p(occ) of cell (x, y) at `step` (>= its last update: predicted in closed form), NaN if
+  /// the cell was never observed.
+  double beliefAt(std::int32_t x, std::int32_t y, std::int64_t step) const;
+  /// Cells changed by steps applied since the last call.
+  CellBox takeChangedCells();
+
+ private:
+  void applyGatheredStep();
+  void markMiss(CellGrid::Tile& tile, int offset);
+  void markHit(CellGrid::Tile& tile, int offset);
+  void addTouched(CellGrid::Tile& tile, int offset);
+  void nextScanId();
+
+  struct TouchedCell {
+    CellGrid::Tile* tile;
+    int offset;
+  };
+
+  MapperConfig config_;
+  ObservationModel sensor_;
+  StepClock clock_;
+  CellGrid grid_;
+  std::optional<std::int64_t> gathering_step_;
+  std::optional<std::int64_t> last_applied_step_;
+  std::vector<TouchedCell> touched_;
+  std::uint32_t scan_id_ = 0;
+  CellBox changed_cells_;
+};
+
+}  // namespace core
+}  // namespace dynamic_occupancy_grid

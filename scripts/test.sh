@@ -1,0 +1,64 @@
+#!/usr/bin/env bash
+# Runs every test of dynamic_occupancy_grid from a fresh clone: installs what is missing,
+# builds, runs the catkin tests (GoogleTest, rostest) and the plain-CMake core build with
+# its include audit, then prints one summary line "N passed, N failed" computed from the
+# JUnit XML results. Exits non-zero if anything failed or did not run.
+set -uo pipefail
+
+package_dir=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+workspace=${DOG_WORKSPACE:-$HOME/dog_ws}
+export DOG_WORKSPACE=$workspace
+export PATH=/usr/bin:/bin:$PATH
+results_dir=$workspace/build/test_results/dynamic_occupancy_grid
+status=0
+broken=()  # steps that failed outside any JUnit file: each counts as a failure
+
+"$package_dir/scripts/setup.sh" || { echo "test: setup/build failed"; echo "0 passed, 1 failed"; exit 1; }
+if [ -f /opt/ros/noetic/setup.bash ]; then set +u; source /opt/ros/noetic/setup.bash; set -u; fi
+
+rm -rf "$results_dir"
+mkdir -p "$results_dir"
+(cd "$workspace" && catkin_make run_tests -j2) || { status=1; broken+=("catkin_make run_tests exited non-zero"); }
+
+# The core alone, built by plain CMake with no ROS anywhere, plus its include audit.
+standalone="$workspace/build/core_standalone"
+if cmake -S "$package_dir/test/core_standalone" -B "$standalone" -DCMAKE_BUILD_TYPE=Release >/dev/null &&
+   cmake --build "$standalone" -j2 >/dev/null; then
+  (cd "$standalone" && ctest --output-on-failure --output-junit "$results_dir/core_standalone.xml") || status=1
+else
+  status=1
+  broken+=("the plain-CMake build of the core failed")
+fi
+
+# One line from the real results: every <testcase> of every JUnit file.
+/usr/bin/python3 - "$results_dir" "${broken[@]}" <<'PY' || status=1
+import glob, os, sys
+import xml.etree.ElementTree as ET
+passed = failed = skipped = 0
+failures = list(sys.argv[2:])
+failed += len(failures)
+for path in sorted(glob.glob(os.path.join(sys.argv[1], "**", "*.xml"), recursive=True)):
+    try:
+        root = ET.parse(path).getroot()
+    except ET.ParseError as error:
+        failed += 1
+        failures.append(f"{os.path.basename(path)}: unreadable result file ({error})")
+        continue
+    for case in root.iter("testcase"):
+        name = f"{case.get('classname', '')}.{case.get('name', '')}"
+        if case.find("failure") is not None or case.find("error") is not None:
+            failed += 1
+            failures.append(f"{os.path.basename(path)}: {name}")
+        elif case.find("skipped") is not None or case.get("status") == "notrun":
+            skipped += 1
+        else:
+            passed += 1
+for line in failures:
+    print("FAILED:", line)
+if passed + failed == 0:
+    print("test: no test results found in", sys.argv[1])
+    failed = 1
+print(f"{passed} passed, {failed} failed" + (f", {skipped} skipped" if skipped else ""))
+sys.exit(1 if failed else 0)
+PY
+exit $status

@@ -1,0 +1,78 @@
+#include "dynamic_occupancy_grid/core/map_export.h"
+
+#include <cerrno>
+#include <cstdio>
+#include <cstring>
+#include <iomanip>
+#include <sstream>
+#include <stdexcept>
+
+namespace dynamic_occupancy_grid {
+namespace core {
+
+void writeFileAtomically(const std::string& path, const std::string& contents) {
+  const std::string temporary = path + ".tmp";
+  std::FILE* file = std::fopen(temporary.c_str(), "wb");
+  if (file == nullptr) {
+    throw std::runtime_error("cannot open " + temporary + " for writing: " + std::strerror(errno));
+  }
+  const bool written = std::fwrite(contents.data(), 1, contents.size(), file) == contents.size();
+  const int write_errno = errno;
+  // fclose flushes: a full disk may only show here.
+  const bool closed = std::fclose(file) == 0;
+  if (!written || !closed) {
+    const int error = written ? errno : write_errno;
+    std::remove(temporary.c_str());
+    throw std::runtime_error("cannot write " + temporary + ": " + std::strerror(error));
+  }
+  if (std::rename(temporary.c_str(), path.c_str()) != 0) {
+    const int error = errno;
+    std::remove(temporary.c_str());
+    throw std::runtime_error("cannot rename " + temporary + " to " + path + ": " + std::strerror(error));
+  }
+}
+
+void writeMapServerFiles(const std::string& directory, const std::string& name,
+                         const MapWindow& window, const std::vector<std::int8_t>& occupancy,
+                         const MapServerThresholds& thresholds) {
+  const std::int64_t width = window.cells.width();
+  const std::int64_t height = window.cells.height();
+  if (static_cast<std::int64_t>(occupancy.size()) != width * height) {
+    throw std::invalid_argument("map export of " + name + ": " + std::to_string(occupancy.size()) +
+                                " values for a " + std::to_string(width) + " x " +
+                                std::to_string(height) + " window");
+  }
+  std::string image = "P5\n# dynamic_occupancy_grid " + name + "\n" + std::to_string(width) + " " +
+                      std::to_string(height) + "\n255\n";
+  const std::size_t header = image.size();
+  image.resize(header + static_cast<std::size_t>(width * height));
+  for (std::int64_t row = 0; row < height; ++row) {
+    // Image row 0 is the top (north) row: the last row of the grid.
+    const std::int8_t* source = occupancy.data() + (height - 1 - row) * width;
+    char* target = &image[header + static_cast<std::size_t>(row * width)];
+    for (std::int64_t col = 0; col < width; ++col) {
+      const int value = source[col];
+      unsigned char pixel = 205;  // unknown
+      if (value >= 0 && value <= thresholds.free_percent) {
+        pixel = 254;
+      } else if (value >= thresholds.occupied_percent) {
+        pixel = 0;
+      }
+      target[col] = static_cast<char>(pixel);
+    }
+  }
+  std::ostringstream yaml;
+  yaml << std::setprecision(9) << "image: " << name << ".pgm\n"
+       << "resolution: " << window.resolution_m << "\n"
+       << "origin: [" << window.origin_x_m << ", " << window.origin_y_m << ", 0.0]\n"
+       << "negate: 0\n"
+       << "occupied_thresh: " << thresholds.occupied_percent / 100.0 << "\n"
+       // map_saver's value: the unknown grey 205 reads as p = 50/255 = 0.196, not free.
+       << "free_thresh: 0.196\n";
+  const std::string base = directory + "/" + name;
+  writeFileAtomically(base + ".pgm", image);
+  writeFileAtomically(base + ".yaml", yaml.str());
+}
+
+}  // namespace core
+}  // namespace dynamic_occupancy_grid

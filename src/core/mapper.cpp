@@ -1,0 +1,302 @@
+#include "dynamic_occupancy_grid/core/mapper.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <stdexcept>
+#include <string>
+
+#include "dynamic_occupancy_grid/core/traversal.h"
+
+namespace dynamic_occupancy_grid {
+namespace core {
+namespace {
+
+void require(bool ok, const std::string& message) {
+  if (!ok) throw std::invalid_argument(message);
+}
+
+bool isFinitePositive(double value) { return std::isfinite(value) && value > 0.0; }
+
+std::int32_t maxCellsPerSide(const MapperConfig& config) {
+  const double cells = std::ceil(config.max_map_size_m / config.resolution_m);
+  // Whole tiles on both sides of the origin keep the limit on tile edges.
+  const double unit = 2.0 * CellGrid::kTileSize;
+  return static_cast<std::int32_t>(std::ceil(cells / unit) * unit);
+}
+
+std::optional<CellBox> fixedCells(const MapperConfig& config) {
+  if (!config.fixed_bounds) return std::nullopt;
+  CellBox box;
+  box.min_x = 0;
+  box.min_y = 0;
+  box.max_x = static_cast<std::int32_t>(std::ceil(config.width_m / config.resolution_m)) - 1;
+  box.max_y = static_cast<std::int32_t>(std::ceil(config.height_m / config.resolution_m)) - 1;
+  return box;
+}
+
+const MapperConfig& validated(const MapperConfig& config) {
+  config.validate();
+  return config;
+}
+
+// Largest lattice coordinate the traversal handles (int32 with margin); a grid limited to
+// max_map_size_m never comes close, a wild pose or range does.
+constexpr double kMaxLatticeCoordinate = 1.0e9;
+
+}  // namespace
+
+void MapperConfig::validate() const {
+  require(isFinitePositive(resolution_m), "resolution must be > 0 m, got " + std::to_string(resolution_m));
+  require(isFinitePositive(time_step_s), "time_step must be > 0 s, got " + std::to_string(time_step_s));
+  require(prior_transitions.isValid(),
+          "prior p_occ_given_free and p_free_given_occ must be in [0, 1], got " +
+              std::to_string(prior_transitions.p_occ_given_free) + " and " +
+              std::to_string(prior_transitions.p_free_given_occ));
+  require(initial_p_occ > 0.0 && initial_p_occ < 1.0,
+          "initial_p_occ must be in (0, 1), got " + std::to_string(initial_p_occ));
+  require(static_clamp.min_log_odds < 0.0 && static_clamp.max_log_odds > 0.0,
+          "static map clamping needs min_log_odds < 0 < max_log_odds");
+  require(std::isfinite(max_free_range_m) && max_free_range_m >= 0.0,
+          "max_free_range must be >= 0 m, got " + std::to_string(max_free_range_m));
+  require(std::isfinite(origin_x_m) && std::isfinite(origin_y_m), "map origin must be finite");
+  require(isFinitePositive(max_map_size_m) && max_map_size_m / resolution_m < 1.0e8,
+          "max_map_size must be > 0 m and below 1e8 cells per side, got " +
+              std::to_string(max_map_size_m));
+  if (fixed_bounds) {
+    require(isFinitePositive(width_m) && isFinitePositive(height_m),
+            "fixed bounds need width > 0 m and height > 0 m");
+    require(width_m <= max_map_size_m && height_m <= max_map_size_m,
+            "fixed width and height must not exceed max_map_size");
+  }
+  // Throws with its own message for a bad sensor model.
+  ObservationModel(p_hit_given_occ, p_hit_given_free);
+}
+
+Mapper::Mapper(const MapperConfig& config)
+    : config_(validated(config)),
+      sensor_(config.p_hit_given_occ, config.p_hit_given_free),
+      clock_(config.time_step_s),
+      grid_(config.resolution_m, config.origin_x_m, config.origin_y_m, fixedCells(config),
+            maxCellsPerSide(config),
+            CellGrid::CellDefaults{static_cast<float>(config.prior_transitions.p_occ_given_free),
+                                   static_cast<float>(config.prior_transitions.p_free_given_occ)}) {}
+
+ScanResult Mapper::integrate(const Scan& scan) {
+  ScanResult result;
+  const auto reject = [&result](ScanStatus status, std::string error) {
+    result.status = status;
+    result.error = std::move(error);
+    return result;
+  };
+  if (scan.ranges_m.empty()) return reject(ScanStatus::kRejectedInvalid, "empty scan (no ranges)");
+  if (!std::isfinite(scan.stamp_s)) return reject(ScanStatus::kRejectedInvalid, "stamp is not finite");
+  const Pose2D& pose = scan.laser_pose;
+  if (!std::isfinite(pose.x_m) || !std::isfinite(pose.y_m) || !std::isfinite(pose.yaw_rad)) {
+    return reject(ScanStatus::kRejectedInvalid, "laser pose is not finite");
+  }
+  if (!std::isfinite(scan.angle_min_rad) || !std::isfinite(scan.angle_increment_rad) ||
+      (scan.ranges_m.size() > 1 && scan.angle_increment_rad == 0.0)) {
+    return reject(ScanStatus::kRejectedInvalid,
+                  "angle_min and angle_increment must be finite, and angle_increment non-zero");
+  }
+  if (!(scan.range_min_m >= 0.0) || !std::isfinite(scan.range_min_m) ||
+      !(scan.range_max_m > scan.range_min_m)) {
+    return reject(ScanStatus::kRejectedInvalid,
+                  "need 0 <= range_min < range_max, got range_min " + std::to_string(scan.range_min_m) +
+                      ", range_max " + std::to_string(scan.range_max_m));
+  }
+  const double u0 = grid_.toLatticeX(pose.x_m);
+  const double v0 = grid_.toLatticeY(pose.y_m);
+  if (std::abs(u0) > kMaxLatticeCoordinate || std::abs(v0) > kMaxLatticeCoordinate) {
+    return reject(ScanStatus::kRejectedInvalid, "laser pose is too far from the map origin");
+  }
+
+  // The first accepted scan starts step 0.
+  const std::int64_t step = clock_.origin() ? clock_.stepOf(scan.stamp_s) : 0;
+  // Scans may arrive out of order within the step being gathered, never before it, and
+  // never into a step already applied.
+  const std::optional<std::int64_t> first_allowed =
+      gathering_step_ ? gathering_step_
+                      : (last_applied_step_ ? std::optional<std::int64_t>(*last_applied_step_ + 1) : std::nullopt);
+  if (first_allowed && step < *first_allowed) {
+    return reject(ScanStatus::kRejectedTimeBackwards,
+                  "stamp " + std::to_string(scan.stamp_s) + " s is in step " + std::to_string(step) +
+                      ", before the first step still open (" + std::to_string(*first_allowed) + ")");
+  }
+  if (step > std::numeric_limits<std::int32_t>::max() - 1) {
+    return reject(ScanStatus::kRejectedInvalid, "stamp too far after the first one for time_step");
+  }
+
+  // Beam end points in lattice coordinates. Readings (issue rules):
+  //   finite range in [range_min, range_max): misses up to the end cell, a hit in it;
+  //   range >= range_max or +inf: misses up to max_free_range (capped at range_max), no hit;
+  //   NaN, -inf, < range_min: ignored.
+  struct Beam {
+    double u1;
+    double v1;
+    bool hit;
+  };
+  std::vector<Beam> beams;
+  beams.reserve(scan.ranges_m.size());
+  const double free_range_m = std::min(config_.max_free_range_m, scan.range_max_m);
+  const double cells_per_m = 1.0 / config_.resolution_m;
+  CellBox box;
+  box.include(static_cast<std::int32_t>(std::floor(u0)), static_cast<std::int32_t>(std::floor(v0)));
+  for (std::size_t i = 0; i < scan.ranges_m.size(); ++i) {
+    const double range = scan.ranges_m[i];
+    double length_m;
+    bool hit;
+    if (std::isnan(range) || range < scan.range_min_m) {
+      ++result.beams_ignored;
+      continue;
+    }
+    if (range >= scan.range_max_m) {  // includes +inf
+      ++result.beams_no_return;
+      if (free_range_m <= 0.0) continue;
+      length_m = free_range_m;
+      hit = false;
+    } else {
+      ++result.beams_hit;
+      length_m = range;
+      hit = true;
+    }
+    const double beam_angle = scan.angle_min_rad + static_cast<double>(i) * scan.angle_increment_rad;
+    const double angle = pose.yaw_rad + (scan.upside_down ? -beam_angle : beam_angle);
+    const double u1 = u0 + std::cos(angle) * length_m * cells_per_m;
+    const double v1 = v0 + std::sin(angle) * length_m * cells_per_m;
+    if (std::abs(u1) > kMaxLatticeCoordinate || std::abs(v1) > kMaxLatticeCoordinate) {
+      return reject(ScanStatus::kRejectedInvalid, "beam " + std::to_string(i) + " ends too far from the map origin");
+    }
+    box.include(static_cast<std::int32_t>(std::floor(u1)), static_cast<std::int32_t>(std::floor(v1)));
+    beams.push_back(Beam{u1, v1, hit});
+  }
+
+  // Accepted from here on: the step bookkeeping may change.
+  clock_.startAt(scan.stamp_s);
+  if (gathering_step_ && step > *gathering_step_) applyGatheredStep();
+  gathering_step_ = step;
+  nextScanId();
+  grid_.reserve(box);
+
+  // Consecutive cells of a beam mostly share a tile: remember the last one.
+  CellGrid::Tile* cached_tile = nullptr;
+  std::int32_t cached_tile_x = 0;
+  std::int32_t cached_tile_y = 0;
+  const auto tile_of = [&](std::int32_t x, std::int32_t y) -> CellGrid::Tile* {
+    const std::int32_t tile_x = x >> CellGrid::kTileBits;
+    const std::int32_t tile_y = y >> CellGrid::kTileBits;
+    if (cached_tile == nullptr || tile_x != cached_tile_x || tile_y != cached_tile_y) {
+      cached_tile = grid_.tileForWriting(x, y);
+      if (cached_tile == nullptr) return nullptr;  // outside the map: do not cache
+      cached_tile_x = tile_x;
+      cached_tile_y = tile_y;
+    }
+    return cached_tile;
+  };
+  for (const Beam& beam : beams) {
+    const CellXY end = traverseSegment(u0, v0, beam.u1, beam.v1, [&](std::int32_t x, std::int32_t y) {
+      CellGrid::Tile* tile = tile_of(x, y);
+      if (tile == nullptr) {
+        ++result.cells_outside;
+        return;
+      }
+      markMiss(*tile, CellGrid::offsetOf(x, y));
+    });
+    CellGrid::Tile* tile = tile_of(end.x, end.y);
+    if (tile == nullptr) {
+      ++result.cells_outside;
+    } else if (beam.hit) {
+      markHit(*tile, CellGrid::offsetOf(end.x, end.y));
+    } else {
+      markMiss(*tile, CellGrid::offsetOf(end.x, end.y));
+    }
+  }
+  return result;
+}
+
+void Mapper::nextScanId() {
+  // Marks hold the id in 31 bits; on wrap-around forget all marks so no stale mark can
+  // equal a new id (once in 2^31 scans).
+  if (scan_id_ == (std::numeric_limits<std::uint32_t>::max() >> 1)) {
+    grid_.forEachTile([](CellGrid::Tile& tile) { tile.scan_mark.fill(0); });
+    scan_id_ = 0;
+  }
+  ++scan_id_;
+}
+
+void Mapper::addTouched(CellGrid::Tile& tile, int offset) {
+  if (tile.pending_hits[offset] == 0 && tile.pending_misses[offset] == 0) {
+    touched_.push_back(TouchedCell{&tile, offset});
+  }
+}
+
+void Mapper::markMiss(CellGrid::Tile& tile, int offset) {
+  if ((tile.scan_mark[offset] >> 1) == scan_id_) return;  // this scan already counted it
+  tile.scan_mark[offset] = scan_id_ << 1;
+  addTouched(tile, offset);
+  if (tile.pending_misses[offset] < std::numeric_limits<std::uint16_t>::max()) ++tile.pending_misses[offset];
+}
+
+void Mapper::markHit(CellGrid::Tile& tile, int offset) {
+  const std::uint32_t mark = tile.scan_mark[offset];
+  if ((mark >> 1) == scan_id_) {
+    if ((mark & 1U) != 0) return;  // already a hit in this scan
+    // Missed earlier in this scan: the hit wins, the miss is taken back.
+    tile.scan_mark[offset] = mark | 1U;
+    if (tile.pending_misses[offset] > 0) --tile.pending_misses[offset];
+    if (tile.pending_hits[offset] < std::numeric_limits<std::uint16_t>::max()) ++tile.pending_hits[offset];
+    return;
+  }
+  tile.scan_mark[offset] = (scan_id_ << 1) | 1U;
+  addTouched(tile, offset);
+  if (tile.pending_hits[offset] < std::numeric_limits<std::uint16_t>::max()) ++tile.pending_hits[offset];
+}
+
+void Mapper::applyGatheredStep() {
+  if (!gathering_step_) return;
+  const auto step = static_cast<std::int32_t>(*gathering_step_);
+  for (const TouchedCell& touched : touched_) {
+    CellGrid::Tile& tile = *touched.tile;
+    const int i = touched.offset;
+    const std::uint32_t hits = tile.pending_hits[i];
+    const std::uint32_t misses = tile.pending_misses[i];
+    tile.pending_hits[i] = 0;
+    tile.pending_misses[i] = 0;
+    const TransitionParams params{tile.p_occ_given_free[i], tile.p_free_given_occ[i]};
+    // The belief just before this step's transition: the prior for a new cell, otherwise
+    // the stored belief carried over the unobserved steps in closed form (THEORY.md §3).
+    const std::int32_t last = tile.last_step[i];
+    const double before = last == kNeverObserved
+                              ? config_.initial_p_occ
+                              : predictOccupancy(tile.p_occ[i], params, std::int64_t{step} - 1 - last);
+    const double evidence = sensor_.logLikelihoodRatio(hits, misses);
+    tile.p_occ[i] = static_cast<float>(filterStep(before, params, evidence));
+    tile.log_odds[i] = static_cast<float>(updateLogOdds(tile.log_odds[i], evidence, config_.static_clamp));
+    tile.last_step[i] = step;
+    changed_cells_.include(tile.cellX(i), tile.cellY(i));
+  }
+  touched_.clear();
+  last_applied_step_ = gathering_step_;
+}
+
+void Mapper::finishStep() {
+  applyGatheredStep();
+  gathering_step_.reset();
+}
+
+double Mapper::beliefAt(std::int32_t x, std::int32_t y, std::int64_t step) const {
+  const std::optional<CellState> state = grid_.cell(x, y);
+  if (!state) return std::numeric_limits<double>::quiet_NaN();
+  const TransitionParams params{state->p_occ_given_free, state->p_free_given_occ};
+  return predictOccupancy(state->p_occ, params, step - state->last_step);
+}
+
+CellBox Mapper::takeChangedCells() {
+  const CellBox changed = changed_cells_;
+  changed_cells_ = CellBox{};
+  return changed;
+}
+
+}  // namespace core
+}  // namespace dynamic_occupancy_grid

@@ -1,0 +1,30 @@
+#!/usr/bin/env bash
+# Usage: check_core_includes.sh CXX INCLUDE_DIR EIGEN_DIR FILE...
+# Preprocesses each FILE with -H and fails if any header it includes, directly or
+# transitively, is something other than the core's own headers, Eigen, or the C/C++
+# standard library (libc, libstdc++, Linux UAPI headers).
+set -euo pipefail
+cxx=$1 include_dir=$(realpath "$2") eigen_dir=$(realpath "$3")
+shift 3
+status=0
+for file in "$@"; do
+  if ! headers=$("$cxx" -std=c++17 -fsyntax-only -H -I"$include_dir" -I"$eigen_dir" -x c++ "$file" 2>&1 >/dev/null); then
+    echo "FAIL: $file does not compile on its own:"; echo "$headers"; status=1; continue
+  fi
+  while read -r header; do
+    path=$(realpath -m "$header")
+    case "$path" in
+      "$include_dir"/dynamic_occupancy_grid/core/*) ;;      # the core itself
+      "$eigen_dir"/*) ;;                                     # Eigen
+      /usr/include/c++/*|/usr/include/x86_64-linux-gnu/*|/usr/include/aarch64-linux-gnu/*) ;;
+      /usr/lib/gcc/*|/usr/include/linux/*|/usr/include/asm-generic/*|/usr/include/asm/*) ;;
+      /usr/include/bits/*|/usr/include/sys/*|/usr/include/gnu/*) ;;
+      /usr/include/*/*)                                      # any other library's folder
+        echo "FAIL: $file includes $path"; status=1 ;;
+      /usr/include/*) ;;                                     # libc's top-level headers
+      *) echo "FAIL: $file includes $path"; status=1 ;;
+    esac
+  done < <(printf '%s\n' "$headers" | sed -n 's/^\.\+ //p')
+done
+[ "$status" -eq 0 ] && echo "core includes: only the core, Eigen and the standard library ($# files)"
+exit "$status"
