@@ -181,7 +181,8 @@ CellGrid::Tile* CellGrid::tileForWriting(std::int32_t x, std::int32_t y) {
 }
 
 const CellGrid::Tile* CellGrid::findTile(std::int32_t x, std::int32_t y) const {
-  if (!insideLimits(x, y)) return nullptr;
+  // No limit check: a tile may straddle the limits, and its cells beyond them are simply
+  // never written (they read as never observed).
   const std::unique_ptr<Tile>* tile_slot = slot(tileOf(x), tileOf(y));
   return tile_slot == nullptr ? nullptr : tile_slot->get();
 }

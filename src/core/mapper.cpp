@@ -30,8 +30,12 @@ std::optional<CellBox> fixedCells(const MapperConfig& config) {
   CellBox box;
   box.min_x = 0;
   box.min_y = 0;
-  box.max_x = static_cast<std::int32_t>(std::ceil(config.width_m / config.resolution_m)) - 1;
-  box.max_y = static_cast<std::int32_t>(std::ceil(config.height_m / config.resolution_m)) - 1;
+  // A size that is a whole number of cells up to rounding (2.1 m / 0.3 m) is that number.
+  const auto cells = [&](double size_m) {
+    return static_cast<std::int32_t>(std::ceil(size_m / config.resolution_m - 1e-9));
+  };
+  box.max_x = cells(config.width_m) - 1;
+  box.max_y = cells(config.height_m) - 1;
   return box;
 }
 
@@ -184,6 +188,8 @@ ScanResult Mapper::integrate(const Scan& scan) {
   std::int32_t cached_tile_x = 0;
   std::int32_t cached_tile_y = 0;
   const auto tile_of = [&](std::int32_t x, std::int32_t y) -> CellGrid::Tile* {
+    // Checked per cell: a cached tile may straddle the map's limits.
+    if (!grid_.insideLimits(x, y)) return nullptr;
     const std::int32_t tile_x = x >> CellGrid::kTileBits;
     const std::int32_t tile_y = y >> CellGrid::kTileBits;
     if (cached_tile == nullptr || tile_x != cached_tile_x || tile_y != cached_tile_y) {
