@@ -1,406 +1,1073 @@
-// Mapper: reading rules, one count per cell per scan (hit wins), step fusion, the lazy
-// closed-form gap against a step-by-step reference, rejected scans changing nothing, and
-// the layers read from the result. References are written here from THEORY.md §1–4.
+// Tests of the mapping pipeline (core/mapper.h): grouping scans into HMM steps, per-scan and
+// per-step fusion of hits and misses, the beam rules, rejection of invalid and late scans,
+// lazy evaluation of unobserved cells, and a small end-to-end wall scenario.
+//
+// Geometry is chosen so that every lattice coordinate is exact: resolution 0.25 m, the
+// laser at the centre of cell (0, 0) (world (0.125, 0.125), lattice (0.5, 0.5)), beams along
+// the axes or along directions worked out by hand below.
+//
+// References are independent of the code under test: beliefs by the 2x2 matrix recursion
+// q <- eta (q A) o b(z) with b from products of the sensor probabilities (long double),
+// iterated step by step over unobserved steps; the static baseline by adding log
+// likelihood ratios written out here and clamping after each step. The header states that
+// a cell's state is stored as float once per applied step; the references round the same
+// way, and comparisons use a tolerance of 1e-6.
+
+#include "dynamic_occupancy_grid/core/mapper.h"
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
+#include <cstdint>
+#include <cstring>
 #include <limits>
+#include <map>
+#include <optional>
+#include <random>
+#include <stdexcept>
+#include <string>
+#include <utility>
 #include <vector>
 
 #include "dynamic_occupancy_grid/core/layers.h"
-#include "dynamic_occupancy_grid/core/mapper.h"
 
 namespace dog = dynamic_occupancy_grid::core;
 
 namespace {
 
+using LD = long double;
+using XY = std::pair<std::int32_t, std::int32_t>;
+
 constexpr double kPi = 3.14159265358979323846;
 constexpr double kInf = std::numeric_limits<double>::infinity();
-constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+constexpr float kInfF = std::numeric_limits<float>::infinity();
+constexpr float kNaNF = std::numeric_limits<float>::quiet_NaN();
+constexpr double kTol = 1e-6;
 
-// Reference HMM step written out on the 2-vector: predict with A, multiply by the
-// likelihoods of `hits` and `misses`, normalise.
-double referenceFilter(double q_occ, double p_of, double p_fo, double p_hit_occ, double p_hit_free,
-                       int hits, int misses) {
-  const double pred_occ = q_occ * (1.0 - p_fo) + (1.0 - q_occ) * p_of;
-  const double pred_free = q_occ * p_fo + (1.0 - q_occ) * (1.0 - p_of);
-  const double l_occ = std::pow(p_hit_occ, hits) * std::pow(1.0 - p_hit_occ, misses);
-  const double l_free = std::pow(p_hit_free, hits) * std::pow(1.0 - p_hit_free, misses);
-  return pred_occ * l_occ / (pred_occ * l_occ + pred_free * l_free);
-}
+// Sensor and cell model used throughout (p_of, p_fo exact in float; lambda = 0.375,
+// pi(occ) = 0.4).
+constexpr double kHitOcc = 0.7;
+constexpr double kHitFree = 0.2;
+constexpr double kPOf = 0.25;
+constexpr double kPFo = 0.375;
 
-double referencePredict(double q_occ, double p_of, double p_fo, int steps) {
-  for (int k = 0; k < steps; ++k) q_occ = q_occ * (1.0 - p_fo) + (1.0 - q_occ) * p_of;
-  return q_occ;
-}
+// Laser at the centre of cell (0, 0) of a 0.25 m grid anchored at (0, 0).
+constexpr double kLaserX = 0.125;
+constexpr double kLaserY = 0.125;
 
-dog::MapperConfig quarterMetre() {
+dog::MapperConfig testConfig() {
   dog::MapperConfig config;
   config.resolution_m = 0.25;
   config.time_step_s = 1.0;
-  config.p_hit_given_occ = 0.7;
-  config.p_hit_given_free = 0.2;
-  config.prior_transitions = dog::TransitionParams{0.2, 0.3};
-  config.max_free_range_m = 2.0;
+  config.p_hit_given_occ = kHitOcc;
+  config.p_hit_given_free = kHitFree;
+  config.prior_transitions = dog::TransitionParams{kPOf, kPFo};
+  config.initial_p_occ = 0.5;
+  config.static_clamp = dog::LogOddsClamp{-100.0, 100.0};  // wide: log-odds = evidence sums
+  config.max_free_range_m = 10.0;
+  config.max_map_size_m = 1000.0;
   return config;
 }
 
-// A scan of the given beams (angles relative to the laser) from (x, y, yaw).
-dog::Scan scanOf(double stamp, double x, double y, double yaw, double angle_min, double increment,
-                 std::vector<float> ranges, double range_max = 10.0) {
+dog::Scan makeScan(double stamp, std::vector<float> ranges, double yaw = 0.0,
+                   double angle_min = 0.0, double increment = 2.0 * kPi, double range_min = 0.0,
+                   double range_max = 20.0, double x = kLaserX, double y = kLaserY) {
   dog::Scan scan;
   scan.stamp_s = stamp;
-  scan.laser_pose = dog::Pose2D{x, y, yaw};
+  scan.laser_pose.x_m = x;
+  scan.laser_pose.y_m = y;
+  scan.laser_pose.yaw_rad = yaw;
   scan.angle_min_rad = angle_min;
   scan.angle_increment_rad = increment;
-  scan.range_min_m = 0.1;
+  scan.range_min_m = range_min;
   scan.range_max_m = range_max;
   scan.ranges_m = std::move(ranges);
   return scan;
 }
 
-// One beam along +x from the centre of cell (0, 0).
-dog::Scan beamX(double stamp, float range) { return scanOf(stamp, 0.125, 0.125, 0.0, 0.0, 0.01, {range}); }
+// ---- independent reference arithmetic -------------------------------------------------
 
-float belief(const dog::Mapper& mapper, int x, int y) {
-  const auto cell = mapper.grid().cell(x, y);
-  return cell ? cell->p_occ : std::numeric_limits<float>::quiet_NaN();
-}
+LD refPredict(LD p, LD p_of = kPOf, LD p_fo = kPFo) { return p * (1.0L - p_fo) + (1.0L - p) * p_of; }
 
-std::vector<float> dump(const dog::Mapper& mapper, dog::Layer layer, std::int64_t step) {
-  std::vector<float> values;
-  dog::evaluateLayer(mapper.grid(), layer, step, 0, dog::CellBox{-256, -256, 255, 255}, &values);
-  return values;
-}
-
-bool sameValues(const std::vector<float>& a, const std::vector<float>& b) {
-  if (a.size() != b.size()) return false;
-  for (std::size_t i = 0; i < a.size(); ++i) {
-    if (std::isnan(a[i]) != std::isnan(b[i])) return false;
-    if (!std::isnan(a[i]) && a[i] != b[i]) return false;
+LD refUpdate(LD p, int hits, int misses) {
+  LD b_occ = 1.0L;
+  LD b_free = 1.0L;
+  for (int i = 0; i < hits; ++i) {
+    b_occ *= static_cast<LD>(kHitOcc);
+    b_free *= static_cast<LD>(kHitFree);
   }
-  return true;
-}
-
-TEST(MapperReadings, HitBeamMissesUpToTheEndCellAndHitsIt) {
-  dog::Mapper mapper(quarterMetre());
-  const dog::ScanResult result = mapper.integrate(beamX(0.0, 1.0f));  // end at lattice x = 4.5
-  ASSERT_EQ(result.status, dog::ScanStatus::kIntegrated);
-  EXPECT_EQ(result.beams_hit, 1u);
-  mapper.finishStep();
-  const double miss = referenceFilter(0.5, 0.2, 0.3, 0.7, 0.2, 0, 1);
-  const double hit = referenceFilter(0.5, 0.2, 0.3, 0.7, 0.2, 1, 0);
-  for (int x = 0; x < 4; ++x) EXPECT_NEAR(belief(mapper, x, 0), miss, 1e-6) << x;
-  EXPECT_NEAR(belief(mapper, 4, 0), hit, 1e-6);
-  EXPECT_TRUE(std::isnan(belief(mapper, 5, 0)));
-  EXPECT_TRUE(std::isnan(belief(mapper, 0, 1)));
-}
-
-TEST(MapperReadings, NoReturnClearsUpToMaxFreeRangeWithoutHit) {
-  for (const float range : {static_cast<float>(kInf), 10.0f, 25.0f}) {
-    dog::Mapper mapper(quarterMetre());
-    const dog::ScanResult result = mapper.integrate(beamX(0.0, range));
-    EXPECT_EQ(result.beams_no_return, 1u);
-    EXPECT_EQ(result.beams_hit, 0u);
-    mapper.finishStep();
-    const double miss = referenceFilter(0.5, 0.2, 0.3, 0.7, 0.2, 0, 1);
-    // 2 m = 8 cells from lattice x 0.5: end at 8.5, the end cell is missed too.
-    for (int x = 0; x <= 8; ++x) EXPECT_NEAR(belief(mapper, x, 0), miss, 1e-6) << range << " " << x;
-    EXPECT_TRUE(std::isnan(belief(mapper, 9, 0)));
+  for (int i = 0; i < misses; ++i) {
+    b_occ *= 1.0L - static_cast<LD>(kHitOcc);
+    b_free *= 1.0L - static_cast<LD>(kHitFree);
   }
+  return p * b_occ / (p * b_occ + (1.0L - p) * b_free);
 }
 
-TEST(MapperReadings, FreeRangeNeverExceedsTheSensorsRangeMax) {
-  dog::Mapper mapper(quarterMetre());
-  mapper.integrate(scanOf(0.0, 0.125, 0.125, 0.0, 0.0, 0.01, {static_cast<float>(kInf)}, 1.0));
-  mapper.finishStep();
-  EXPECT_FALSE(std::isnan(belief(mapper, 4, 0)));  // 1 m: end at 4.5
-  EXPECT_TRUE(std::isnan(belief(mapper, 5, 0)));
+LD refLlr(int hits, int misses) {
+  return hits * std::log(static_cast<LD>(kHitOcc) / static_cast<LD>(kHitFree)) +
+         misses * std::log((1.0L - static_cast<LD>(kHitOcc)) / (1.0L - static_cast<LD>(kHitFree)));
 }
 
-TEST(MapperReadings, ZeroMaxFreeRangeIgnoresNoReturnBeams) {
-  dog::MapperConfig config = quarterMetre();
-  config.max_free_range_m = 0.0;
-  dog::Mapper mapper(config);
-  const dog::ScanResult result = mapper.integrate(beamX(0.0, static_cast<float>(kInf)));
-  EXPECT_EQ(result.beams_no_return, 1u);
-  mapper.finishStep();
-  EXPECT_TRUE(std::isnan(belief(mapper, 0, 0)));
-}
+double logistic(LD l) { return static_cast<double>(1.0L / (1.0L + std::exp(-l))); }
 
-TEST(MapperReadings, NanNegativeInfinityAndShortRangesAreIgnored) {
-  dog::Mapper mapper(quarterMetre());
-  const dog::ScanResult result = mapper.integrate(scanOf(
-      0.0, 0.125, 0.125, 0.0, 0.0, 0.01,
-      {static_cast<float>(kNaN), static_cast<float>(-kInf), 0.05f, 0.0f, -1.0f}));
-  ASSERT_EQ(result.status, dog::ScanStatus::kIntegrated);
-  EXPECT_EQ(result.beams_ignored, 5u);
-  EXPECT_EQ(result.beams_hit + result.beams_no_return, 0u);
-  mapper.finishStep();
-  EXPECT_TRUE(std::isnan(belief(mapper, 0, 0)));
-}
+// One cell followed step by step, as THEORY.md §2-4 describe it.
+struct RefCell {
+  bool observed = false;
+  LD p = 0.0L;           // belief at `step` (stored: float-rounded at observed steps)
+  std::int64_t step = 0; // step the belief refers to
+  LD log_odds = 0.0L;
+  LD p_of = kPOf;
+  LD p_fo = kPFo;
+  LD initial = 0.5L;
+  LD clamp_min = -100.0L;
+  LD clamp_max = 100.0L;
 
-TEST(MapperReadings, BeamAnglesFollowYawAndUpsideDownMirrors) {
-  // Beam at +90 degrees relative to a laser facing +x ends above the laser; mirrored, below.
-  for (const bool upside_down : {false, true}) {
-    dog::Mapper mapper(quarterMetre());
-    dog::Scan scan = scanOf(0.0, 0.125, 0.125, 0.0, kPi / 2, 0.01, {1.0f});
-    scan.upside_down = upside_down;
-    mapper.integrate(scan);
-    mapper.finishStep();
-    const int end_y = upside_down ? -4 : 4;
-    EXPECT_GT(belief(mapper, 0, end_y), 0.5f) << upside_down;
-    EXPECT_TRUE(std::isnan(belief(mapper, 0, -end_y))) << upside_down;
-  }
-}
-
-TEST(MapperCounting, OneScanCountsACellOnceAndHitWins) {
-  const double one_miss = referenceFilter(0.5, 0.2, 0.3, 0.7, 0.2, 0, 1);
-  const double one_hit = referenceFilter(0.5, 0.2, 0.3, 0.7, 0.2, 1, 0);
-  // Long beam first (cell 4 missed, then hit by the short one) and the other order.
-  for (const auto& ranges : {std::vector<float>{2.0f, 1.0f}, std::vector<float>{1.0f, 2.0f}}) {
-    dog::Mapper mapper(quarterMetre());
-    mapper.integrate(scanOf(0.0, 0.125, 0.125, 0.0, 0.0, 1e-9, ranges));
-    mapper.finishStep();
-    for (int x = 0; x < 4; ++x) EXPECT_NEAR(belief(mapper, x, 0), one_miss, 1e-6) << x;
-    EXPECT_NEAR(belief(mapper, 4, 0), one_hit, 1e-6);
-    EXPECT_NEAR(belief(mapper, 8, 0), one_hit, 1e-6);
-    for (int x = 5; x < 8; ++x) EXPECT_NEAR(belief(mapper, x, 0), one_miss, 1e-6) << x;
-  }
-}
-
-TEST(MapperCounting, ScansOfOneStepFuseTheirCounts) {
-  dog::Mapper mapper(quarterMetre());
-  mapper.integrate(beamX(0.1, 1.0f));
-  mapper.integrate(beamX(0.5, 1.0f));
-  mapper.integrate(beamX(0.9, 2.0f));  // cell 4 missed in the third scan
-  mapper.finishStep();
-  EXPECT_NEAR(belief(mapper, 4, 0), referenceFilter(0.5, 0.2, 0.3, 0.7, 0.2, 2, 1), 1e-6);
-  EXPECT_NEAR(belief(mapper, 2, 0), referenceFilter(0.5, 0.2, 0.3, 0.7, 0.2, 0, 3), 1e-6);
-  EXPECT_NEAR(belief(mapper, 6, 0), referenceFilter(0.5, 0.2, 0.3, 0.7, 0.2, 0, 1), 1e-6);
-  EXPECT_EQ(mapper.grid().cell(4, 0)->last_step, 0);
-}
-
-TEST(MapperCounting, StaticBaselineAddsTheStepsEvidenceAndClamps) {
-  dog::MapperConfig config = quarterMetre();
-  config.static_clamp = dog::LogOddsClamp{-1.0, 2.0};
-  dog::Mapper mapper(config);
-  const double hit = std::log(0.7 / 0.2);
-  const double miss = std::log(0.3 / 0.8);
-  double expected = 0.0;
-  for (int step = 0; step < 6; ++step) {
-    // Steps 0-2: two hits each (clamps at 2.0); steps 3-5: one miss each.
-    if (step < 3) {
-      mapper.integrate(beamX(step + 0.1, 1.0f));
-      mapper.integrate(beamX(step + 0.2, 1.0f));
-      expected = std::min(2.0, expected + 2 * hit);
+  // Applies evidence of `step` (> previous), predicting one step at a time over the gap.
+  void observe(std::int64_t at, int hits, int misses) {
+    LD before;
+    if (!observed) {
+      before = initial;
     } else {
-      mapper.integrate(beamX(step + 0.1, 2.0f));
-      expected = std::max(-1.0, expected + miss);
+      before = p;
+      for (std::int64_t s = step + 1; s < at; ++s) before = refPredict(before, p_of, p_fo);
+    }
+    p = static_cast<float>(refUpdate(refPredict(before, p_of, p_fo), hits, misses));
+    log_odds = static_cast<float>(
+        std::min(clamp_max, std::max(clamp_min, log_odds + refLlr(hits, misses))));
+    step = at;
+    observed = true;
+  }
+  // Belief at a later step, iterating q <- q A.
+  LD beliefAt(std::int64_t at) const {
+    LD q = p;
+    for (std::int64_t s = step; s < at; ++s) q = refPredict(q, p_of, p_fo);
+    return q;
+  }
+};
+
+// ---- reading the mapper -----------------------------------------------------------------
+
+std::map<XY, dog::CellState> observedCells(const dog::Mapper& mapper) {
+  std::map<XY, dog::CellState> cells;
+  const dog::CellBox b = mapper.grid().bounds();
+  if (b.empty()) return cells;
+  for (std::int32_t y = b.min_y; y <= b.max_y; ++y) {
+    for (std::int32_t x = b.min_x; x <= b.max_x; ++x) {
+      if (const auto c = mapper.grid().cell(x, y)) cells[{x, y}] = *c;
     }
   }
-  mapper.finishStep();
-  EXPECT_NEAR(mapper.grid().cell(4, 0)->log_odds, expected, 1e-6);
-  const std::vector<float> values = dump(mapper, dog::Layer::kStatic, 5);
-  EXPECT_NEAR(values[(256 + 0) * 512 + (256 + 4)], 1.0 / (1.0 + std::exp(-expected)), 1e-6);
+  return cells;
 }
 
-TEST(MapperLazy, GapAcrossUnobservedStepsEqualsUpdatingEveryStep) {
-  for (const int gap : {1, 2, 3, 7, 20}) {
-    dog::Mapper mapper(quarterMetre());
-    mapper.integrate(beamX(0.5, 1.0f));          // step 0: cell 4 hit
-    mapper.integrate(beamX(gap + 0.5, 2.0f));    // step gap: cell 4 missed
-    mapper.finishStep();
-    double q = referenceFilter(0.5, 0.2, 0.3, 0.7, 0.2, 1, 0);
-    q = referencePredict(q, 0.2, 0.3, gap - 1);
-    q = referenceFilter(q, 0.2, 0.3, 0.7, 0.2, 0, 1);
-    EXPECT_NEAR(belief(mapper, 4, 0), q, 1e-6) << "gap " << gap;
-    EXPECT_EQ(mapper.grid().cell(4, 0)->last_step, gap);
-    // Reading later without observation == predicting every step.
-    for (const int later : {0, 1, 5, 40}) {
-      const double expected = referencePredict(q, 0.2, 0.3, later);
-      EXPECT_NEAR(mapper.beliefAt(4, 0, gap + later), expected, 1e-6) << gap << " " << later;
-      const std::vector<float> values = dump(mapper, dog::Layer::kBelief, gap + later);
-      EXPECT_NEAR(values[256 * 512 + 260], expected, 1e-6);
-    }
-  }
-}
+struct Evidence {
+  int hits;
+  int misses;
+};
 
-TEST(MapperLazy, CellsNotTouchedByAStepKeepTheirState) {
-  dog::Mapper mapper(quarterMetre());
-  mapper.integrate(beamX(0.5, 2.0f));  // cells 0..8
-  mapper.integrate(beamX(3.5, 0.5f));  // step 3: cells 0..2 only
-  mapper.finishStep();
-  EXPECT_EQ(mapper.grid().cell(1, 0)->last_step, 3);
-  EXPECT_EQ(mapper.grid().cell(6, 0)->last_step, 0);
-  EXPECT_NEAR(belief(mapper, 6, 0), referenceFilter(0.5, 0.2, 0.3, 0.7, 0.2, 0, 1), 1e-6);
-  const dog::CellBox changed = mapper.takeChangedCells();
-  EXPECT_EQ(changed.min_x, 0);
-  EXPECT_EQ(changed.max_x, 8);
-  EXPECT_TRUE(mapper.takeChangedCells().empty());
-}
-
-TEST(MapperRejection, InvalidScansAreRejectedAndChangeNothing) {
-  std::vector<dog::Scan> bad;
-  bad.push_back(scanOf(0.2, 0.125, 0.125, 0.0, 0.0, 0.01, {}));
-  bad.push_back(scanOf(kNaN, 0.125, 0.125, 0.0, 0.0, 0.01, {1.0f}));
-  bad.push_back(scanOf(0.2, kInf, 0.125, 0.0, 0.0, 0.01, {1.0f}));
-  bad.push_back(scanOf(0.2, 0.125, 0.125, kNaN, 0.0, 0.01, {1.0f}));
-  bad.push_back(scanOf(0.2, 0.125, 0.125, 0.0, kNaN, 0.01, {1.0f}));
-  bad.push_back(scanOf(0.2, 0.125, 0.125, 0.0, 0.0, 0.0, {1.0f, 1.0f}));
-  bad.push_back(scanOf(0.2, 1e12, 0.125, 0.0, 0.0, 0.01, {1.0f}));
-  bad.push_back(scanOf(0.2, 0.125, 0.125, 0.0, 0.0, 0.01, {1e30f}, 1e31));
-  dog::Scan negative_min = beamX(0.2, 1.0f);
-  negative_min.range_min_m = -1.0;
-  bad.push_back(negative_min);
-  dog::Scan inverted = beamX(0.2, 1.0f);
-  inverted.range_max_m = 0.05;
-  bad.push_back(inverted);
-
-  // A bad scan first, before any good one, must not start the clock either.
-  for (const dog::Scan& scan : bad) {
-    dog::Mapper clean(quarterMetre());
-    dog::Mapper tested(quarterMetre());
-    dog::Scan first_bad = scan;
-    first_bad.stamp_s = std::isnan(scan.stamp_s) ? scan.stamp_s : 100.0;
-    const dog::ScanResult early = tested.integrate(first_bad);
-    EXPECT_EQ(early.status, dog::ScanStatus::kRejectedInvalid);
-    EXPECT_FALSE(early.error.empty());
-    EXPECT_FALSE(tested.clock().origin().has_value());
-    for (dog::Mapper* mapper : {&clean, &tested}) mapper->integrate(beamX(0.1, 1.0f));
-    const dog::ScanResult late = tested.integrate(scan);
-    EXPECT_EQ(late.status, dog::ScanStatus::kRejectedInvalid) << late.error;
-    for (dog::Mapper* mapper : {&clean, &tested}) {
-      mapper->integrate(beamX(1.1, 2.0f));
-      mapper->finishStep();
-    }
-    EXPECT_TRUE(sameValues(dump(clean, dog::Layer::kBelief, 1), dump(tested, dog::Layer::kBelief, 1)));
-    EXPECT_TRUE(sameValues(dump(clean, dog::Layer::kStatic, 1), dump(tested, dog::Layer::kStatic, 1)));
+// After exactly one applied step (cells seen for the first time), the set of observed cells
+// and, per cell, the fused evidence of that step: log-odds = llr(h, m) (wide clamp) and
+// belief = filter(initial, h, m).
+void expectFirstStepEvidence(const dog::Mapper& mapper, const std::map<XY, Evidence>& expected,
+                             std::int64_t step = 0) {
+  const auto cells = observedCells(mapper);
+  std::vector<XY> actual_keys;
+  std::vector<XY> expected_keys;
+  for (const auto& kv : cells) actual_keys.push_back(kv.first);
+  for (const auto& kv : expected) expected_keys.push_back(kv.first);
+  ASSERT_EQ(actual_keys, expected_keys) << "observed cells differ";
+  for (const auto& [xy, ev] : expected) {
+    const dog::CellState& c = cells.at(xy);
+    EXPECT_EQ(c.last_step, step) << xy.first << ", " << xy.second;
+    EXPECT_NEAR(c.log_odds, static_cast<double>(refLlr(ev.hits, ev.misses)), kTol)
+        << "cell (" << xy.first << ", " << xy.second << ") expected " << ev.hits << " hits, "
+        << ev.misses << " misses";
+    RefCell ref;
+    ref.observe(step, ev.hits, ev.misses);
+    EXPECT_NEAR(c.p_occ, static_cast<double>(ref.p), kTol) << xy.first << ", " << xy.second;
   }
 }
 
-TEST(MapperRejection, TimeGoingBackwardsIsRejected) {
-  dog::Mapper mapper(quarterMetre());
-  ASSERT_EQ(mapper.integrate(beamX(10.0, 1.0f)).status, dog::ScanStatus::kIntegrated);
-  ASSERT_EQ(mapper.integrate(beamX(13.2, 1.0f)).status, dog::ScanStatus::kIntegrated);  // step 3
-  // Out of order within the open step is fine; an earlier step is not.
-  EXPECT_EQ(mapper.integrate(beamX(13.1, 1.0f)).status, dog::ScanStatus::kIntegrated);
-  const dog::ScanResult back = mapper.integrate(beamX(12.9, 2.0f));
-  EXPECT_EQ(back.status, dog::ScanStatus::kRejectedTimeBackwards);
-  EXPECT_FALSE(back.error.empty());
-  mapper.finishStep();
-  // The closed step accepts nothing more; the next one does.
-  EXPECT_EQ(mapper.integrate(beamX(13.5, 1.0f)).status, dog::ScanStatus::kRejectedTimeBackwards);
-  EXPECT_EQ(mapper.integrate(beamX(14.0, 1.0f)).status, dog::ScanStatus::kIntegrated);
-  mapper.finishStep();
-  // Cell 6 was only reached by the rejected beam.
-  EXPECT_TRUE(std::isnan(belief(mapper, 6, 0)));
-  EXPECT_EQ(mapper.lastAppliedStep(), 4);
+std::map<XY, Evidence> rowEvidence(std::int32_t from, std::int32_t to, Evidence ev,
+                                   std::map<XY, Evidence> add = {}) {
+  for (std::int32_t x = from; x <= to; ++x) add[{x, 0}] = ev;
+  return add;
 }
 
-TEST(MapperConfigValidation, BadValuesThrowNamingTheParameter) {
-  const auto message = [](auto change) {
-    dog::MapperConfig config;
-    change(config);
-    try {
-      dog::Mapper mapper(config);
-    } catch (const std::invalid_argument& e) {
-      return std::string(e.what());
-    }
-    return std::string("no error");
-  };
-  EXPECT_NE(message([](dog::MapperConfig& c) { c.resolution_m = 0.0; }).find("resolution"), std::string::npos);
-  EXPECT_NE(message([](dog::MapperConfig& c) { c.time_step_s = -1.0; }).find("time_step"), std::string::npos);
-  EXPECT_NE(message([](dog::MapperConfig& c) { c.prior_transitions.p_occ_given_free = 1.5; })
-                .find("p_occ_given_free"),
-            std::string::npos);
-  EXPECT_NE(message([](dog::MapperConfig& c) { c.p_hit_given_free = 0.9; }).find("p_hit_given_occ"),
-            std::string::npos);
-  EXPECT_NE(message([](dog::MapperConfig& c) { c.max_free_range_m = kNaN; }).find("max_free_range"),
-            std::string::npos);
-  EXPECT_NE(message([](dog::MapperConfig& c) { c.initial_p_occ = 1.0; }).find("initial_p_occ"),
-            std::string::npos);
-  EXPECT_EQ(message([](dog::MapperConfig&) {}), "no error");
-}
+// Everything observable about a mapper, for before/after and twin comparisons.
+struct Dump {
+  dog::CellBox bounds;
+  std::size_t tiles = 0;
+  std::optional<double> origin;
+  std::optional<std::int64_t> gathering;
+  std::optional<std::int64_t> applied;
+  std::vector<std::vector<float>> layers;
+  std::vector<std::uint16_t> pending;
+};
 
-TEST(MapperScenario, WallIsOccupiedFreeSpaceFreeBehindUnknownThenTheWallGoes) {
-  dog::MapperConfig config;
-  config.resolution_m = 0.1;
-  config.prior_transitions = dog::TransitionParams{0.05, 0.05};
-  config.max_free_range_m = 3.0;
-  dog::Mapper mapper(config);
-  // Laser at (0.05, 1.05) facing +x, 61 beams over +-0.3 rad; a wall at x = 1.0 m.
-  const double x0 = 0.05;
-  const auto wall_scan = [&](double stamp, bool wall) {
-    std::vector<float> ranges;
-    for (int i = 0; i < 61; ++i) {
-      const double angle = -0.3 + 0.01 * i;
-      ranges.push_back(wall ? static_cast<float>((1.0 + 0.05 - x0) / std::cos(angle))
-                            : static_cast<float>(kInf));
-    }
-    return scanOf(stamp, x0, 1.05, 0.0, -0.3, 0.01, ranges, 5.0);
-  };
-  for (int step = 0; step < 5; ++step) mapper.integrate(wall_scan(step + 0.5, true));
-  mapper.finishStep();
-  EXPECT_GT(belief(mapper, 10, 10), 0.5f);  // the wall cell straight ahead
-  EXPECT_GT(belief(mapper, 10, 12), 0.5f);
-  EXPECT_LT(belief(mapper, 5, 10), 0.5f);   // between laser and wall
-  EXPECT_TRUE(std::isnan(belief(mapper, 13, 10)));  // behind the wall
-  // The wall goes: beams now pass through and clear.
-  int steps_until_free = 0;
-  for (int step = 5; step < 30 && belief(mapper, 10, 10) > 0.5f; ++step) {
-    mapper.integrate(wall_scan(step + 0.5, false));
-    mapper.finishStep();
-    ++steps_until_free;
+Dump dump(const dog::Mapper& mapper, const dog::CellBox& area, std::int64_t step) {
+  Dump d;
+  d.bounds = mapper.grid().bounds();
+  d.tiles = mapper.grid().allocatedTiles();
+  d.origin = mapper.clock().origin();
+  d.gathering = mapper.gatheringStep();
+  d.applied = mapper.lastAppliedStep();
+  for (dog::Layer layer : {dog::Layer::kBelief, dog::Layer::kPredicted, dog::Layer::kStationary,
+                           dog::Layer::kOccGivenFree, dog::Layer::kFreeGivenOcc,
+                           dog::Layer::kStatic}) {
+    std::vector<float> values;
+    dog::evaluateLayer(mapper.grid(), layer, step, 3, area, &values);
+    d.layers.push_back(std::move(values));
   }
-  EXPECT_LT(belief(mapper, 10, 10), 0.5f);
-  EXPECT_LE(steps_until_free, 3);
-  EXPECT_LT(belief(mapper, 13, 10), 0.5f);  // now seen, free
+  for (std::int32_t y = area.min_y; y <= area.max_y; ++y) {
+    for (std::int32_t x = area.min_x; x <= area.max_x; ++x) {
+      const dog::CellGrid::Tile* tile = mapper.grid().findTile(x, y);
+      const int i = dog::CellGrid::offsetOf(x, y);
+      d.pending.push_back(tile ? tile->pending_hits[i] : 0);
+      d.pending.push_back(tile ? tile->pending_misses[i] : 0);
+    }
+  }
+  return d;
 }
 
-TEST(Layers, EveryLayerReadsItsCellQuantity) {
-  dog::MapperConfig config = quarterMetre();
-  dog::Mapper mapper(config);
-  mapper.integrate(beamX(0.5, 1.0f));
-  mapper.finishStep();
-  const std::size_t hit_cell = 256 * 512 + 260;
-  const double q = belief(mapper, 4, 0);
-  EXPECT_NEAR(dump(mapper, dog::Layer::kOccGivenFree, 0)[hit_cell], 0.2, 1e-7);
-  EXPECT_NEAR(dump(mapper, dog::Layer::kFreeGivenOcc, 0)[hit_cell], 0.3, 1e-7);
-  EXPECT_NEAR(dump(mapper, dog::Layer::kStationary, 0)[hit_cell], 0.2 / 0.5, 1e-7);
-  std::vector<float> predicted;
-  dog::evaluateLayer(mapper.grid(), dog::Layer::kPredicted, 2, 3, dog::CellBox{4, 0, 4, 0}, &predicted);
-  EXPECT_NEAR(predicted[0], referencePredict(q, 0.2, 0.3, 5), 1e-6);
-  EXPECT_TRUE(std::isnan(dump(mapper, dog::Layer::kBelief, 0)[256 * 512 + 300]));
-
-  // A static cell's long-run value is its belief.
-  config.prior_transitions = dog::TransitionParams{0.0, 0.0};
-  dog::Mapper static_mapper(config);
-  static_mapper.integrate(beamX(0.5, 1.0f));
-  static_mapper.finishStep();
-  EXPECT_NEAR(dump(static_mapper, dog::Layer::kStationary, 9)[hit_cell], belief(static_mapper, 4, 0), 1e-7);
+void expectSameBox(const dog::CellBox& a, const dog::CellBox& b) {
+  EXPECT_EQ(a.empty(), b.empty());
+  if (a.empty() || b.empty()) return;
+  EXPECT_EQ(a.min_x, b.min_x);
+  EXPECT_EQ(a.min_y, b.min_y);
+  EXPECT_EQ(a.max_x, b.max_x);
+  EXPECT_EQ(a.max_y, b.max_y);
 }
 
-TEST(Layers, RowMajorWithRowsAlongY) {
-  dog::Mapper mapper(quarterMetre());
-  mapper.integrate(scanOf(0.5, 0.125, 0.125, 0.0, kPi / 2, 0.01, {1.0f}));  // cell (0, 4) hit
-  mapper.finishStep();
-  std::vector<float> values;
-  dog::evaluateLayer(mapper.grid(), dog::Layer::kBelief, 0, 0, dog::CellBox{-1, -1, 2, 5}, &values);
-  ASSERT_EQ(values.size(), 4u * 7u);
-  EXPECT_GT(values[(4 + 1) * 4 + (0 + 1)], 0.5f);
-  EXPECT_LT(values[(2 + 1) * 4 + (0 + 1)], 0.5f);
-  EXPECT_TRUE(std::isnan(values[(4 + 1) * 4 + (1 + 1)]));
+void expectSameDump(const Dump& a, const Dump& b, const std::string& what) {
+  SCOPED_TRACE(what);
+  expectSameBox(a.bounds, b.bounds);
+  EXPECT_EQ(a.tiles, b.tiles);
+  EXPECT_EQ(a.origin, b.origin);
+  EXPECT_EQ(a.gathering, b.gathering);
+  EXPECT_EQ(a.applied, b.applied);
+  ASSERT_EQ(a.layers.size(), b.layers.size());
+  for (std::size_t l = 0; l < a.layers.size(); ++l) {
+    ASSERT_EQ(a.layers[l].size(), b.layers[l].size());
+    for (std::size_t i = 0; i < a.layers[l].size(); ++i) {
+      const float u = a.layers[l][i];
+      const float v = b.layers[l][i];
+      ASSERT_TRUE((std::isnan(u) && std::isnan(v)) || std::memcmp(&u, &v, sizeof u) == 0)
+          << "layer " << l << " index " << i << ": " << u << " vs " << v;
+    }
+  }
+  EXPECT_EQ(a.pending, b.pending);
 }
 
-TEST(Layers, OccupancyValuesScaleRoundAndMarkUnknown) {
-  std::vector<std::int8_t> out;
-  dog::toOccupancyValues({std::numeric_limits<float>::quiet_NaN(), 0.0f, 0.004f, 0.006f, 0.5f, 1.0f, 1.7f, -0.2f},
-                         1.0f, &out);
-  EXPECT_EQ(out, (std::vector<std::int8_t>{-1, 0, 0, 1, 50, 100, 100, 0}));
-  dog::toOccupancyValues({0.01f, 0.005f}, 0.02f, &out);
-  EXPECT_EQ(out, (std::vector<std::int8_t>{50, 25}));
+// The area dumps cover: the laser's neighbourhood in all directions (two tiles each way).
+dog::CellBox dumpArea() {
+  dog::CellBox b;
+  b.min_x = -128;
+  b.min_y = -128;
+  b.max_x = 127;
+  b.max_y = 127;
+  return b;
 }
 
 }  // namespace
+
+// =====================================================================================
+// Configuration
+// =====================================================================================
+
+TEST(MapperConfig, RejectsBadConfiguration) {
+  EXPECT_NO_THROW(dog::Mapper{testConfig()});
+  const auto bad = [](auto change) {
+    dog::MapperConfig c = testConfig();
+    change(c);
+    return c;
+  };
+  EXPECT_THROW(dog::Mapper(bad([](auto& c) { c.resolution_m = 0.0; })), std::invalid_argument);
+  EXPECT_THROW(dog::Mapper(bad([](auto& c) { c.time_step_s = -1.0; })), std::invalid_argument);
+  EXPECT_THROW(dog::Mapper(bad([](auto& c) { c.time_step_s = kInf; })), std::invalid_argument);
+  EXPECT_THROW(dog::Mapper(bad([](auto& c) { c.p_hit_given_occ = 0.1; })), std::invalid_argument);
+  EXPECT_THROW(dog::Mapper(bad([](auto& c) { c.prior_transitions.p_occ_given_free = 1.5; })),
+               std::invalid_argument);
+  EXPECT_THROW(dog::Mapper(bad([](auto& c) { c.initial_p_occ = 1.0; })), std::invalid_argument);
+  EXPECT_THROW(dog::Mapper(bad([](auto& c) { c.max_free_range_m = -1.0; })), std::invalid_argument);
+  EXPECT_THROW(dog::Mapper(bad([](auto& c) { c.origin_x_m = std::nan(""); })), std::invalid_argument);
+  EXPECT_THROW(dog::Mapper(bad([](auto& c) {
+                 c.fixed_bounds = true;
+                 c.width_m = 0.0;
+                 c.height_m = 1.0;
+               })),
+               std::invalid_argument);
+}
+
+// =====================================================================================
+// Beam rules
+// =====================================================================================
+
+TEST(MapperBeams, HitBeamMissesCellsBeforeTheEndAndHitsTheEnd) {
+  dog::Mapper mapper(testConfig());
+  // +x, 1 m = 4 cells: lattice end 4.5.
+  const dog::ScanResult r = mapper.integrate(makeScan(0.0, {1.0f}));
+  EXPECT_EQ(r.status, dog::ScanStatus::kIntegrated);
+  EXPECT_TRUE(r.error.empty());
+  EXPECT_EQ(r.beams_hit, 1u);
+  EXPECT_EQ(r.beams_no_return, 0u);
+  EXPECT_EQ(r.beams_ignored, 0u);
+  EXPECT_EQ(r.cells_outside, 0u);
+  // Nothing is applied until the step closes.
+  EXPECT_TRUE(observedCells(mapper).empty());
+  EXPECT_EQ(mapper.gatheringStep(), std::optional<std::int64_t>(0));
+  EXPECT_FALSE(mapper.lastAppliedStep().has_value());
+  mapper.finishStep();
+  EXPECT_EQ(mapper.lastAppliedStep(), std::optional<std::int64_t>(0));
+  expectFirstStepEvidence(mapper, rowEvidence(0, 3, {0, 1}, {{{4, 0}, {1, 0}}}));
+}
+
+TEST(MapperBeams, RangeEqualToRangeMinIsAHitBelowIsIgnored) {
+  dog::Mapper mapper(testConfig());
+  // range_min 0.25: 0.25 -> hit at lattice 1.5; 0.125 -> ignored.
+  const dog::ScanResult r =
+      mapper.integrate(makeScan(0.0, {0.25f, 0.125f}, 0.0, 0.0, kPi / 2, 0.25, 20.0));
+  EXPECT_EQ(r.beams_hit, 1u);
+  EXPECT_EQ(r.beams_ignored, 1u);
+  mapper.finishStep();
+  expectFirstStepEvidence(mapper, {{{0, 0}, {0, 1}}, {{1, 0}, {1, 0}}});
+}
+
+TEST(MapperBeams, NoReturnBeamsMissAlongMaxFreeRangeIncludingTheEndCell) {
+  for (float range : {kInfF, 3.0f, 7.0f}) {
+    SCOPED_TRACE(range);
+    dog::MapperConfig config = testConfig();
+    config.max_free_range_m = 1.0;  // 4 cells: lattice end 4.5
+    dog::Mapper mapper(config);
+    const dog::ScanResult r = mapper.integrate(makeScan(0.0, {range}, 0.0, 0.0, 0.1, 0.0, 3.0));
+    EXPECT_EQ(r.status, dog::ScanStatus::kIntegrated);
+    EXPECT_EQ(r.beams_hit, 0u);
+    EXPECT_EQ(r.beams_no_return, 1u);
+    EXPECT_EQ(r.beams_ignored, 0u);
+    mapper.finishStep();
+    expectFirstStepEvidence(mapper, rowEvidence(0, 4, {0, 1}));
+  }
+}
+
+TEST(MapperBeams, NoReturnFreeRangeIsCappedAtTheScansRangeMax) {
+  dog::MapperConfig config = testConfig();
+  config.max_free_range_m = 10.0;
+  dog::Mapper mapper(config);
+  // range_max 1.5 m = 6 cells: lattice end 6.5 -> cells 0..6 missed.
+  const dog::ScanResult r = mapper.integrate(makeScan(0.0, {kInfF}, 0.0, 0.0, 0.1, 0.0, 1.5));
+  EXPECT_EQ(r.beams_no_return, 1u);
+  mapper.finishStep();
+  expectFirstStepEvidence(mapper, rowEvidence(0, 6, {0, 1}));
+}
+
+TEST(MapperBeams, NoReturnWithZeroMaxFreeRangeTouchesNothing) {
+  dog::MapperConfig config = testConfig();
+  config.max_free_range_m = 0.0;
+  dog::Mapper mapper(config);
+  const dog::ScanResult r =
+      mapper.integrate(makeScan(0.0, {kInfF, 5.0f}, 0.0, 0.0, 0.1, 0.0, 5.0));
+  EXPECT_EQ(r.status, dog::ScanStatus::kIntegrated);
+  EXPECT_EQ(r.beams_no_return, 2u);
+  mapper.finishStep();
+  EXPECT_TRUE(observedCells(mapper).empty());
+}
+
+TEST(MapperBeams, IgnoredReadingsTouchNothing) {
+  dog::Mapper mapper(testConfig());
+  const dog::ScanResult r = mapper.integrate(
+      makeScan(0.0, {kNaNF, -kInfF, 0.1f, -1.0f}, 0.0, 0.0, kPi / 2, 0.25, 20.0));
+  EXPECT_EQ(r.status, dog::ScanStatus::kIntegrated);
+  EXPECT_EQ(r.beams_hit, 0u);
+  EXPECT_EQ(r.beams_no_return, 0u);
+  EXPECT_EQ(r.beams_ignored, 4u);
+  EXPECT_EQ(r.cells_outside, 0u);
+  mapper.finishStep();
+  EXPECT_TRUE(observedCells(mapper).empty());
+  // The scan was accepted: it started step 0.
+  EXPECT_EQ(mapper.clock().origin(), std::optional<double>(0.0));
+}
+
+TEST(MapperBeams, MixedScanCountsEveryKind) {
+  dog::Mapper mapper(testConfig());
+  // range_min 0.25, range_max 3: hits 1.0, 0.25, 2.75; no return +inf, 3.0, 4.0;
+  // ignored NaN, -inf, 0.125.
+  const dog::ScanResult r = mapper.integrate(makeScan(
+      0.0, {1.0f, kNaNF, -kInfF, kInfF, 0.125f, 0.25f, 3.0f, 2.75f, 4.0f}, 0.0, 0.0, 0.5, 0.25,
+      3.0));
+  EXPECT_EQ(r.status, dog::ScanStatus::kIntegrated);
+  EXPECT_EQ(r.beams_hit, 3u);
+  EXPECT_EQ(r.beams_no_return, 3u);
+  EXPECT_EQ(r.beams_ignored, 3u);
+  EXPECT_EQ(r.cells_outside, 0u);
+}
+
+TEST(MapperBeams, DiagonalBeamVisitsTheHandComputedCells) {
+  dog::Mapper mapper(testConfig());
+  // Direction (2, 1), lattice length 2 * sqrt(5) cells: (0.5, 0.5) -> (4.5, 2.5).
+  // Crossings: x = 1, 2, 3, 4 at t = 0.25, 0.75, 1.25, 1.75 (of 2); y = 1, 2 at t = 0.5, 1.5.
+  // Cells: (0,0) (1,0) (1,1) (2,1) (3,1) (3,2) missed, end (4,2) hit.
+  const float range = static_cast<float>(0.25 * 2.0 * std::sqrt(5.0));
+  const dog::ScanResult r = mapper.integrate(makeScan(0.0, {range}, std::atan2(1.0, 2.0)));
+  EXPECT_EQ(r.beams_hit, 1u);
+  mapper.finishStep();
+  expectFirstStepEvidence(mapper, {{{0, 0}, {0, 1}},
+                                   {{1, 0}, {0, 1}},
+                                   {{1, 1}, {0, 1}},
+                                   {{2, 1}, {0, 1}},
+                                   {{3, 1}, {0, 1}},
+                                   {{3, 2}, {0, 1}},
+                                   {{4, 2}, {1, 0}}});
+}
+
+TEST(MapperBeams, BeamAnglesUseYawAngleMinIncrementAndUpsideDown) {
+  // yaw pi/2, angle_min -pi/2, increment pi/2: beams at 0, pi/2, pi (normal), or
+  // pi/2 - (-pi/2 + i pi/2) = pi, pi/2, 0 (upside down). Ranges 1.0, 0.5, 0.75 m.
+  const std::vector<float> ranges{1.0f, 0.5f, 0.75f};
+  {
+    dog::Mapper mapper(testConfig());
+    mapper.integrate(makeScan(0.0, ranges, kPi / 2, -kPi / 2, kPi / 2));
+    mapper.finishStep();
+    // Beam 0 (+x, 4 cells): (1..3, 0) missed, (4, 0) hit. Beam 1 (+y, 2 cells): (0, 1)
+    // missed, (0, 2) hit. Beam 2 (-x, 3 cells): lattice end -2.5: (-1, 0), (-2, 0) missed,
+    // (-3, 0) hit. (0, 0) missed by all three: one miss for the scan.
+    std::map<XY, Evidence> expected = rowEvidence(-2, 3, {0, 1});
+    expected[{4, 0}] = {1, 0};
+    expected[{-3, 0}] = {1, 0};
+    expected[{0, 1}] = {0, 1};
+    expected[{0, 2}] = {1, 0};
+    expectFirstStepEvidence(mapper, expected);
+  }
+  {
+    dog::Mapper mapper(testConfig());
+    dog::Scan scan = makeScan(0.0, ranges, kPi / 2, -kPi / 2, kPi / 2);
+    scan.upside_down = true;
+    mapper.integrate(scan);
+    mapper.finishStep();
+    // Beam 0 (-x, 4 cells): lattice end -3.5: (-1..-3, 0) missed, (-4, 0) hit.
+    // Beam 1 (+y, 2 cells) as before. Beam 2 (+x, 3 cells): (1, 0), (2, 0) missed, (3, 0) hit.
+    std::map<XY, Evidence> expected = rowEvidence(-3, 2, {0, 1});
+    expected[{-4, 0}] = {1, 0};
+    expected[{3, 0}] = {1, 0};
+    expected[{0, 1}] = {0, 1};
+    expected[{0, 2}] = {1, 0};
+    expectFirstStepEvidence(mapper, expected);
+  }
+}
+
+// =====================================================================================
+// Fusion: one count per scan per cell; counts of a step's scans add up
+// =====================================================================================
+
+TEST(MapperFusion, CellHitAndMissedByOneScanCountsAsOneHitInEitherOrder) {
+  // Two beams in the same direction (increment 2 pi): 1 m hits (4, 0), 2 m passes through
+  // it and hits (8, 0).
+  for (const auto& ranges : {std::vector<float>{1.0f, 2.0f}, std::vector<float>{2.0f, 1.0f}}) {
+    SCOPED_TRACE(ranges[0]);
+    dog::Mapper mapper(testConfig());
+    mapper.integrate(makeScan(0.0, ranges));
+    mapper.finishStep();
+    std::map<XY, Evidence> expected = rowEvidence(0, 7, {0, 1});
+    expected[{4, 0}] = {1, 0};
+    expected[{8, 0}] = {1, 0};
+    expectFirstStepEvidence(mapper, expected);
+  }
+}
+
+TEST(MapperFusion, TwoBeamsEndingInOneCellCountOnce) {
+  dog::Mapper mapper(testConfig());
+  mapper.integrate(makeScan(0.0, {1.0f, 1.0f, 1.0f}));
+  mapper.finishStep();
+  expectFirstStepEvidence(mapper, rowEvidence(0, 3, {0, 1}, {{{4, 0}, {1, 0}}}));
+}
+
+TEST(MapperFusion, CountsOfScansInOneStepAddUp) {
+  dog::Mapper mapper(testConfig());
+  // Scan A hits (4, 0); scan B passes through (4, 0) and hits (8, 0); scan C = scan A.
+  // Different scans do not merge: (4, 0) gets 2 hits and 1 miss.
+  mapper.integrate(makeScan(0.0, {1.0f}));
+  mapper.integrate(makeScan(0.3, {2.0f}));
+  mapper.integrate(makeScan(0.9, {1.0f}));
+  EXPECT_EQ(mapper.gatheringStep(), std::optional<std::int64_t>(0));
+  mapper.finishStep();
+  std::map<XY, Evidence> expected = rowEvidence(0, 3, {0, 3});
+  expected[{4, 0}] = {2, 1};
+  for (std::int32_t x = 5; x <= 7; ++x) expected[{x, 0}] = {0, 1};
+  expected[{8, 0}] = {1, 0};
+  expectFirstStepEvidence(mapper, expected);
+}
+
+TEST(MapperFusion, StaticBaselineIsClampedOncePerStepOnTheFusedEvidence) {
+  dog::MapperConfig config = testConfig();
+  config.static_clamp = dog::LogOddsClamp{-2.0, 2.0};
+  dog::Mapper mapper(config);
+  // Cell (4, 0): hit, hit, miss in one step: 2 * 1.2528 - 0.9808 = 1.5247 (< 2). Clamping
+  // after every scan would give min(2, 2.5056) - 0.9808 = 1.0192.
+  mapper.integrate(makeScan(0.0, {1.0f}));
+  mapper.integrate(makeScan(0.1, {1.0f}));
+  mapper.integrate(makeScan(0.2, {2.0f}));
+  mapper.finishStep();
+  const auto c = mapper.grid().cell(4, 0);
+  ASSERT_TRUE(c.has_value());
+  EXPECT_NEAR(c->log_odds, static_cast<double>(refLlr(2, 1)), kTol);
+  // Cells 0..3: three misses = -2.94 -> clamped to -2.
+  EXPECT_NEAR(mapper.grid().cell(1, 0)->log_odds, -2.0, kTol);
+  dog::Scan four_hits = makeScan(1.0, {1.0f});
+  // Step 1: four scans hitting (4, 0): 0 + ... clamp(1.5247 + 4 * 1.2528) = 2.
+  for (int i = 0; i < 4; ++i) {
+    four_hits.stamp_s = 1.0 + 0.1 * i;
+    mapper.integrate(four_hits);
+  }
+  mapper.finishStep();
+  EXPECT_NEAR(mapper.grid().cell(4, 0)->log_odds, 2.0, kTol);
+}
+
+// =====================================================================================
+// Time steps
+// =====================================================================================
+
+TEST(MapperSteps, StepIsFloorOfTimeSinceFirstAcceptedStampOverTimeStep) {
+  dog::MapperConfig config = testConfig();
+  config.time_step_s = 0.5;
+  dog::Mapper mapper(config);
+  // An invalid scan first: it must not start the clock.
+  EXPECT_EQ(mapper.integrate(makeScan(9.0, {})).status, dog::ScanStatus::kRejectedInvalid);
+  EXPECT_FALSE(mapper.clock().origin().has_value());
+
+  EXPECT_EQ(mapper.integrate(makeScan(10.0, {1.0f})).status, dog::ScanStatus::kIntegrated);
+  EXPECT_EQ(mapper.clock().origin(), std::optional<double>(10.0));
+  EXPECT_EQ(mapper.gatheringStep(), std::optional<std::int64_t>(0));
+  // 10.3 then 10.2: out of order inside the gathered step is fine; 10.49 still step 0.
+  EXPECT_EQ(mapper.integrate(makeScan(10.3, {1.0f})).status, dog::ScanStatus::kIntegrated);
+  EXPECT_EQ(mapper.integrate(makeScan(10.2, {1.0f})).status, dog::ScanStatus::kIntegrated);
+  EXPECT_EQ(mapper.integrate(makeScan(10.49, {1.0f})).status, dog::ScanStatus::kIntegrated);
+  EXPECT_EQ(mapper.gatheringStep(), std::optional<std::int64_t>(0));
+  EXPECT_FALSE(mapper.lastAppliedStep().has_value());
+  EXPECT_TRUE(observedCells(mapper).empty());
+
+  // 10.5 starts step 1 and applies step 0 (4 hits on (4, 0)).
+  EXPECT_EQ(mapper.integrate(makeScan(10.5, {1.0f})).status, dog::ScanStatus::kIntegrated);
+  EXPECT_EQ(mapper.gatheringStep(), std::optional<std::int64_t>(1));
+  EXPECT_EQ(mapper.lastAppliedStep(), std::optional<std::int64_t>(0));
+  expectFirstStepEvidence(mapper, rowEvidence(0, 3, {0, 4}, {{{4, 0}, {4, 0}}}), 0);
+
+  // 11.7 is step floor(1.7 / 0.5) = 3: applies step 1.
+  EXPECT_EQ(mapper.integrate(makeScan(11.7, {0.5f})).status, dog::ScanStatus::kIntegrated);
+  EXPECT_EQ(mapper.gatheringStep(), std::optional<std::int64_t>(3));
+  EXPECT_EQ(mapper.lastAppliedStep(), std::optional<std::int64_t>(1));
+  EXPECT_EQ(mapper.grid().cell(4, 0)->last_step, 1);
+  // 11.99 still step 3; 12.0 is step 4.
+  EXPECT_EQ(mapper.integrate(makeScan(11.99, {0.5f})).status, dog::ScanStatus::kIntegrated);
+  EXPECT_EQ(mapper.gatheringStep(), std::optional<std::int64_t>(3));
+  EXPECT_EQ(mapper.integrate(makeScan(12.0, {kNaNF})).status, dog::ScanStatus::kIntegrated);
+  EXPECT_EQ(mapper.gatheringStep(), std::optional<std::int64_t>(4));
+  EXPECT_EQ(mapper.lastAppliedStep(), std::optional<std::int64_t>(3));
+
+  // Full reference for (1, 0): 4 misses at step 0, 1 at step 1, 2 at step 3 (0.5 m beams).
+  // (4, 0): 4 hits at 0, 1 hit at 1; untouched at step 3.
+  RefCell c1;
+  c1.observe(0, 0, 4);
+  c1.observe(1, 0, 1);
+  c1.observe(3, 0, 2);
+  RefCell c4;
+  c4.observe(0, 4, 0);
+  c4.observe(1, 1, 0);
+  RefCell c2;  // (2, 0): end cell of the 0.5 m beams at step 3
+  c2.observe(0, 0, 4);
+  c2.observe(1, 0, 1);
+  c2.observe(3, 2, 0);
+  EXPECT_NEAR(mapper.grid().cell(1, 0)->p_occ, static_cast<double>(c1.p), kTol);
+  EXPECT_NEAR(mapper.grid().cell(1, 0)->log_odds, static_cast<double>(c1.log_odds), kTol);
+  EXPECT_EQ(mapper.grid().cell(1, 0)->last_step, 3);
+  EXPECT_NEAR(mapper.grid().cell(2, 0)->p_occ, static_cast<double>(c2.p), kTol);
+  EXPECT_NEAR(mapper.grid().cell(2, 0)->log_odds, static_cast<double>(c2.log_odds), kTol);
+  EXPECT_NEAR(mapper.grid().cell(4, 0)->p_occ, static_cast<double>(c4.p), kTol);
+  EXPECT_EQ(mapper.grid().cell(4, 0)->last_step, 1);
+}
+
+TEST(MapperSteps, ScanBeforeTheGatheredStepIsRejectedAndChangesNothing) {
+  dog::Mapper mapper(testConfig());
+  dog::Mapper twin(testConfig());
+  for (dog::Mapper* m : {&mapper, &twin}) {
+    ASSERT_EQ(m->integrate(makeScan(100.0, {1.0f})).status, dog::ScanStatus::kIntegrated);
+    ASSERT_EQ(m->integrate(makeScan(101.5, {2.0f})).status, dog::ScanStatus::kIntegrated);
+  }
+  ASSERT_EQ(mapper.gatheringStep(), std::optional<std::int64_t>(1));
+  const Dump before = dump(mapper, dumpArea(), 1);
+  // Step 0 (already applied), step -1 (before the first scan): rejected. Different beams
+  // so that an accidental integration would show.
+  for (double stamp : {100.99, 100.0, 99.5, -1e9}) {
+    SCOPED_TRACE(stamp);
+    const dog::ScanResult r = mapper.integrate(makeScan(stamp, {0.5f, 3.0f}, kPi / 2, 0.0, 1.0));
+    EXPECT_EQ(r.status, dog::ScanStatus::kRejectedTimeBackwards);
+    EXPECT_FALSE(r.error.empty());
+    expectSameDump(dump(mapper, dumpArea(), 1), before, "after a late scan");
+  }
+  // From here on both behave the same.
+  for (dog::Mapper* m : {&mapper, &twin}) {
+    ASSERT_EQ(m->integrate(makeScan(101.9, {1.5f})).status, dog::ScanStatus::kIntegrated);
+    ASSERT_EQ(m->integrate(makeScan(102.0, {0.75f}, kPi)).status, dog::ScanStatus::kIntegrated);
+    m->finishStep();
+  }
+  expectSameDump(dump(mapper, dumpArea(), 2), dump(twin, dumpArea(), 2), "mapper vs twin");
+  expectSameDump(dump(mapper, dumpArea(), 7), dump(twin, dumpArea(), 7), "mapper vs twin later");
+}
+
+TEST(MapperSteps, FinishStepAppliesAndClosesTheStep) {
+  dog::Mapper mapper(testConfig());
+  // Nothing gathered: a no-op.
+  mapper.finishStep();
+  EXPECT_FALSE(mapper.lastAppliedStep().has_value());
+  EXPECT_FALSE(mapper.gatheringStep().has_value());
+  EXPECT_FALSE(mapper.clock().origin().has_value());
+
+  ASSERT_EQ(mapper.integrate(makeScan(5.0, {1.0f})).status, dog::ScanStatus::kIntegrated);
+  ASSERT_EQ(mapper.integrate(makeScan(7.2, {1.0f})).status, dog::ScanStatus::kIntegrated);
+  mapper.finishStep();
+  EXPECT_EQ(mapper.lastAppliedStep(), std::optional<std::int64_t>(2));
+  EXPECT_FALSE(mapper.gatheringStep().has_value());
+  EXPECT_EQ(mapper.grid().cell(4, 0)->last_step, 2);
+  const Dump closed = dump(mapper, dumpArea(), 2);
+  // Same step (2) and earlier: rejected as late, nothing changes.
+  for (double stamp : {7.9, 7.0, 6.5, 5.0}) {
+    const dog::ScanResult r = mapper.integrate(makeScan(stamp, {1.0f}));
+    EXPECT_EQ(r.status, dog::ScanStatus::kRejectedTimeBackwards) << stamp;
+    EXPECT_FALSE(r.error.empty());
+  }
+  mapper.finishStep();  // nothing gathered
+  expectSameDump(dump(mapper, dumpArea(), 2), closed, "after rejected scans");
+  // The next step is open.
+  EXPECT_EQ(mapper.integrate(makeScan(8.0, {1.0f})).status, dog::ScanStatus::kIntegrated);
+  EXPECT_EQ(mapper.gatheringStep(), std::optional<std::int64_t>(3));
+  EXPECT_EQ(mapper.lastAppliedStep(), std::optional<std::int64_t>(2));
+  mapper.finishStep();
+  RefCell ref;
+  ref.observe(0, 1, 0);
+  ref.observe(2, 1, 0);
+  ref.observe(3, 1, 0);
+  EXPECT_NEAR(mapper.grid().cell(4, 0)->p_occ, static_cast<double>(ref.p), kTol);
+  EXPECT_EQ(mapper.grid().cell(4, 0)->last_step, 3);
+}
+
+// =====================================================================================
+// Invalid scans
+// =====================================================================================
+
+TEST(MapperInvalid, InvalidScansAreRejectedAndChangeNothing) {
+  // Each bad scan is stamped in a later step and aims its beams at unmapped areas, so that
+  // applying the gathered step, moving the clock or touching cells would all show.
+  std::vector<std::pair<std::string, dog::Scan>> bad;
+  const dog::Scan good = makeScan(50.0, {3.0f, kInfF, 30.0f}, kPi, -0.5, 0.5, 0.1, 40.0, -20.0, 17.0);
+  const auto variant = [&](const std::string& name, auto change) {
+    dog::Scan s = good;
+    change(s);
+    bad.emplace_back(name, s);
+  };
+  variant("empty ranges", [](dog::Scan& s) { s.ranges_m.clear(); });
+  variant("NaN stamp", [](dog::Scan& s) { s.stamp_s = std::nan(""); });
+  variant("+inf stamp", [](dog::Scan& s) { s.stamp_s = kInf; });
+  variant("-inf stamp", [](dog::Scan& s) { s.stamp_s = -kInf; });
+  variant("NaN x", [](dog::Scan& s) { s.laser_pose.x_m = std::nan(""); });
+  variant("inf y", [](dog::Scan& s) { s.laser_pose.y_m = kInf; });
+  variant("NaN yaw", [](dog::Scan& s) { s.laser_pose.yaw_rad = std::nan(""); });
+  variant("inf yaw", [](dog::Scan& s) { s.laser_pose.yaw_rad = -kInf; });
+  variant("NaN angle_min", [](dog::Scan& s) { s.angle_min_rad = std::nan(""); });
+  variant("inf angle_increment", [](dog::Scan& s) { s.angle_increment_rad = kInf; });
+  variant("zero increment, 3 beams", [](dog::Scan& s) { s.angle_increment_rad = 0.0; });
+  variant("negative range_min", [](dog::Scan& s) { s.range_min_m = -0.1; });
+  variant("NaN range_min", [](dog::Scan& s) { s.range_min_m = std::nan(""); });
+  variant("range_max == range_min", [](dog::Scan& s) { s.range_max_m = s.range_min_m; });
+  variant("range_max < range_min", [](dog::Scan& s) {
+    s.range_min_m = 5.0;
+    s.range_max_m = 4.0;
+  });
+  variant("NaN range_max", [](dog::Scan& s) { s.range_max_m = std::nan(""); });
+  variant("pose x 1e12 m", [](dog::Scan& s) { s.laser_pose.x_m = 1e12; });
+  variant("pose y -1e15 m", [](dog::Scan& s) { s.laser_pose.y_m = -1e15; });
+
+  // A single beam with zero increment is a valid scan.
+  {
+    dog::Mapper m(testConfig());
+    dog::Scan one = makeScan(0.0, {1.0f}, 0.0, 0.0, 0.0);
+    EXPECT_EQ(m.integrate(one).status, dog::ScanStatus::kIntegrated);
+  }
+
+  for (const auto& [name, scan] : bad) {
+    SCOPED_TRACE(name);
+    // (a) As the very first scan: nothing starts.
+    {
+      dog::Mapper mapper(testConfig());
+      const dog::ScanResult r = mapper.integrate(scan);
+      EXPECT_EQ(r.status, dog::ScanStatus::kRejectedInvalid);
+      EXPECT_FALSE(r.error.empty());
+      EXPECT_FALSE(mapper.clock().origin().has_value());
+      EXPECT_FALSE(mapper.gatheringStep().has_value());
+      EXPECT_EQ(mapper.grid().allocatedTiles(), 0u);
+      EXPECT_TRUE(mapper.grid().bounds().empty());
+    }
+    // (b) In the middle of a run, next to a twin that never sees it.
+    dog::Mapper mapper(testConfig());
+    dog::Mapper twin(testConfig());
+    for (dog::Mapper* m : {&mapper, &twin}) {
+      ASSERT_EQ(m->integrate(makeScan(10.0, {1.0f})).status, dog::ScanStatus::kIntegrated);
+      ASSERT_EQ(m->integrate(makeScan(11.0, {2.0f}, kPi / 2)).status, dog::ScanStatus::kIntegrated);
+    }
+    const Dump before = dump(mapper, dumpArea(), 1);
+    const dog::ScanResult r = mapper.integrate(scan);
+    EXPECT_EQ(r.status, dog::ScanStatus::kRejectedInvalid);
+    EXPECT_FALSE(r.error.empty());
+    expectSameDump(dump(mapper, dumpArea(), 1), before, "right after the bad scan");
+    // A following valid scan in the same step, then one in a later step.
+    for (dog::Mapper* m : {&mapper, &twin}) {
+      const dog::ScanResult a = m->integrate(makeScan(11.5, {1.5f}));
+      EXPECT_EQ(a.status, dog::ScanStatus::kIntegrated);
+      EXPECT_EQ(a.beams_hit, 1u);
+      const dog::ScanResult b = m->integrate(makeScan(13.2, {0.5f}, kPi));
+      EXPECT_EQ(b.status, dog::ScanStatus::kIntegrated);
+    }
+    EXPECT_EQ(mapper.lastAppliedStep(), std::optional<std::int64_t>(1));
+    expectSameDump(dump(mapper, dumpArea(), 3), dump(twin, dumpArea(), 3), "gathering step 3");
+    mapper.finishStep();
+    twin.finishStep();
+    expectSameDump(dump(mapper, dumpArea(), 3), dump(twin, dumpArea(), 3), "finished");
+    expectSameBox(mapper.takeChangedCells(), twin.takeChangedCells());
+  }
+}
+
+// =====================================================================================
+// Lazy grid: unobserved cells are brought forward in closed form when read
+// =====================================================================================
+
+TEST(MapperLazy, BeliefAfterUnobservedStepsMatchesStepByStepReference) {
+  dog::Mapper mapper(testConfig());
+  mapper.integrate(makeScan(0.0, {1.0f}));  // step 0: (4, 0) hit, (0..3, 0) missed
+  // Steps 1..4: scans that touch nothing (all readings ignored).
+  for (int s = 1; s <= 4; ++s) {
+    ASSERT_EQ(mapper.integrate(makeScan(s, {kNaNF})).status, dog::ScanStatus::kIntegrated);
+  }
+  mapper.finishStep();
+  ASSERT_EQ(mapper.lastAppliedStep(), std::optional<std::int64_t>(4));
+  RefCell hit;
+  hit.observe(0, 1, 0);
+  RefCell miss;
+  miss.observe(0, 0, 1);
+  EXPECT_EQ(mapper.grid().cell(4, 0)->last_step, 0);
+  dog::CellBox area;
+  area.include(0, 0);
+  area.include(4, 0);
+  for (std::int64_t step = 0; step <= 12; ++step) {
+    SCOPED_TRACE(step);
+    EXPECT_NEAR(mapper.beliefAt(4, 0, step), static_cast<double>(hit.beliefAt(step)), kTol);
+    EXPECT_NEAR(mapper.beliefAt(2, 0, step), static_cast<double>(miss.beliefAt(step)), kTol);
+    std::vector<float> belief;
+    dog::evaluateLayer(mapper.grid(), dog::Layer::kBelief, step, 0, area, &belief);
+    ASSERT_EQ(belief.size(), 5u);
+    EXPECT_NEAR(belief[4], static_cast<double>(hit.beliefAt(step)), kTol);
+    EXPECT_NEAR(belief[2], static_cast<double>(miss.beliefAt(step)), kTol);
+    std::vector<float> predicted;
+    dog::evaluateLayer(mapper.grid(), dog::Layer::kPredicted, step, 2, area, &predicted);
+    EXPECT_NEAR(predicted[4], static_cast<double>(hit.beliefAt(step + 2)), kTol);
+    // Off-by-one in the gap would be visible: successive steps differ by far more than kTol.
+    if (step < 8) {
+      EXPECT_GT(std::fabs(static_cast<double>(hit.beliefAt(step) - hit.beliefAt(step + 1))), 100 * kTol);
+    }
+  }
+  EXPECT_TRUE(std::isnan(mapper.beliefAt(5, 0, 3)));
+  EXPECT_TRUE(std::isnan(mapper.beliefAt(-7, 30, 3)));
+}
+
+TEST(MapperLazy, CellObservedAgainAfterAGapMatchesStepByStepReference) {
+  for (int gap = 1; gap <= 6; ++gap) {
+    for (bool filler_scans : {false, true}) {
+      SCOPED_TRACE("gap " + std::to_string(gap) + (filler_scans ? " with" : " without") +
+                   " empty scans in between");
+      dog::MapperConfig config = testConfig();
+      config.initial_p_occ = 0.3;  // a never-observed cell starts from initial_p_occ
+      dog::Mapper mapper(config);
+      mapper.integrate(makeScan(0.0, {1.0f}));  // step 0
+      if (filler_scans) {
+        for (int s = 1; s < gap; ++s) mapper.integrate(makeScan(s + 0.5, {kNaNF}));
+      }
+      // Step `gap`: (4, 0) and (0..3, 0) missed (2 m beam), (8, 0) hit for the first time.
+      mapper.integrate(makeScan(gap + 0.25, {2.0f}));
+      mapper.finishStep();
+
+      RefCell ref4;
+      ref4.initial = 0.3L;
+      ref4.observe(0, 1, 0);
+      ref4.observe(gap, 0, 1);
+      RefCell ref8;
+      ref8.initial = 0.3L;
+      ref8.observe(gap, 1, 0);
+      RefCell ref1;
+      ref1.initial = 0.3L;
+      ref1.observe(0, 0, 1);
+      ref1.observe(gap, 0, 1);
+      EXPECT_NEAR(mapper.grid().cell(4, 0)->p_occ, static_cast<double>(ref4.p), kTol);
+      EXPECT_NEAR(mapper.grid().cell(8, 0)->p_occ, static_cast<double>(ref8.p), kTol);
+      EXPECT_NEAR(mapper.grid().cell(1, 0)->p_occ, static_cast<double>(ref1.p), kTol);
+      EXPECT_EQ(mapper.grid().cell(4, 0)->last_step, gap);
+      EXPECT_EQ(mapper.grid().cell(8, 0)->last_step, gap);
+      // The reference with the gap one step shorter or longer is far away.
+      RefCell shorter;
+      shorter.initial = 0.3L;
+      shorter.observe(0, 1, 0);
+      shorter.observe(gap + 1, 0, 1);
+      EXPECT_GT(std::fabs(static_cast<double>(shorter.p - ref4.p)), 100 * kTol);
+      for (std::int64_t later = gap; later <= gap + 5; ++later) {
+        EXPECT_NEAR(mapper.beliefAt(4, 0, later), static_cast<double>(ref4.beliefAt(later)), kTol);
+      }
+    }
+  }
+}
+
+TEST(MapperLazy, RandomObservationSequencesMatchReference) {
+  // One beam along +x per scan; per step 0..3 scans with random ranges 0.25..2 m. The cells
+  // (0..8, 0) are followed by independent reference cells.
+  std::mt19937_64 rng(99);
+  std::uniform_int_distribution<int> scans_per_step(0, 3);
+  std::uniform_int_distribution<int> cells(1, 8);
+  std::uniform_int_distribution<int> skip(0, 3);
+  dog::MapperConfig config = testConfig();
+  config.static_clamp = dog::LogOddsClamp{-2.0, 3.5};
+  dog::Mapper mapper(config);
+  std::map<std::int32_t, RefCell> ref;
+  for (std::int32_t x = 0; x <= 8; ++x) {
+    ref[x].clamp_min = -2.0L;
+    ref[x].clamp_max = 3.5L;
+  }
+  std::int64_t step = 0;
+  for (int round = 0; round < 60; ++round) {
+    const int n = round == 0 ? 1 : scans_per_step(rng);
+    std::map<std::int32_t, Evidence> counts;
+    for (int k = 0; k < n; ++k) {
+      const int end = cells(rng);
+      ASSERT_EQ(mapper.integrate(makeScan(step + 0.2 * k, {0.25f * static_cast<float>(end)})).status,
+                dog::ScanStatus::kIntegrated);
+      for (std::int32_t x = 0; x < end; ++x) counts[x].misses++;
+      counts[end].hits++;
+    }
+    if (n > 0) {
+      // Applied when the next accepted scan of a later step arrives; finish to be explicit.
+      mapper.finishStep();
+      for (const auto& [x, ev] : counts) ref[x].observe(step, ev.hits, ev.misses);
+    }
+    for (std::int32_t x = 0; x <= 8; ++x) {
+      SCOPED_TRACE("round " + std::to_string(round) + " cell " + std::to_string(x));
+      const auto c = mapper.grid().cell(x, 0);
+      ASSERT_EQ(c.has_value(), ref[x].observed);
+      if (!c) continue;
+      ASSERT_EQ(c->last_step, ref[x].step);
+      ASSERT_NEAR(c->p_occ, static_cast<double>(ref[x].p), kTol);
+      ASSERT_NEAR(c->log_odds, static_cast<double>(ref[x].log_odds), kTol);
+      ASSERT_NEAR(mapper.beliefAt(x, 0, step + 2), static_cast<double>(ref[x].beliefAt(step + 2)), kTol);
+    }
+    step += 1 + skip(rng);
+  }
+}
+
+TEST(MapperLazy, CellsNotTouchedByAStepAreNotModified) {
+  dog::Mapper mapper(testConfig());
+  // Step 0: +x (4 cells) and +y (3 cells). Step 1: only +x. Step 2: nothing.
+  mapper.integrate(makeScan(0.0, {1.0f, 0.75f}, 0.0, 0.0, kPi / 2));
+  mapper.integrate(makeScan(1.0, {1.0f, kNaNF}, 0.0, 0.0, kPi / 2));
+  // Applying step 0 is done; remember the +y cells exactly.
+  std::vector<dog::CellState> y_cells;
+  for (std::int32_t y = 1; y <= 3; ++y) y_cells.push_back(*mapper.grid().cell(0, y));
+  mapper.takeChangedCells();
+  mapper.integrate(makeScan(2.0, {kNaNF}));
+  mapper.finishStep();
+  for (std::int32_t y = 1; y <= 3; ++y) {
+    const auto c = mapper.grid().cell(0, y);
+    ASSERT_TRUE(c.has_value());
+    EXPECT_EQ(c->last_step, 0);
+    EXPECT_EQ(c->p_occ, y_cells[static_cast<std::size_t>(y - 1)].p_occ);
+    EXPECT_EQ(c->log_odds, y_cells[static_cast<std::size_t>(y - 1)].log_odds);
+  }
+  for (std::int32_t x = 0; x <= 4; ++x) EXPECT_EQ(mapper.grid().cell(x, 0)->last_step, 1);
+  // Changed since the last call: the cells of step 1 only (step 2 touched nothing).
+  const dog::CellBox changed = mapper.takeChangedCells();
+  EXPECT_EQ(changed.min_x, 0);
+  EXPECT_EQ(changed.max_x, 4);
+  EXPECT_EQ(changed.min_y, 0);
+  EXPECT_EQ(changed.max_y, 0);
+  EXPECT_TRUE(mapper.takeChangedCells().empty());
+}
+
+// =====================================================================================
+// End to end: a wall at x = 1 m that disappears
+// =====================================================================================
+
+TEST(MapperEndToEnd, WallAppearsThenDisappears) {
+  dog::MapperConfig config;
+  config.resolution_m = 0.1;
+  config.time_step_s = 1.0;
+  config.p_hit_given_occ = kHitOcc;
+  config.p_hit_given_free = kHitFree;
+  config.prior_transitions = dog::TransitionParams{kPOf / 5, kPFo / 5};  // 0.05, 0.075
+  config.initial_p_occ = 0.5;
+  config.static_clamp = dog::LogOddsClamp{-2.0, 3.5};
+  config.max_free_range_m = 2.0;
+  dog::Mapper mapper(config);
+  RefCell proto;
+  proto.p_of = static_cast<LD>(static_cast<float>(kPOf / 5));
+  proto.p_fo = static_cast<LD>(static_cast<float>(kPFo / 5));
+  proto.clamp_min = -2.0L;
+  proto.clamp_max = 3.5L;
+
+  // Laser at the origin facing +x; 17 beams from -0.4 to 0.4 rad. The wall occupies the
+  // column [1.0, 1.1) m (cells x = 10); beams end in its middle, x = 1.05 m, i.e. at lattice
+  // (10.5, 10.5 tan(a)). The end cells (10, floor(10.5 tan a)) are worked out here.
+  const int kBeams = 17;
+  const double angle_min = -0.4;
+  const double increment = 0.05;
+  std::vector<float> wall_ranges;
+  std::map<XY, int> wall_cells;  // end cell -> number of beams ending there
+  for (int i = 0; i < kBeams; ++i) {
+    const double a = angle_min + i * increment;
+    wall_ranges.push_back(static_cast<float>(1.05 / std::cos(a)));
+    const double v = 10.5 * std::tan(a);
+    // The middle beam (a = 0 exactly) runs along the grid line y = 0, which belongs to row 0
+    // (sin(0) = 0: every coordinate on it is exact); all others must end well inside a cell.
+    const double frac = v - std::floor(v);
+    if (v != 0.0) {
+      ASSERT_GT(frac, 0.02) << "end point too close to a cell edge for the hand reference";
+      ASSERT_LT(frac, 0.98);
+    }
+    wall_cells[{10, static_cast<std::int32_t>(std::floor(v))}]++;
+  }
+  const auto scanAt = [&](double stamp, const std::vector<float>& ranges) {
+    dog::Scan s;
+    s.stamp_s = stamp;
+    s.angle_min_rad = angle_min;
+    s.angle_increment_rad = increment;
+    s.range_min_m = 0.05;
+    s.range_max_m = 5.0;
+    s.ranges_m = ranges;
+    return s;
+  };
+
+  // Phase 1: steps 0..5, two scans per step seeing the wall.
+  const int kWallSteps = 6;
+  for (int step = 0; step < kWallSteps; ++step) {
+    for (double t : {0.0, 0.5}) {
+      const dog::ScanResult r = mapper.integrate(scanAt(step + t, wall_ranges));
+      ASSERT_EQ(r.status, dog::ScanStatus::kIntegrated);
+      EXPECT_EQ(r.beams_hit, static_cast<std::size_t>(kBeams));
+    }
+  }
+  mapper.finishStep();
+  const std::int64_t wall_end = kWallSteps - 1;
+  // Reference: a wall cell is hit once per scan (beams also passing through it count as the
+  // same scan's hit): 2 hits per step. Cells (1..9, 0) are missed once per scan.
+  std::map<XY, RefCell> ref;
+  for (const auto& kv : wall_cells) ref[kv.first] = proto;
+  for (std::int32_t x = 1; x <= 9; ++x) ref[{x, 0}] = proto;
+  for (int step = 0; step < kWallSteps; ++step) {
+    for (auto& [xy, cell] : ref) {
+      if (xy.first == 10) {
+        cell.observe(step, 2, 0);
+      } else {
+        cell.observe(step, 0, 2);
+      }
+    }
+  }
+  for (const auto& [xy, cell] : ref) {
+    SCOPED_TRACE(std::to_string(xy.first) + ", " + std::to_string(xy.second));
+    const double b = mapper.beliefAt(xy.first, xy.second, wall_end);
+    EXPECT_NEAR(b, static_cast<double>(cell.p), kTol);
+    EXPECT_NEAR(mapper.grid().cell(xy.first, xy.second)->log_odds, static_cast<double>(cell.log_odds), kTol);
+    if (xy.first == 10) {
+      EXPECT_GT(b, 0.5);
+    } else {
+      EXPECT_LT(b, 0.5);
+    }
+  }
+  // Behind the wall: unknown. Evaluate the belief layer over the whole map.
+  {
+    const dog::CellBox b = mapper.grid().bounds();
+    std::vector<float> belief;
+    dog::evaluateLayer(mapper.grid(), dog::Layer::kBelief, wall_end, 0, b, &belief);
+    int known_behind = 0;
+    int known = 0;
+    for (std::int32_t y = b.min_y; y <= b.max_y; ++y) {
+      for (std::int32_t x = b.min_x; x <= b.max_x; ++x) {
+        const float v = belief[static_cast<std::size_t>((y - b.min_y) * b.width() + (x - b.min_x))];
+        if (std::isnan(v)) continue;
+        ++known;
+        if (x >= 11 || x < 0) ++known_behind;
+        if (x == 10 && wall_cells.count({x, y}) != 0) {
+          EXPECT_GT(v, 0.5f);
+        }
+      }
+    }
+    EXPECT_EQ(known_behind, 0);
+    EXPECT_GT(known, 40);
+    for (std::int32_t x = 11; x <= 30; ++x) EXPECT_TRUE(std::isnan(mapper.beliefAt(x, 0, wall_end)));
+  }
+
+  // Phase 2: the wall is gone. After a 2-step pause (steps 6, 7 without scans), steps 8..19
+  // see alternately no return (+inf: free up to max_free_range 2 m) and a far wall at 3 m
+  // (range 3.05 / cos a). Every former wall cell lies on its beam's line inside both
+  // segments: one miss per scan, two per step.
+  std::vector<float> open_ranges;
+  for (int i = 0; i < kBeams; ++i) {
+    const double a = angle_min + i * increment;
+    open_ranges.push_back(i % 2 == 0 ? std::numeric_limits<float>::infinity()
+                                     : static_cast<float>(3.05 / std::cos(a)));
+  }
+  const int first_open = kWallSteps + 2;
+  const int last_open = first_open + 11;
+  for (int step = first_open; step <= last_open; ++step) {
+    for (double t : {0.1, 0.6}) {
+      ASSERT_EQ(mapper.integrate(scanAt(step + t, open_ranges)).status, dog::ScanStatus::kIntegrated);
+    }
+    mapper.finishStep();
+    for (const auto& kv : wall_cells) ref[kv.first].observe(step, 0, 2);
+    for (const auto& kv : wall_cells) {
+      const XY& xy = kv.first;
+      SCOPED_TRACE("step " + std::to_string(step) + " cell " + std::to_string(xy.first) + ", " +
+                   std::to_string(xy.second));
+      const RefCell& cell = ref[xy];
+      EXPECT_NEAR(mapper.beliefAt(xy.first, xy.second, step), static_cast<double>(cell.p), kTol);
+      EXPECT_NEAR(mapper.grid().cell(xy.first, xy.second)->log_odds,
+                  static_cast<double>(cell.log_odds), kTol);
+      // The static layer is the logistic of the clamped log-odds.
+      std::vector<float> st;
+      dog::CellBox one;
+      one.include(xy.first, xy.second);
+      dog::evaluateLayer(mapper.grid(), dog::Layer::kStatic, step, 0, one, &st);
+      EXPECT_NEAR(st[0], logistic(cell.log_odds), kTol);
+    }
+  }
+  // Belief of the wall cells dropped below 0.5 soon; the clamped static baseline needs its
+  // hand-computed number of miss steps: it sat at 3.5 (6 steps x 2 hits = 15.03 clamped);
+  // each step adds 2 x ln(0.3/0.8) = -1.9617: 1.538, -0.423 -> below 0.5 after 2 steps.
+  // Without clamping (15.03) it would take 8 steps.
+  const XY probe = wall_cells.begin()->first;
+  EXPECT_LT(mapper.beliefAt(probe.first, probe.second, last_open), 0.5);
+  EXPECT_NEAR(mapper.grid().cell(probe.first, probe.second)->log_odds, -2.0, kTol);
+  {
+    RefCell check = proto;
+    for (int s = 0; s < kWallSteps; ++s) check.observe(s, 2, 0);
+    EXPECT_NEAR(static_cast<double>(check.log_odds), 3.5, 1e-6);
+    check.observe(first_open, 0, 2);
+    EXPECT_NEAR(static_cast<double>(check.log_odds), 3.5 + 2.0 * std::log(0.3 / 0.8), 1e-6);
+    EXPECT_GT(static_cast<double>(check.log_odds), 0.0);
+    check.observe(first_open + 1, 0, 2);
+    EXPECT_LT(static_cast<double>(check.log_odds), 0.0);
+  }
+  int belief_steps_to_free = -1;
+  {
+    RefCell check = proto;
+    for (int s = 0; s < kWallSteps; ++s) check.observe(s, 2, 0);
+    for (int step = first_open; step <= last_open; ++step) {
+      check.observe(step, 0, 2);
+      if (check.p < 0.5L) {
+        belief_steps_to_free = step - first_open + 1;
+        break;
+      }
+    }
+  }
+  EXPECT_GE(belief_steps_to_free, 1);
+  EXPECT_LE(belief_steps_to_free, 3);
+}
