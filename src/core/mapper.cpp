@@ -74,7 +74,7 @@ void MapperConfig::validate() const {
             "fixed width and height must not exceed max_map_size");
   }
   // Throws with its own message for a bad sensor model.
-  ObservationModel(p_hit_given_occ, p_hit_given_free);
+  static_cast<void>(ObservationModel(p_hit_given_occ, p_hit_given_free));
 }
 
 Mapper::Mapper(const MapperConfig& config)

@@ -136,9 +136,12 @@ int main(int argc, char** argv) {
     mapper.finishStep();
     const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 
-    std::printf("scans read: %zu, integrated: %zu, rejected: %zu, without a pose in '%s': %zu\n",
-                stats.scans_read, integrated, rejected, options.source.fixed_frame.c_str(),
-                stats.scans_without_pose);
+    std::printf("scans read: %zu, integrated: %zu, rejected: %zu", stats.scans_read, integrated, rejected);
+    if (options.source.static_laser_pose) {
+      std::printf(" (static laser pose given, tf not read)\n");
+    } else {
+      std::printf(", without a pose in '%s': %zu\n", options.source.fixed_frame.c_str(), stats.scans_without_pose);
+    }
     if (rejected > 0) std::printf("  last rejection: %s\n", last_rejection.c_str());
     if (stats.scans_without_pose > 0) std::printf("  last tf error: %s\n", stats.last_pose_error.c_str());
     std::printf("beams: %zu hits, %zu without return, %zu ignored (NaN, -inf, < range_min)\n",
