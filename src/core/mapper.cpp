@@ -145,6 +145,7 @@ ScanResult Mapper::integrate(const Scan& scan) {
   beams.reserve(scan.ranges_m.size());
   const double free_range_m = std::min(config_.max_free_range_m, scan.range_max_m);
   const double cells_per_m = 1.0 / config_.resolution_m;
+  const double max_beam_m = 1.5 * maxCellsPerSide(config_) * config_.resolution_m;
   CellBox box;
   box.include(static_cast<std::int32_t>(std::floor(u0)), static_cast<std::int32_t>(std::floor(v0)));
   for (std::size_t i = 0; i < scan.ranges_m.size(); ++i) {
@@ -164,6 +165,12 @@ ScanResult Mapper::integrate(const Scan& scan) {
       ++result.beams_hit;
       length_m = range;
       hit = true;
+    }
+    // No beam needs to be longer than the map's diagonal: its cells beyond that are
+    // outside the map anyway, and walking them would cost time for nothing.
+    if (length_m > max_beam_m) {
+      length_m = max_beam_m;
+      hit = false;
     }
     const double beam_angle = scan.angle_min_rad + static_cast<double>(i) * scan.angle_increment_rad;
     const double angle = pose.yaw_rad + (scan.upside_down ? -beam_angle : beam_angle);

@@ -683,6 +683,15 @@ TEST(MapperInvalid, InvalidScansAreRejectedAndChangeNothing) {
   variant("NaN range_max", [](dog::Scan& s) { s.range_max_m = std::nan(""); });
   variant("pose x 1e12 m", [](dog::Scan& s) { s.laser_pose.x_m = 1e12; });
   variant("pose y -1e15 m", [](dog::Scan& s) { s.laser_pose.y_m = -1e15; });
+  // No beam reaches anywhere: only the pose itself can be judged.
+  variant("pose x 1e12 m, all readings ignored", [](dog::Scan& s) {
+    s.laser_pose.x_m = 1e12;
+    s.ranges_m = {kNaNF, -kInfF, 0.0f};
+  });
+  variant("pose y -3e11 m, no-return beams with max_free_range", [](dog::Scan& s) {
+    s.laser_pose.y_m = -3e11;
+    s.ranges_m = {kInfF};
+  });
 
   // A single beam with zero increment is a valid scan.
   {
@@ -1071,3 +1080,32 @@ TEST(MapperEndToEnd, WallAppearsThenDisappears) {
   EXPECT_GE(belief_steps_to_free, 1);
   EXPECT_LE(belief_steps_to_free, 3);
 }
+
+namespace {
+
+// A huge range (a driver reporting 4e7 m with range_max = +inf) is cut at 1.5 x the map
+// size: integrated, no hit (its end lies outside the map), and the work stays bounded.
+TEST(MapperHugeRange, BeamIsCutAtTheMapSizeAndCountsNoHit) {
+  dynamic_occupancy_grid::core::MapperConfig config;
+  config.resolution_m = 0.05;
+  config.max_map_size_m = 100.0;
+  dynamic_occupancy_grid::core::Mapper mapper(config);
+  dynamic_occupancy_grid::core::Scan scan;
+  scan.laser_pose = {0.0, 0.0, 0.0};
+  scan.angle_increment_rad = 0.01;
+  scan.range_min_m = 0.1;
+  scan.range_max_m = std::numeric_limits<double>::infinity();
+  scan.ranges_m = {4.0e7f};
+  const auto result = mapper.integrate(scan);
+  ASSERT_EQ(result.status, dynamic_occupancy_grid::core::ScanStatus::kIntegrated);
+  EXPECT_EQ(result.beams_hit, 1u);
+  // 100 m = 2000 cells, rounded up to 2048 (whole tiles each side): the beam is cut at
+  // 1.5 x 2048 = 3072 cells, of which 1024 lie inside the map (x in [0, 1024)).
+  EXPECT_EQ(result.cells_outside, 3072u - 1024u + 1u);
+  mapper.finishStep();
+  const auto edge = mapper.grid().cell(1023, 0);  // last cell inside: missed, not hit
+  ASSERT_TRUE(edge.has_value());
+  EXPECT_LT(edge->p_occ, 0.5f);
+}
+
+}  // namespace
