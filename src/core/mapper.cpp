@@ -194,9 +194,8 @@ ScanResult Mapper::integrate(const Scan& scan) {
   CellGrid::Tile* cached_tile = nullptr;
   std::int32_t cached_tile_x = 0;
   std::int32_t cached_tile_y = 0;
+  bool cached_tile_straddles = false;
   const auto tile_of = [&](std::int32_t x, std::int32_t y) -> CellGrid::Tile* {
-    // Checked per cell: a cached tile may straddle the map's limits.
-    if (!grid_.insideLimits(x, y)) return nullptr;
     const std::int32_t tile_x = x >> CellGrid::kTileBits;
     const std::int32_t tile_y = y >> CellGrid::kTileBits;
     if (cached_tile == nullptr || tile_x != cached_tile_x || tile_y != cached_tile_y) {
@@ -204,6 +203,10 @@ ScanResult Mapper::integrate(const Scan& scan) {
       if (cached_tile == nullptr) return nullptr;  // outside the map: do not cache
       cached_tile_x = tile_x;
       cached_tile_y = tile_y;
+      cached_tile_straddles = !grid_.tileInsideLimits(tile_x, tile_y);
+    } else if (cached_tile_straddles && !grid_.insideLimits(x, y)) {
+      // Only a tile crossing the map's limits needs the check per cell.
+      return nullptr;
     }
     return cached_tile;
   };

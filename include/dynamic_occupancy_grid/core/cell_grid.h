@@ -130,6 +130,11 @@ class CellGrid {
   }
 
   bool insideLimits(std::int32_t x, std::int32_t y) const;
+  /// Every cell of tile (tile_x, tile_y) is inside the limits (no per-cell check needed).
+  bool tileInsideLimits(std::int32_t tile_x, std::int32_t tile_y) const {
+    return insideLimits(tile_x << kTileBits, tile_y << kTileBits) &&
+           insideLimits((tile_x << kTileBits) + kTileSize - 1, (tile_y << kTileBits) + kTileSize - 1);
+  }
   static int offsetOf(std::int32_t x, std::int32_t y) {
     return ((y & (kTileSize - 1)) << kTileBits) | (x & (kTileSize - 1));
   }
