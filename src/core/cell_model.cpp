@@ -28,7 +28,8 @@ double absLambdaPower(const TransitionParams& params, double steps) {
   return std::exp(steps * logAbsLambda(params));
 }
 
-// lambda^k for k >= 0, exact sign for lambda < 0.
+}  // namespace
+
 double lambdaPower(const TransitionParams& params, std::int64_t steps) {
   if (steps == 0) return 1.0;
   const double lambda = params.lambda();
@@ -36,8 +37,6 @@ double lambdaPower(const TransitionParams& params, std::int64_t steps) {
   const double magnitude = absLambdaPower(params, static_cast<double>(steps));
   return (lambda < 0.0 && (steps % 2 != 0)) ? -magnitude : magnitude;
 }
-
-}  // namespace
 
 bool TransitionParams::isValid() const {
   return isProbability(p_occ_given_free) && isProbability(p_free_given_occ);

@@ -1,10 +1,12 @@
 #!/usr/bin/env bash
 # Usage: check_core_includes.sh CXX INCLUDE_DIR EIGEN_DIR FILE...
 # Preprocesses each FILE with -H and fails if any header it includes, directly or
-# transitively, is something other than the core's own headers, Eigen, or the C/C++
+# transitively, is something other than the core's own headers (public ones under
+# INCLUDE_DIR, private ones beside the sources in src/core), Eigen, or the C/C++
 # standard library (libc, libstdc++, Linux UAPI headers).
 set -euo pipefail
 cxx=$1 include_dir=$(realpath "$2") eigen_dir=$(realpath "$3")
+private_dir=$(realpath -m "$include_dir/../src/core")
 shift 3
 status=0
 for file in "$@"; do
@@ -15,6 +17,7 @@ for file in "$@"; do
     path=$(realpath -m "$header")
     case "$path" in
       "$include_dir"/dynamic_occupancy_grid/core/*) ;;      # the core itself
+      "$private_dir"/*.h) ;;                                 # the core's private headers
       "$eigen_dir"/*) ;;                                     # Eigen
       /usr/include/c++/*|/usr/include/x86_64-linux-gnu/*|/usr/include/aarch64-linux-gnu/*) ;;
       /usr/lib/gcc/*|/usr/include/linux/*|/usr/include/asm-generic/*|/usr/include/asm/*) ;;

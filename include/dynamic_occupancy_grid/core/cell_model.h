@@ -55,6 +55,10 @@ class ObservationModel {
 /// One prediction step without observation: p(occ at t+1) from p(occ at t), i.e. q·A.
 double predictOneStep(double p_occ, const TransitionParams& params);
 
+/// lambda^k (k >= 0) of A's second eigenvalue, with the exact sign for lambda < 0 and the
+/// rate kept for |lambda| within rounding of 1 (tiny p_of + p_fo).
+double lambdaPower(const TransitionParams& params, std::int64_t steps);
+
 /// Closed-form k-step prediction (THEORY.md §3):
 ///   p(occ at t+k) = pi(occ) + lambda^k (p(occ at t) - pi(occ)).
 /// A static cell keeps its belief. k must be >= 0.

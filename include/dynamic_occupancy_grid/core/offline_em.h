@@ -1,0 +1,154 @@
+#pragma once
+// Offline EM (Baum–Welch) of every cell's transition probabilities over a whole recording
+// (THEORY.md §5, eq. (12)). A cell's data is its sequence of observed steps; the runs of
+// steps without observation between them are crossed in O(1) with the closed-form powers of
+// A, and the expected transition counts inside a run have a closed form too, so the cost
+// scales with the number of observed steps, not with the length of the recording.
+//
+// Convention shared with the Mapper: a cell's chain starts the step before its first
+// observation, with p(occ) = initial_p_occ.
+//
+// ROS-free: standard library only.
+
+#include <array>
+#include <cstddef>
+#include <cstdint>
+#include <functional>
+#include <unordered_map>
+#include <vector>
+
+#include "dynamic_occupancy_grid/core/cell_model.h"
+#include "dynamic_occupancy_grid/core/traversal.h"
+
+namespace dynamic_occupancy_grid {
+namespace core {
+
+/// The evidence of one cell in one step: counts of hits and misses fused (THEORY.md §1).
+struct StepObservation {
+  std::int32_t step;
+  std::uint16_t hits;
+  std::uint16_t misses;
+};
+
+/// Per-cell sequences of observed steps, stored compactly (8 bytes per observation plus
+/// 16 per cell). Build with SequenceBuilder.
+class ObservationSequences {
+ public:
+  std::size_t cellCount() const { return cells_.size(); }
+  std::size_t observationCount() const { return observations_.size(); }
+  /// Lattice coordinates of cell `index`.
+  CellXY cell(std::size_t index) const { return cells_[index]; }
+  /// The observations of cell `index`, steps strictly increasing.
+  const StepObservation* begin(std::size_t index) const { return observations_.data() + offsets_[index]; }
+  const StepObservation* end(std::size_t index) const { return observations_.data() + offsets_[index + 1]; }
+  std::size_t bytes() const;
+
+ private:
+  friend class SequenceBuilder;
+  std::vector<CellXY> cells_;
+  std::vector<std::uint64_t> offsets_{0};  ///< cell i: observations_[offsets_[i], offsets_[i+1])
+  std::vector<StepObservation> observations_;
+};
+
+/// Gathers observations in one pass over the data (any cell order within a step; steps of
+/// a cell non-decreasing) and groups them per cell.
+class SequenceBuilder {
+ public:
+  /// Adds the evidence of cell (x, y) in `step`. Counts of the same cell and step add up
+  /// (saturating at 65535). Throws std::invalid_argument if `step` is before the cell's
+  /// last added step; the builder is unchanged then.
+  void add(std::int32_t x, std::int32_t y, std::int32_t step, std::uint32_t hits,
+           std::uint32_t misses);
+  std::size_t observationCount() const { return records_.size(); }
+  /// Groups the observations per cell (cells in order of first appearance) and empties the
+  /// builder.
+  ObservationSequences build();
+
+ private:
+  struct Record {
+    std::uint32_t cell;
+    StepObservation observation;
+  };
+  std::unordered_map<std::uint64_t, std::uint32_t> cell_index_;
+  std::vector<CellXY> cells_;
+  std::vector<std::uint64_t> last_record_;  ///< per cell: index of its latest record
+  std::vector<Record> records_;
+};
+
+/// Expected transition counts E[N(i -> j) | z] of one cell (index 0 = occ, 1 = free).
+using TransitionCounts = std::array<std::array<double, 2>, 2>;
+
+/// One forward–backward pass over one cell's sequence with fixed parameters.
+struct ForwardBackwardResult {
+  TransitionCounts counts{};    ///< expected transitions over all steps of the chain
+  double log_likelihood = 0.0;  ///< log p(z_1:T) with the sensor's true likelihoods
+  double final_p_occ = 0.0;     ///< filtered p(occ) at the last observed step
+};
+
+/// The E-step of one cell: scaled forward–backward over observations [begin, end)
+/// (non-empty, steps strictly increasing), O(1) per observation whatever the gaps. Both
+/// belief components are carried, so beliefs far below 1e-16 keep their relative precision.
+/// Runs of up to 16 transitions are crossed step by step, longer ones in closed form; the
+/// closed form loses precision only for lambda within about 1e-6 of -1 (p_of and p_fo both
+/// near 1: a cell flipping on nearly every step), where counts carry an absolute error of
+/// about 1e-16 * L / (1 + lambda) on a run of L steps.
+ForwardBackwardResult forwardBackward(const StepObservation* begin, const StepObservation* end,
+                                      const ObservationModel& sensor,
+                                      const TransitionParams& params, double initial_p_occ);
+
+struct OfflineEmConfig {
+  /// p(occ) the step before a cell's first observation (as the Mapper's initial_p_occ).
+  double initial_p_occ = 0.5;
+  /// Where EM starts.
+  TransitionParams initial_params{0.05, 0.05};
+  /// Optional MAP prior: prior_weight pseudo-transitions per from-state, split as `prior`
+  /// (0 = maximum likelihood).
+  TransitionParams prior{0.01, 0.01};
+  double prior_weight = 0.0;
+  /// Bounds of the learned probabilities (per step).
+  double p_min = 1e-4;
+  double p_max = 0.5;
+  /// Learn one change probability p_c = p_of = p_fo.
+  bool symmetric = false;
+  /// A cell stops when an iteration gains less than `tolerance` (nats) of objective, or
+  /// after max_iterations M-steps; tolerance 0 always runs max_iterations.
+  int max_iterations = 100;
+  double tolerance = 1e-4;
+  /// Worker threads; 0 = one per core. Results do not depend on it.
+  unsigned threads = 0;
+
+  /// Throws std::invalid_argument naming the first bad field.
+  void validate() const;
+};
+
+struct OfflineEmResult {
+  /// Per cell, in the order of ObservationSequences.
+  std::vector<TransitionParams> params;
+  std::vector<double> final_p_occ;          ///< filtered p(occ) at the cell's last observation
+  std::vector<std::int32_t> final_step;     ///< the step of that observation
+  std::vector<std::uint16_t> iterations;    ///< M-steps the cell used
+  /// Objective summed over cells (log-likelihood, plus the log prior if prior_weight > 0):
+  /// entry 0 with initial_params, entry k after k M-steps, up to the most iterations any
+  /// cell used; a cell that stopped earlier contributes its last value to later entries.
+  std::vector<double> objective;
+  std::size_t cells_converged = 0;          ///< stopped by the tolerance, not by max_iterations
+  bool cancelled = false;
+};
+
+/// Called now and then (from a worker thread, never concurrently) with cells done / total;
+/// return false to cancel the run (the result is then incomplete and marked cancelled).
+using OfflineEmProgress = std::function<bool(std::size_t cells_done, std::size_t cells_total)>;
+
+/// Runs EM on every cell of `sequences`, in parallel over cells. The result is the same
+/// for any number of threads. Throws std::invalid_argument for a bad config.
+OfflineEmResult runOfflineEm(const ObservationSequences& sequences, const ObservationModel& sensor,
+                             const OfflineEmConfig& config, const OfflineEmProgress& progress = {});
+
+/// The M-step of one cell from its expected counts: row-normalised counts (plus the prior's
+/// pseudo-counts), or one symmetric p_c, clamped to [p_min, p_max]. A from-state without
+/// weight keeps `previous`'s value.
+TransitionParams offlineMStep(const TransitionCounts& counts, const OfflineEmConfig& config,
+                              const TransitionParams& previous);
+
+}  // namespace core
+}  // namespace dynamic_occupancy_grid

@@ -1,0 +1,438 @@
+#include "dynamic_occupancy_grid/core/offline_em.h"
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <exception>
+#include <limits>
+#include <mutex>
+#include <stdexcept>
+#include <string>
+#include <thread>
+
+namespace dynamic_occupancy_grid {
+namespace core {
+namespace {
+
+void require(bool ok, const std::string& message) {
+  if (!ok) throw std::invalid_argument(message);
+}
+
+bool isProbability(double p) { return p >= 0.0 && p <= 1.0; }
+
+std::uint16_t saturatingAdd(std::uint32_t a, std::uint32_t b) {
+  return static_cast<std::uint16_t>(std::min<std::uint32_t>(a + std::min<std::uint32_t>(b, 65535U), 65535U));
+}
+
+// An observation prepared once per cell for all EM iterations: its likelihoods scaled by
+// exp(-log_scale) (so hundreds of beams do not underflow) and the number of transitions
+// since the previous observation (1 = consecutive steps).
+struct Prepared {
+  double b_occ;
+  double b_free;
+  double log_scale;
+  std::int64_t length;
+};
+
+// Runs up to this many transitions are crossed step by step (exact, and cheaper than the
+// closed form's transcendental functions); longer ones in closed form, O(1).
+constexpr std::int64_t kShortRun = 16;
+
+// Per-thread buffers, reused from cell to cell.
+struct Scratch {
+  std::vector<Prepared> observations;
+  std::vector<std::array<double, 2>> alpha;  // filtered (p(occ), p(free)) after observation k (0: start)
+  std::vector<double> normaliser;            // c_k of the scaled forward pass
+  std::vector<double> lambda_before;         // lambda^(L_k - 1) of each run
+  std::vector<double> objective;             // per iteration, of the cell being run
+};
+
+void prepare(const StepObservation* begin, const StepObservation* end, const ObservationModel& sensor,
+             std::vector<Prepared>& out) {
+  const double log_hit[2] = {std::log(sensor.pHitGivenOcc()), std::log(sensor.pHitGivenFree())};
+  const double log_miss[2] = {std::log1p(-sensor.pHitGivenOcc()), std::log1p(-sensor.pHitGivenFree())};
+  out.clear();
+  std::int64_t previous = std::int64_t{begin->step} - 1;  // the chain starts the step before
+  for (const StepObservation* it = begin; it != end; ++it) {
+    const double log_b_occ = it->hits * log_hit[0] + it->misses * log_miss[0];
+    const double log_b_free = it->hits * log_hit[1] + it->misses * log_miss[1];
+    const double scale = std::max(log_b_occ, log_b_free);
+    out.push_back(Prepared{std::exp(log_b_occ - scale), std::exp(log_b_free - scale), scale,
+                           std::int64_t{it->step} - previous});
+    previous = it->step;
+  }
+}
+
+// A^L with every entry a sum of non-negative products, so that a belief of 1e-30 keeps its
+// relative precision through a run (pi + lambda^L (alpha - pi) would keep only 1e-16
+// absolute): off-diagonal p_ij (1 - lambda^L) / (p_of + p_fo), diagonal pi_i + lambda^L pi_j
+// (or 1 minus the off-diagonal when lambda^L < 0, which needs p_of + p_fo > 1).
+struct PowerMatrix {
+  double m[2][2];
+};
+
+PowerMatrix transitionPower(const TransitionParams& params, double change_sum, double lambda_length,
+                            double geometric) {
+  // geometric = sum_{n<L} lambda^n = (1 - lambda^L) / (p_of + p_fo), computed by the caller.
+  const double to_free = params.p_free_given_occ * geometric;
+  const double to_occ = params.p_occ_given_free * geometric;
+  PowerMatrix power;
+  power.m[0][1] = to_free;
+  power.m[1][0] = to_occ;
+  if (lambda_length >= 0.0 && change_sum > 0.0) {
+    const double pi_occ = params.p_occ_given_free / change_sum;
+    const double pi_free = params.p_free_given_occ / change_sum;
+    power.m[0][0] = pi_occ + lambda_length * pi_free;
+    power.m[1][1] = pi_free + lambda_length * pi_occ;
+  } else {
+    power.m[0][0] = 1.0 - to_free;
+    power.m[1][1] = 1.0 - to_occ;
+  }
+  return power;
+}
+
+// The E-step over prepared observations (THEORY.md §5). Runs of L transitions use
+// A^n = Pi + lambda^n D (D = I - Pi); for a static cell any pi works, (1/2, 1/2) is taken.
+ForwardBackwardResult forwardBackwardPrepared(Scratch& scratch, const TransitionParams& params,
+                                              double initial_p_occ) {
+  const std::vector<Prepared>& obs = scratch.observations;
+  const std::size_t n = obs.size();
+  scratch.alpha.resize(n + 1);
+  scratch.normaliser.resize(n);
+  scratch.lambda_before.resize(n);
+
+  const double a[2][2] = {{1.0 - params.p_free_given_occ, params.p_free_given_occ},
+                          {params.p_occ_given_free, 1.0 - params.p_occ_given_free}};
+  const double change_sum = params.p_occ_given_free + params.p_free_given_occ;  // 1 - lambda
+  const double lambda = params.lambda();
+  const double pi[2] = {change_sum > 0.0 ? params.p_occ_given_free / change_sum : 0.5,
+                        change_sum > 0.0 ? params.p_free_given_occ / change_sum : 0.5};
+  // sum_{n<L} lambda^n without cancellation for lambda near 1.
+  const auto geometricOf = [&](double length, double lambda_length) {
+    if (change_sum == 0.0) return length;
+    if (change_sum < 1e-3) return -std::expm1(length * std::log1p(-change_sum)) / change_sum;
+    return (1.0 - lambda_length) / change_sum;
+  };
+
+  ForwardBackwardResult result;
+  // Forward: alpha_k = (alpha_{k-1} A^L) o b_k / c_k, both components kept.
+  std::array<double, 2> alpha = {initial_p_occ, 1.0 - initial_p_occ};
+  scratch.alpha[0] = alpha;
+  for (std::size_t k = 0; k < n; ++k) {
+    const Prepared& o = obs[k];
+    double predicted[2];
+    if (o.length <= kShortRun) {
+      predicted[0] = alpha[0];
+      predicted[1] = alpha[1];
+      for (std::int64_t step = 0; step < o.length; ++step) {
+        const double occ = predicted[0] * a[0][0] + predicted[1] * a[1][0];
+        const double free = predicted[0] * a[0][1] + predicted[1] * a[1][1];
+        predicted[0] = occ;
+        predicted[1] = free;
+      }
+    } else {
+      const double lambda_before = lambdaPower(params, o.length - 1);
+      scratch.lambda_before[k] = lambda_before;
+      const double lambda_length = lambda_before * lambda;
+      const PowerMatrix power =
+          transitionPower(params, change_sum, lambda_length, geometricOf(static_cast<double>(o.length), lambda_length));
+      predicted[0] = alpha[0] * power.m[0][0] + alpha[1] * power.m[1][0];
+      predicted[1] = alpha[0] * power.m[0][1] + alpha[1] * power.m[1][1];
+    }
+    const double u_occ = predicted[0] * o.b_occ;
+    const double u_free = predicted[1] * o.b_free;
+    const double c = u_occ + u_free;
+    alpha = {u_occ / c, u_free / c};
+    scratch.normaliser[k] = c;
+    scratch.alpha[k + 1] = alpha;
+    result.log_likelihood += std::log(c) + o.log_scale;
+  }
+  result.final_p_occ = alpha[0];
+
+  // Backward with the expected transition counts of each run between observations.
+  double beta[2] = {1.0, 1.0};
+  for (std::size_t k = n; k-- > 0;) {
+    const Prepared& o = obs[k];
+    const double c = scratch.normaliser[k];
+    const double w[2] = {o.b_occ * beta[0] / c, o.b_free * beta[1] / c};
+    const std::array<double, 2>& start = scratch.alpha[k];
+    if (o.length <= kShortRun) {
+      // Step by step: f_n = start A^n forward, g_m = A^m w backward, all products of
+      // non-negative numbers (exact to rounding whatever lambda is).
+      const std::int64_t length = o.length;
+      std::array<std::array<double, 2>, kShortRun> backward;
+      backward[0] = {w[0], w[1]};
+      for (std::int64_t m = 1; m < length; ++m) {
+        const auto& g = backward[m - 1];
+        backward[m] = {a[0][0] * g[0] + a[0][1] * g[1], a[1][0] * g[0] + a[1][1] * g[1]};
+      }
+      std::array<double, 2> f = start;
+      for (std::int64_t step = 0; step < length; ++step) {
+        const auto& g = backward[length - 1 - step];
+        for (int i = 0; i < 2; ++i) {
+          for (int j = 0; j < 2; ++j) result.counts[i][j] += a[i][j] * f[i] * g[j];
+        }
+        f = {f[0] * a[0][0] + f[1] * a[1][0], f[0] * a[0][1] + f[1] * a[1][1]};
+      }
+      const auto& g = backward[length - 1];
+      for (int i = 0; i < 2; ++i) beta[i] = a[i][0] * g[0] + a[i][1] * g[1];
+      continue;
+    }
+    // Over a run of L transitions from `start` to the observation:
+    //   E[N_ij] = a_ij sum_{k,l} start_k w_l sum_{n<L} (A^n)_ki (A^(L-1-n))_jl,
+    // and with (A^n)_ki = pi_i + lambda^n d_ki, d = I - Pi, the inner sum is
+    //   L pi_i pi_l + pi_i d_jl G + d_ki pi_l G + d_ki d_jl L lambda^(L-1),  G = sum_{n<L} lambda^n.
+    // Keeping start_k and w_l outside the closed form keeps tiny beliefs exact.
+    const double length = static_cast<double>(o.length);
+    const double lambda_before = scratch.lambda_before[k];
+    const double lambda_length = lambda_before * lambda;
+    const double geometric = geometricOf(length, lambda_length);
+    const auto d = [&](int row, int col) { return (row == col ? 1.0 : 0.0) - pi[col]; };
+    for (int i = 0; i < 2; ++i) {
+      for (int j = 0; j < 2; ++j) {
+        double sum = 0.0;
+        for (int from = 0; from < 2; ++from) {
+          for (int to = 0; to < 2; ++to) {
+            const double runs = length * pi[i] * pi[to] + pi[i] * d(j, to) * geometric +
+                                d(from, i) * pi[to] * geometric +
+                                d(from, i) * d(j, to) * length * lambda_before;
+            sum += start[from] * w[to] * runs;
+          }
+        }
+        result.counts[i][j] += a[i][j] * sum;
+      }
+    }
+    const PowerMatrix power = transitionPower(params, change_sum, lambda_length, geometric);
+    for (int i = 0; i < 2; ++i) beta[i] = power.m[i][0] * w[0] + power.m[i][1] * w[1];
+  }
+  return result;
+}
+
+double logPrior(const TransitionParams& params, const OfflineEmConfig& config) {
+  if (config.prior_weight == 0.0) return 0.0;
+  const double prior[2][2] = {{1.0 - config.prior.p_free_given_occ, config.prior.p_free_given_occ},
+                              {config.prior.p_occ_given_free, 1.0 - config.prior.p_occ_given_free}};
+  const double a[2][2] = {{1.0 - params.p_free_given_occ, params.p_free_given_occ},
+                          {params.p_occ_given_free, 1.0 - params.p_occ_given_free}};
+  double sum = 0.0;
+  for (int i = 0; i < 2; ++i) {
+    for (int j = 0; j < 2; ++j) {
+      const double weight = config.prior_weight * prior[i][j];
+      if (weight > 0.0) sum += weight * std::log(a[i][j]);
+    }
+  }
+  return sum;
+}
+
+// Cells per unit of parallel work: the partial sums of one chunk are added in cell order
+// and chunks in chunk order, so the result does not depend on which thread ran what. The
+// size depends on the cell count only (never on the thread count): up to 256 cells, and at
+// least 64 chunks where there are enough cells, so small maps still use every core.
+std::size_t chunkCells(std::size_t cells) { return std::clamp<std::size_t>(cells / 64, 8, 256); }
+
+}  // namespace
+
+std::size_t ObservationSequences::bytes() const {
+  return cells_.size() * sizeof(CellXY) + offsets_.size() * sizeof(std::uint64_t) +
+         observations_.size() * sizeof(StepObservation);
+}
+
+void SequenceBuilder::add(std::int32_t x, std::int32_t y, std::int32_t step, std::uint32_t hits,
+                          std::uint32_t misses) {
+  const std::uint64_t key = (std::uint64_t{static_cast<std::uint32_t>(x)} << 32) | static_cast<std::uint32_t>(y);
+  const auto found = cell_index_.find(key);
+  if (found == cell_index_.end()) {
+    const auto index = static_cast<std::uint32_t>(cells_.size());
+    records_.push_back(Record{index, StepObservation{step, saturatingAdd(0, hits), saturatingAdd(0, misses)}});
+    cell_index_.emplace(key, index);
+    cells_.push_back(CellXY{x, y});
+    last_record_.push_back(records_.size() - 1);
+    return;
+  }
+  const std::uint32_t index = found->second;
+  StepObservation& last = records_[last_record_[index]].observation;
+  if (step < last.step) {
+    throw std::invalid_argument("SequenceBuilder: step " + std::to_string(step) + " of cell (" +
+                                std::to_string(x) + ", " + std::to_string(y) +
+                                ") is before its last step " + std::to_string(last.step));
+  }
+  if (step == last.step) {
+    last.hits = saturatingAdd(last.hits, hits);
+    last.misses = saturatingAdd(last.misses, misses);
+    return;
+  }
+  records_.push_back(Record{index, StepObservation{step, saturatingAdd(0, hits), saturatingAdd(0, misses)}});
+  last_record_[index] = records_.size() - 1;
+}
+
+ObservationSequences SequenceBuilder::build() {
+  ObservationSequences sequences;
+  // Counting sort by cell; records of a cell are already in step order.
+  sequences.offsets_.assign(cells_.size() + 1, 0);
+  for (const Record& record : records_) ++sequences.offsets_[record.cell + 1];
+  for (std::size_t i = 0; i < cells_.size(); ++i) sequences.offsets_[i + 1] += sequences.offsets_[i];
+  sequences.observations_.resize(records_.size());
+  std::vector<std::uint64_t> next(sequences.offsets_.begin(), sequences.offsets_.end() - 1);
+  for (const Record& record : records_) sequences.observations_[next[record.cell]++] = record.observation;
+  sequences.cells_ = std::move(cells_);
+  *this = SequenceBuilder();
+  return sequences;
+}
+
+ForwardBackwardResult forwardBackward(const StepObservation* begin, const StepObservation* end,
+                                      const ObservationModel& sensor,
+                                      const TransitionParams& params, double initial_p_occ) {
+  if (begin == end) throw std::invalid_argument("forwardBackward: empty sequence");
+  Scratch scratch;
+  prepare(begin, end, sensor, scratch.observations);
+  return forwardBackwardPrepared(scratch, params, initial_p_occ);
+}
+
+void OfflineEmConfig::validate() const {
+  require(initial_p_occ > 0.0 && initial_p_occ < 1.0,
+          "offline_em initial_p_occ must be in (0, 1), got " + std::to_string(initial_p_occ));
+  require(initial_params.isValid(), "offline_em initial_params must be probabilities in [0, 1]");
+  require(prior.isValid(), "offline_em prior must be probabilities in [0, 1]");
+  require(std::isfinite(prior_weight) && prior_weight >= 0.0,
+          "offline_em prior_weight must be >= 0, got " + std::to_string(prior_weight));
+  require(isProbability(p_min) && isProbability(p_max) && p_min <= p_max,
+          "offline_em bounds need 0 <= p_min <= p_max <= 1, got p_min " + std::to_string(p_min) +
+              ", p_max " + std::to_string(p_max));
+  require(max_iterations >= 0 && max_iterations <= std::numeric_limits<std::uint16_t>::max(),
+          "offline_em max_iterations must be in [0, 65535], got " + std::to_string(max_iterations));
+  require(std::isfinite(tolerance) && tolerance >= 0.0,
+          "offline_em tolerance must be >= 0, got " + std::to_string(tolerance));
+}
+
+TransitionParams offlineMStep(const TransitionCounts& counts, const OfflineEmConfig& config,
+                              const TransitionParams& previous) {
+  const TransitionParams& prior = config.prior;
+  const double w = config.prior_weight;
+  // Counts plus the prior's pseudo-counts (a Dirichlet prior on each row: MAP-EM).
+  const double occ_free = counts[0][1] + w * prior.p_free_given_occ;
+  const double occ_occ = counts[0][0] + w * (1.0 - prior.p_free_given_occ);
+  const double free_occ = counts[1][0] + w * prior.p_occ_given_free;
+  const double free_free = counts[1][1] + w * (1.0 - prior.p_occ_given_free);
+  const double from_occ = occ_free + occ_occ;
+  const double from_free = free_occ + free_free;
+  const auto bounded = [&](double p) { return std::clamp(p, config.p_min, config.p_max); };
+  if (config.symmetric) {
+    const double all = from_occ + from_free;
+    if (!(all > 0.0)) return previous;
+    const double p_change = bounded((occ_free + free_occ) / all);
+    return TransitionParams{p_change, p_change};
+  }
+  TransitionParams params = previous;
+  if (from_free > 0.0) params.p_occ_given_free = bounded(free_occ / from_free);
+  if (from_occ > 0.0) params.p_free_given_occ = bounded(occ_free / from_occ);
+  return params;
+}
+
+OfflineEmResult runOfflineEm(const ObservationSequences& sequences, const ObservationModel& sensor,
+                             const OfflineEmConfig& config, const OfflineEmProgress& progress) {
+  config.validate();
+  const std::size_t cells = sequences.cellCount();
+  const auto iterations_max = static_cast<std::size_t>(config.max_iterations);
+  OfflineEmResult result;
+  result.params.assign(cells, config.initial_params);
+  result.final_p_occ.assign(cells, std::numeric_limits<double>::quiet_NaN());
+  result.final_step.assign(cells, 0);
+  result.iterations.assign(cells, 0);
+  if (cells == 0) return result;
+
+  const std::size_t chunk_cells = chunkCells(cells);
+  const std::size_t chunks = (cells + chunk_cells - 1) / chunk_cells;
+  std::vector<std::vector<double>> chunk_objective(chunks);
+  std::vector<std::size_t> chunk_converged(chunks, 0);
+  std::atomic<std::size_t> next_chunk{0};
+  std::atomic<bool> cancelled{false};
+  std::mutex progress_mutex;
+  std::size_t cells_done = 0;
+  std::exception_ptr failure;
+
+  const auto run_chunk = [&](std::size_t chunk, Scratch& scratch) {
+    // Sum over the chunk's cells of their objective at iteration k; a cell that stopped
+    // contributes its last value, so extending the sum repeats its last entry.
+    std::vector<double>& objective_sum = chunk_objective[chunk];
+    objective_sum.assign(1, 0.0);
+    const std::size_t first = chunk * chunk_cells;
+    const std::size_t last = std::min(cells, first + chunk_cells);
+    for (std::size_t cell = first; cell < last; ++cell) {
+      const StepObservation* begin = sequences.begin(cell);
+      const StepObservation* end = sequences.end(cell);
+      prepare(begin, end, sensor, scratch.observations);
+      TransitionParams params = config.initial_params;
+      ForwardBackwardResult pass = forwardBackwardPrepared(scratch, params, config.initial_p_occ);
+      double objective = pass.log_likelihood + logPrior(params, config);
+      scratch.objective.assign(1, objective);
+      std::size_t iteration = 0;
+      bool converged = false;
+      while (iteration < iterations_max) {
+        params = offlineMStep(pass.counts, config, params);
+        pass = forwardBackwardPrepared(scratch, params, config.initial_p_occ);
+        const double next_objective = pass.log_likelihood + logPrior(params, config);
+        const double gain = next_objective - objective;
+        objective = next_objective;
+        scratch.objective.push_back(objective);
+        ++iteration;
+        // tolerance 0 runs max_iterations (rounding can make a converged gain negative).
+        if (config.tolerance > 0.0 && gain < config.tolerance) {
+          converged = true;
+          break;
+        }
+      }
+      result.params[cell] = params;
+      result.final_p_occ[cell] = pass.final_p_occ;
+      result.final_step[cell] = (end - 1)->step;
+      result.iterations[cell] = static_cast<std::uint16_t>(iteration);
+      if (converged) ++chunk_converged[chunk];
+      if (scratch.objective.size() > objective_sum.size()) {
+        objective_sum.resize(scratch.objective.size(), objective_sum.back());
+      }
+      for (std::size_t k = 0; k < objective_sum.size(); ++k) {
+        objective_sum[k] += scratch.objective[std::min(k, scratch.objective.size() - 1)];
+      }
+    }
+    if (progress) {
+      const std::lock_guard<std::mutex> lock(progress_mutex);
+      cells_done += last - first;
+      if (!progress(cells_done, cells)) cancelled = true;
+    }
+  };
+
+  const auto worker = [&]() {
+    Scratch scratch;
+    try {
+      for (std::size_t chunk = next_chunk++; chunk < chunks && !cancelled; chunk = next_chunk++) {
+        run_chunk(chunk, scratch);
+      }
+    } catch (...) {
+      const std::lock_guard<std::mutex> lock(progress_mutex);
+      if (!failure) failure = std::current_exception();
+      cancelled = true;
+    }
+  };
+
+  const unsigned hardware = std::max(1U, std::thread::hardware_concurrency());
+  const std::size_t thread_count = std::min<std::size_t>(config.threads == 0 ? hardware : config.threads, chunks);
+  std::vector<std::thread> threads;
+  for (std::size_t t = 1; t < thread_count; ++t) threads.emplace_back(worker);
+  worker();
+  for (std::thread& thread : threads) thread.join();
+  if (failure) std::rethrow_exception(failure);
+
+  result.cancelled = cancelled;
+  std::size_t entries = 0;
+  for (const std::vector<double>& sum : chunk_objective) entries = std::max(entries, sum.size());
+  result.objective.assign(entries, 0.0);
+  for (std::size_t chunk = 0; chunk < chunks; ++chunk) {
+    result.cells_converged += chunk_converged[chunk];
+    const std::vector<double>& sum = chunk_objective[chunk];
+    if (sum.empty()) continue;  // not run (cancelled)
+    for (std::size_t k = 0; k < entries; ++k) result.objective[k] += sum[std::min(k, sum.size() - 1)];
+  }
+  return result;
+}
+
+}  // namespace core
+}  // namespace dynamic_occupancy_grid
