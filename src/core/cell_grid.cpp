@@ -166,6 +166,8 @@ CellGrid::Tile* CellGrid::tileForWriting(std::int32_t x, std::int32_t y) {
     tile->log_odds.fill(0.0f);
     tile->p_occ_given_free.fill(defaults_.p_occ_given_free);
     tile->p_free_given_occ.fill(defaults_.p_free_given_occ);
+    for (auto& stat : tile->em_stats) stat.fill(0.0f);
+    tile->observed_steps.fill(0);
     tile->pending_hits.fill(0);
     tile->pending_misses.fill(0);
     tile->scan_mark.fill(0);
@@ -192,8 +194,10 @@ std::optional<CellState> CellGrid::cell(std::int32_t x, std::int32_t y) const {
   if (tile == nullptr) return std::nullopt;
   const int i = offsetOf(x, y);
   if (tile->last_step[i] == kNeverObserved) return std::nullopt;
-  return CellState{tile->p_occ[i], tile->last_step[i], tile->log_odds[i],
-                   tile->p_occ_given_free[i], tile->p_free_given_occ[i]};
+  CellState state{tile->p_occ[i], tile->last_step[i], tile->log_odds[i],
+                  tile->p_occ_given_free[i], tile->p_free_given_occ[i], {}, tile->observed_steps[i]};
+  for (std::size_t k = 0; k < state.em_stats.size(); ++k) state.em_stats[k] = tile->em_stats[k][i];
+  return state;
 }
 
 }  // namespace core

@@ -73,6 +73,10 @@ void MapperConfig::validate() const {
     require(width_m <= max_map_size_m && height_m <= max_map_size_m,
             "fixed width and height must not exceed max_map_size");
   }
+  online_em.validate();
+  require(online_em.min_observed_steps <= std::numeric_limits<std::uint16_t>::max(),
+          "online_em min_observed_steps must be <= 65535 (the grid counts up to that), got " +
+              std::to_string(online_em.min_observed_steps));
   // Throws with its own message for a bad sensor model.
   static_cast<void>(ObservationModel(p_hit_given_occ, p_hit_given_free));
 }
@@ -279,21 +283,50 @@ void Mapper::applyGatheredStep() {
     const std::uint32_t misses = tile.pending_misses[i];
     tile.pending_hits[i] = 0;
     tile.pending_misses[i] = 0;
-    const TransitionParams params{tile.p_occ_given_free[i], tile.p_free_given_occ[i]};
-    // The belief just before this step's transition: the prior for a new cell, otherwise
-    // the stored belief carried over the unobserved steps in closed form (THEORY.md §3).
-    const std::int32_t last = tile.last_step[i];
-    const double before = last == kNeverObserved
-                              ? config_.initial_p_occ
-                              : predictOccupancy(tile.p_occ[i], params, std::int64_t{step} - 1 - last);
     const double evidence = sensor_.logLikelihoodRatio(hits, misses);
-    tile.p_occ[i] = static_cast<float>(filterStep(before, params, evidence));
+    if (config_.learn_transitions) {
+      learnStep(tile, i, step, evidence);
+    } else {
+      const TransitionParams params{tile.p_occ_given_free[i], tile.p_free_given_occ[i]};
+      const std::int32_t last = tile.last_step[i];
+      // The belief just before this step's transition: the prior for a new cell, otherwise
+      // the stored belief carried over the unobserved steps in closed form (THEORY.md §3).
+      const double before = last == kNeverObserved
+                                ? config_.initial_p_occ
+                                : predictOccupancy(tile.p_occ[i], params, std::int64_t{step} - 1 - last);
+      tile.p_occ[i] = static_cast<float>(filterStep(before, params, evidence));
+    }
     tile.log_odds[i] = static_cast<float>(updateLogOdds(tile.log_odds[i], evidence, config_.static_clamp));
+    if (recorder_ != nullptr) recorder_->add(tile.cellX(i), tile.cellY(i), step, hits, misses);
     tile.last_step[i] = step;
     changed_cells_.include(tile.cellX(i), tile.cellY(i));
   }
   touched_.clear();
   last_applied_step_ = gathering_step_;
+}
+
+void Mapper::learnStep(CellGrid::Tile& tile, int i, std::int32_t step, double evidence) {
+  // THEORY.md §6: the statistics and the belief are carried over the unobserved steps in
+  // closed form, then the observed step and the M-step (online_em.h, onlineLearnStep).
+  OnlineCell cell;
+  const std::int32_t last = tile.last_step[i];
+  std::int64_t gap = 0;
+  if (last == kNeverObserved) {
+    cell = newOnlineCell(config_.prior_transitions, config_.initial_p_occ, config_.online_em);
+  } else {
+    cell.p_occ = tile.p_occ[i];
+    for (std::size_t k = 0; k < cell.stats.s.size(); ++k) cell.stats.s[k] = tile.em_stats[k][i];
+    cell.observed_steps = tile.observed_steps[i];
+    cell.params = TransitionParams{tile.p_occ_given_free[i], tile.p_free_given_occ[i]};
+    gap = std::int64_t{step} - 1 - last;
+  }
+  onlineLearnStep(cell, gap, evidence, config_.prior_transitions, config_.online_em);
+  tile.p_occ[i] = static_cast<float>(cell.p_occ);
+  for (std::size_t k = 0; k < cell.stats.s.size(); ++k) tile.em_stats[k][i] = static_cast<float>(cell.stats.s[k]);
+  tile.observed_steps[i] = static_cast<std::uint16_t>(
+      std::min<std::uint32_t>(cell.observed_steps, std::numeric_limits<std::uint16_t>::max()));
+  tile.p_occ_given_free[i] = static_cast<float>(cell.params.p_occ_given_free);
+  tile.p_free_given_occ[i] = static_cast<float>(cell.params.p_free_given_occ);
 }
 
 void Mapper::finishStep() {

@@ -63,6 +63,8 @@ dog::MapperConfig testConfig() {
   config.p_hit_given_occ = kHitOcc;
   config.p_hit_given_free = kHitFree;
   config.prior_transitions = dog::TransitionParams{kPOf, kPFo};
+  // These tests follow the filter with fixed transitions; learning has its own tests below.
+  config.learn_transitions = false;
   config.initial_p_occ = 0.5;
   config.static_clamp = dog::LogOddsClamp{-100.0, 100.0};  // wide: log-odds = evidence sums
   config.max_free_range_m = 10.0;
@@ -913,6 +915,7 @@ TEST(MapperEndToEnd, WallAppearsThenDisappears) {
   config.p_hit_given_occ = kHitOcc;
   config.p_hit_given_free = kHitFree;
   config.prior_transitions = dog::TransitionParams{kPOf / 5, kPFo / 5};  // 0.05, 0.075
+  config.learn_transitions = false;
   config.initial_p_occ = 0.5;
   config.static_clamp = dog::LogOddsClamp{-2.0, 3.5};
   config.max_free_range_m = 2.0;
@@ -1109,3 +1112,172 @@ TEST(MapperHugeRange, BeamIsCutAtTheMapSizeAndCountsNoHit) {
 }
 
 }  // namespace
+
+// =====================================================================================
+// Online learning inside the mapper (THEORY.md §6): the grid holds each cell's learner as
+// float and runs online_em.h's onlineLearnStep on every observed step
+// =====================================================================================
+
+namespace {
+
+dog::MapperConfig learningConfig() {
+  dog::MapperConfig config = testConfig();
+  config.learn_transitions = true;
+  config.prior_transitions = dog::TransitionParams{0.125, 0.0625};
+  config.online_em.prior_weight = 4.0;
+  config.online_em.learning_rate_floor = 0.01;
+  config.online_em.p_min = 0.001;
+  config.online_em.p_max = 0.75;
+  config.online_em.min_observed_steps = 3;
+  return config;
+}
+
+// A cell's learner as the grid stores it: rounded to float after every observed step.
+dog::OnlineCell roundedToFloat(dog::OnlineCell cell) {
+  const auto f = [](double v) { return static_cast<double>(static_cast<float>(v)); };
+  cell.p_occ = f(cell.p_occ);
+  for (double& s : cell.stats.s) s = f(s);
+  cell.params.p_occ_given_free = f(cell.params.p_occ_given_free);
+  cell.params.p_free_given_occ = f(cell.params.p_free_given_occ);
+  return cell;
+}
+
+}  // namespace
+
+TEST(MapperLearning, CellsFollowTheOnlineLearnerStepForStep) {
+  // Random beams along +x with gaps between steps; every cell (0..8, 0) is replayed through
+  // newOnlineCell / onlineLearnStep with the float rounding the grid applies.
+  const dog::MapperConfig config = learningConfig();
+  dog::Mapper mapper(config);
+  const dog::ObservationModel sensor(config.p_hit_given_occ, config.p_hit_given_free);
+  std::mt19937_64 rng(4242);
+  std::uniform_int_distribution<int> scans_per_step(0, 3);
+  std::uniform_int_distribution<int> cells(1, 8);
+  std::uniform_int_distribution<int> skip(0, 4);
+  std::map<std::int32_t, dog::OnlineCell> ref;
+  std::map<std::int32_t, std::int64_t> last_step;
+  std::int64_t step = 0;
+  for (int round = 0; round < 120; ++round) {
+    const int n = round == 0 ? 1 : scans_per_step(rng);
+    std::map<std::int32_t, Evidence> counts;
+    for (int k = 0; k < n; ++k) {
+      const int end = cells(rng);
+      ASSERT_EQ(mapper.integrate(makeScan(step + 0.2 * k, {0.25f * static_cast<float>(end)})).status,
+                dog::ScanStatus::kIntegrated);
+      for (std::int32_t x = 0; x < end; ++x) counts[x].misses++;
+      counts[end].hits++;
+    }
+    mapper.finishStep();
+    for (const auto& [x, ev] : counts) {
+      std::int64_t gap = 0;
+      if (ref.count(x) == 0) {
+        ref[x] = dog::newOnlineCell(config.prior_transitions, config.initial_p_occ, config.online_em);
+      } else {
+        gap = step - 1 - last_step[x];
+      }
+      dog::onlineLearnStep(ref[x], gap, sensor.logLikelihoodRatio(ev.hits, ev.misses),
+                           config.prior_transitions, config.online_em);
+      ref[x] = roundedToFloat(ref[x]);
+      last_step[x] = step;
+    }
+    for (const auto& [x, cell] : ref) {
+      SCOPED_TRACE("round " + std::to_string(round) + " cell " + std::to_string(x));
+      const auto c = mapper.grid().cell(x, 0);
+      ASSERT_TRUE(c.has_value());
+      ASSERT_EQ(c->last_step, last_step[x]);
+      ASSERT_EQ(c->observed_steps, cell.observed_steps);
+      ASSERT_NEAR(c->p_occ, cell.p_occ, 1e-6);
+      ASSERT_NEAR(c->p_occ_given_free, cell.params.p_occ_given_free, 1e-6);
+      ASSERT_NEAR(c->p_free_given_occ, cell.params.p_free_given_occ, 1e-6);
+      for (std::size_t k = 0; k < 8; ++k) ASSERT_NEAR(c->em_stats[k], cell.stats.s[k], 1e-5 * cell.stats.total());
+      // Until min_observed_steps the filter keeps the prior.
+      if (cell.observed_steps < config.online_em.min_observed_steps) {
+        ASSERT_FLOAT_EQ(c->p_occ_given_free, static_cast<float>(config.prior_transitions.p_occ_given_free));
+      }
+    }
+    step += 1 + skip(rng);
+  }
+  // Cells that flip between hit and miss learned to change; the learning moved them off the prior.
+  bool moved = false;
+  for (const auto& [x, cell] : ref) {
+    moved = moved || std::abs(cell.params.p_occ_given_free - config.prior_transitions.p_occ_given_free) > 0.05;
+  }
+  EXPECT_TRUE(moved);
+}
+
+TEST(MapperLearning, FlickeringCellLearnsToChangeAndAWallLearnsToStay) {
+  // Cell (4, 0): occupied for 5 steps (the beam ends in it), then free for 5 steps (the
+  // beam passes through it to the wall cell (8, 0)), and so on. After 600 steps the
+  // flickering cell changes about every 5 steps (p = 0.2 each way; online EM with step size
+  // 1/t is still on its way there: about 0.23 and 0.11 here, offline EM on the same data
+  // gives 0.26 and 0.20), the wall, seen only in the free phases, stays (p_fo near p_min).
+  dog::MapperConfig config = learningConfig();
+  config.online_em.learning_rate_floor = 0.0;
+  config.prior_transitions = dog::TransitionParams{0.01, 0.01};
+  dog::Mapper mapper(config);
+  for (int step = 0; step < 600; ++step) {
+    const bool occupied = (step / 5) % 2 == 0;
+    const float flicker_range = 0.25f * (occupied ? 4.0f : 8.0f);
+    ASSERT_EQ(mapper.integrate(makeScan(step, {flicker_range})).status, dog::ScanStatus::kIntegrated);
+  }
+  mapper.finishStep();
+  const auto flicker = mapper.grid().cell(4, 0);
+  const auto wall = mapper.grid().cell(8, 0);
+  ASSERT_TRUE(flicker && wall);
+  EXPECT_NEAR(flicker->p_occ_given_free, 0.2, 0.06);
+  EXPECT_NEAR(flicker->p_free_given_occ, 0.15, 0.06);
+  EXPECT_LT(wall->p_free_given_occ, 0.01);
+  // The stationary p(occ) of the flickering cell is between the states, the wall's is 1.
+  const auto stationary = dog::stationaryOccupancy({flicker->p_occ_given_free, flicker->p_free_given_occ});
+  ASSERT_TRUE(stationary.has_value());
+  EXPECT_NEAR(*stationary, 0.5, 0.2);
+  const auto wall_stationary = dog::stationaryOccupancy({wall->p_occ_given_free, wall->p_free_given_occ});
+  ASSERT_TRUE(wall_stationary.has_value());
+  EXPECT_GT(*wall_stationary, 0.9);
+}
+
+TEST(MapperLearning, RecorderReceivesEveryAppliedCellStep) {
+  dog::MapperConfig config = learningConfig();
+  dog::Mapper mapper(config);
+  dog::SequenceBuilder recorder;
+  // Step 0 is not recorded; steps 1 and 3 are; step 4 after recording stopped is not.
+  ASSERT_EQ(mapper.integrate(makeScan(0.1, {0.75f})).status, dog::ScanStatus::kIntegrated);
+  mapper.finishStep();
+  mapper.recordObservations(&recorder);
+  ASSERT_EQ(mapper.integrate(makeScan(1.1, {0.75f})).status, dog::ScanStatus::kIntegrated);
+  ASSERT_EQ(mapper.integrate(makeScan(1.2, {0.5f})).status, dog::ScanStatus::kIntegrated);
+  ASSERT_EQ(mapper.integrate(makeScan(3.5, {0.25f})).status, dog::ScanStatus::kIntegrated);
+  mapper.finishStep();
+  mapper.recordObservations(nullptr);
+  ASSERT_EQ(mapper.integrate(makeScan(4.5, {0.25f})).status, dog::ScanStatus::kIntegrated);
+  mapper.finishStep();
+  const dog::ObservationSequences sequences = recorder.build();
+  std::map<XY, std::vector<std::tuple<int, int, int>>> got;
+  for (std::size_t i = 0; i < sequences.cellCount(); ++i) {
+    for (const auto* o = sequences.begin(i); o != sequences.end(i); ++o) {
+      got[{sequences.cell(i).x, sequences.cell(i).y}].emplace_back(o->step, o->hits, o->misses);
+    }
+  }
+  using T = std::tuple<int, int, int>;
+  const std::map<XY, std::vector<T>> expected = {
+      {{0, 0}, {T{1, 0, 2}, T{3, 0, 1}}},
+      {{1, 0}, {T{1, 0, 2}, T{3, 1, 0}}},
+      {{2, 0}, {T{1, 1, 1}}},
+      {{3, 0}, {T{1, 1, 0}}},
+  };
+  EXPECT_EQ(got, expected);
+}
+
+TEST(MapperLearning, BadOnlineEmSettingsAreRejected) {
+  const auto bad = [](auto change) {
+    dog::MapperConfig c = learningConfig();
+    change(c);
+    return c;
+  };
+  EXPECT_NO_THROW(dog::Mapper{learningConfig()});
+  EXPECT_THROW(dog::Mapper(bad([](auto& c) { c.online_em.learning_rate_floor = 1.0; })), std::invalid_argument);
+  EXPECT_THROW(dog::Mapper(bad([](auto& c) { c.online_em.prior_weight = -1.0; })), std::invalid_argument);
+  EXPECT_THROW(dog::Mapper(bad([](auto& c) { c.online_em.p_min = 0.8; })), std::invalid_argument);
+  EXPECT_THROW(dog::Mapper(bad([](auto& c) { c.online_em.min_observed_steps = 70000; })),
+               std::invalid_argument);
+}

@@ -47,14 +47,16 @@ struct MapWindow {
   CellBox cells;  ///< lattice cells covered; width/height of the block are its extent
 };
 
-/// The state of one cell (THEORY.md §1–4). Floats keep a cell at 28 bytes; the filter
-/// math runs in double and rounds once per stored step.
+/// The state of one cell (THEORY.md §1–6). Floats keep a cell at 62 bytes; the filter
+/// and EM math runs in double and rounds once per stored step.
 struct CellState {
   float p_occ;                   ///< belief p(occ) at last_step
   std::int32_t last_step;        ///< step of the last update, kNeverObserved if none
   float log_odds;                ///< standard occupancy grid baseline (clamped log-odds)
-  float p_occ_given_free;        ///< p_of of the cell, per step
-  float p_free_given_occ;        ///< p_fo of the cell, per step
+  float p_occ_given_free;        ///< p_of the filter uses, per step
+  float p_free_given_occ;        ///< p_fo the filter uses, per step
+  std::array<float, 8> em_stats; ///< online EM statistics S(i, j, m), TransitionStats order
+  std::uint16_t observed_steps;  ///< steps with an observation (saturating)
 };
 
 class CellGrid {
@@ -70,6 +72,9 @@ class CellGrid {
     std::array<float, kTileCells> log_odds;
     std::array<float, kTileCells> p_occ_given_free;
     std::array<float, kTileCells> p_free_given_occ;
+    // Online EM statistics S(i, j, m) (THEORY.md §6), one array per TransitionStats index.
+    std::array<std::array<float, kTileCells>, 8> em_stats;
+    std::array<std::uint16_t, kTileCells> observed_steps;
     // Evidence gathered in the current time step, applied when the step closes.
     std::array<std::uint16_t, kTileCells> pending_hits;
     std::array<std::uint16_t, kTileCells> pending_misses;

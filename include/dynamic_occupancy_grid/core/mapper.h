@@ -1,6 +1,6 @@
 #pragma once
-// The mapping pipeline of the core: scans in, per-cell HMM beliefs and the static log-odds
-// baseline out. Scans are grouped into time steps (THEORY.md §4); within a step each
+// The mapping pipeline of the core: scans in, per-cell HMM beliefs, online-learned
+// transition probabilities and the static log-odds baseline out. Scans are grouped into time steps (THEORY.md §4); within a step each
 // touched cell gathers hit and miss counts; when a scan of a later step arrives the step is
 // applied to the touched cells only (THEORY.md §3: untouched cells cost nothing).
 
@@ -11,6 +11,8 @@
 
 #include "dynamic_occupancy_grid/core/cell_grid.h"
 #include "dynamic_occupancy_grid/core/cell_model.h"
+#include "dynamic_occupancy_grid/core/offline_em.h"
+#include "dynamic_occupancy_grid/core/online_em.h"
 #include "dynamic_occupancy_grid/core/scan.h"
 #include "dynamic_occupancy_grid/core/step_clock.h"
 
@@ -22,8 +24,12 @@ struct MapperConfig {
   double time_step_s = 1.0;           ///< one HMM step, seconds of sensor time
   double p_hit_given_occ = 0.7;       ///< sensor model: a beam ends in an occupied cell
   double p_hit_given_free = 0.2;      ///< sensor model: a beam ends in a free cell
-  /// Transition probabilities every cell starts with (per step).
+  /// Transition probabilities every cell starts with (per step); also the prior guess of
+  /// online learning.
   TransitionParams prior_transitions{0.01, 0.01};
+  /// Learn each cell's transitions online (THEORY.md §6); false keeps prior_transitions.
+  bool learn_transitions = true;
+  OnlineEmConfig online_em;
   double initial_p_occ = 0.5;         ///< belief of a cell before its first observation
   LogOddsClamp static_clamp;          ///< clamping of the static baseline
   /// Beams without return (range >= range_max or +inf) clear cells up to this distance
@@ -82,9 +88,13 @@ class Mapper {
   double beliefAt(std::int32_t x, std::int32_t y, std::int64_t step) const;
   /// Cells changed by steps applied since the last call.
   CellBox takeChangedCells();
+  /// From now on, every applied cell step is also added to `recorder` (offline EM input);
+  /// nullptr stops. The recorder must outlive its use here.
+  void recordObservations(SequenceBuilder* recorder) { recorder_ = recorder; }
 
  private:
   void applyGatheredStep();
+  void learnStep(CellGrid::Tile& tile, int offset, std::int32_t step, double evidence);
   void markMiss(CellGrid::Tile& tile, int offset);
   void markHit(CellGrid::Tile& tile, int offset);
   void addTouched(CellGrid::Tile& tile, int offset);
@@ -104,6 +114,7 @@ class Mapper {
   std::vector<TouchedCell> touched_;
   std::uint32_t scan_id_ = 0;
   CellBox changed_cells_;
+  SequenceBuilder* recorder_ = nullptr;
 };
 
 }  // namespace core
