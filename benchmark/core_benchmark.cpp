@@ -1,14 +1,19 @@
 // Google Benchmark for the core's hot paths. Results and the command are in BENCHMARKS.md.
 //   One scan: 1081 beams over 270 degrees, every beam a hit at 29.97 m (the worst case of a
 //   30 m sensor), 0.05 m cells.
+//   Learning: online EM per observed cell-step; offline EM in observed cell-steps per
+//   second per iteration.
 
 #include <benchmark/benchmark.h>
 
 #include <cmath>
 #include <cstdint>
+#include <random>
 #include <vector>
 
 #include "dynamic_occupancy_grid/core/mapper.h"
+#include "dynamic_occupancy_grid/core/offline_em.h"
+#include "dynamic_occupancy_grid/core/online_em.h"
 #include "dynamic_occupancy_grid/core/traversal.h"
 
 namespace dog = dynamic_occupancy_grid::core;
@@ -81,10 +86,13 @@ void BM_ScanIntegrate(benchmark::State& state) {
 }
 BENCHMARK(BM_ScanIntegrate)->Unit(benchmark::kMicrosecond);
 
-// Applying a step: every cell touched by one scan is brought over its gap, filtered and
-// its baseline updated. Reported per touched cell.
+// Applying a step: every cell touched by one scan is brought over its gap, filtered (and,
+// with argument 1, its online EM statistics updated) and its baseline updated. Reported per
+// touched cell.
 void BM_StepUpdate(benchmark::State& state) {
-  dog::Mapper mapper(benchmarkConfig());
+  dog::MapperConfig config = benchmarkConfig();
+  config.learn_transitions = state.range(0) != 0;
+  dog::Mapper mapper(config);
   double stamp = 0.0;
   std::size_t touched = 0;
   for (auto _ : state) {
@@ -113,8 +121,63 @@ void BM_StepUpdate(benchmark::State& state) {
   state.counters["touched_cells"] = static_cast<double>(touched);
   // items_per_second = touched cells per second: ns per cell = 1e9 / items_per_second.
   state.SetItemsProcessed(static_cast<std::int64_t>(touched) * state.iterations());
+  state.SetLabel(config.learn_transitions ? "filter + online EM" : "filter only");
 }
-BENCHMARK(BM_StepUpdate)->Unit(benchmark::kMicrosecond);
+BENCHMARK(BM_StepUpdate)->Arg(0)->Arg(1)->Unit(benchmark::kMicrosecond);
+
+// The online EM kernel alone (onlineLearnStep in double, no grid): argument = the gap of
+// unobserved steps before each observed step (0: seen every step; 5: the closed-form skip).
+void BM_OnlineLearnStep(benchmark::State& state) {
+  const std::int64_t gap = state.range(0);
+  const dog::OnlineEmConfig config;
+  const dog::TransitionParams prior{0.01, 0.01};
+  constexpr int kCells = 4096;
+  std::vector<dog::OnlineCell> cells(kCells, dog::newOnlineCell(prior, 0.5, config));
+  std::mt19937_64 rng(7);
+  std::vector<double> evidence(kCells);
+  for (double& e : evidence) e = (rng() % 2 == 0) ? 1.25 : -0.98;
+  for (auto _ : state) {
+    for (int i = 0; i < kCells; ++i) dog::onlineLearnStep(cells[i], gap, evidence[i], prior, config);
+    benchmark::ClobberMemory();
+  }
+  state.SetItemsProcessed(state.iterations() * kCells);  // observed cell-steps per second
+}
+BENCHMARK(BM_OnlineLearnStep)->Arg(0)->Arg(5);
+
+// Offline EM on synthetic data: 4096 cells x 200 observed steps, gaps of 1 to 4 steps, one
+// or two beams per observation; 10 iterations per cell (tolerance 0). Argument = threads.
+// items_per_second = observed cell-steps per second per iteration.
+void BM_OfflineEm(benchmark::State& state) {
+  constexpr int kCells = 4096;
+  constexpr int kObservations = 200;
+  constexpr int kIterations = 10;
+  std::mt19937_64 rng(11);
+  dog::SequenceBuilder builder;
+  for (int cell = 0; cell < kCells; ++cell) {
+    bool occupied = false;
+    std::int32_t step = 0;
+    for (int k = 0; k < kObservations; ++k) {
+      step += 1 + static_cast<std::int32_t>(rng() % 4);
+      if (rng() % 10 == 0) occupied = !occupied;
+      const std::uint32_t beams = 1 + static_cast<std::uint32_t>(rng() % 2);
+      builder.add(cell, 0, step, occupied ? beams : 0, occupied ? 0 : beams);
+    }
+  }
+  const dog::ObservationSequences sequences = builder.build();
+  const dog::ObservationModel sensor(0.7, 0.2);
+  dog::OfflineEmConfig config;
+  config.tolerance = 0.0;
+  config.max_iterations = kIterations;
+  config.threads = static_cast<unsigned>(state.range(0));
+  for (auto _ : state) {
+    const dog::OfflineEmResult result = dog::runOfflineEm(sequences, sensor, config);
+    benchmark::DoNotOptimize(result.objective.back());
+  }
+  state.SetItemsProcessed(state.iterations() * static_cast<std::int64_t>(sequences.observationCount()) *
+                          (kIterations + 1));  // + 1: the E-step of the initial parameters
+  state.SetLabel("threads " + std::to_string(state.range(0)));
+}
+BENCHMARK(BM_OfflineEm)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime();
 
 }  // namespace
 
