@@ -341,6 +341,101 @@ double Mapper::beliefAt(std::int32_t x, std::int32_t y, std::int64_t step) const
   return predictOccupancy(state->p_occ, params, step - state->last_step);
 }
 
+void Mapper::restartClockAt(double stamp_s) {
+  if (!std::isfinite(stamp_s)) throw std::invalid_argument("restartClockAt: stamp is not finite");
+  finishStep();
+  clock_.anchor(stamp_s, last_applied_step_ ? *last_applied_step_ + 1 : 0);
+}
+
+OfflineEmApplied Mapper::applyOfflineEm(const ObservationSequences& sequences, const OfflineEmResult& result,
+                                        bool use_final_beliefs) {
+  if (result.params.size() != sequences.cellCount() || result.final_p_occ.size() != sequences.cellCount() ||
+      result.final_step.size() != sequences.cellCount()) {
+    throw std::invalid_argument("applyOfflineEm: the result does not belong to these sequences");
+  }
+  if (result.cancelled) throw std::invalid_argument("applyOfflineEm: the offline EM run was cancelled");
+  const double memory = config_.online_em.learning_rate_floor > 0.0
+                            ? 1.0 / config_.online_em.learning_rate_floor
+                            : std::numeric_limits<double>::infinity();
+  OfflineEmApplied applied;
+  for (std::size_t c = 0; c < sequences.cellCount(); ++c) {
+    const CellXY xy = sequences.cell(c);
+    CellGrid::Tile* tile = grid_.findTile(xy.x, xy.y);
+    const int i = CellGrid::offsetOf(xy.x, xy.y);
+    if (tile == nullptr || tile->last_step[i] == kNeverObserved) {
+      ++applied.cells_not_in_map;
+      continue;
+    }
+    const TransitionParams& params = result.params[c];
+    if (use_final_beliefs) {
+      tile->p_occ[i] = static_cast<float>(result.final_p_occ[c]);
+      tile->last_step[i] = result.final_step[c];
+    }
+    // The steps the result saw, split over the two from-states.
+    const double span = static_cast<double>(sequences.end(c)[-1].step) - sequences.begin(c)->step + 1.0;
+    const TransitionStats stats = priorStats(params, 0.5 * std::min(span, memory), tile->p_occ[i]);
+    for (std::size_t k = 0; k < stats.s.size(); ++k) tile->em_stats[k][i] = static_cast<float>(stats.s[k]);
+    // The learned transitions are used from now on, not the prior.
+    tile->observed_steps[i] = static_cast<std::uint16_t>(std::max<std::uint32_t>(
+        tile->observed_steps[i], config_.online_em.min_observed_steps));
+    tile->p_occ_given_free[i] = static_cast<float>(params.p_occ_given_free);
+    tile->p_free_given_occ[i] = static_cast<float>(params.p_free_given_occ);
+    changed_cells_.include(xy.x, xy.y);
+    ++applied.cells_applied;
+  }
+  return applied;
+}
+
+void Mapper::restoreTime(std::optional<double> clock_origin_s, std::optional<std::int64_t> last_applied_step) {
+  if (clock_.origin() || gathering_step_ || last_applied_step_) {
+    throw std::logic_error("restoreTime: only a mapper that has integrated nothing can be restored");
+  }
+  if (last_applied_step && !clock_origin_s) {
+    throw std::invalid_argument("restoreTime: a last applied step needs a clock origin");
+  }
+  if (clock_origin_s && !std::isfinite(*clock_origin_s)) {
+    throw std::invalid_argument("restoreTime: clock origin is not finite");
+  }
+  if (last_applied_step &&
+      (*last_applied_step < 0 || *last_applied_step > std::numeric_limits<std::int32_t>::max() - 1)) {
+    throw std::invalid_argument("restoreTime: last applied step out of range");
+  }
+  if (clock_origin_s) clock_.restoreOrigin(*clock_origin_s);
+  last_applied_step_ = last_applied_step;
+}
+
+void Mapper::restoreCell(std::int32_t x, std::int32_t y, const CellState& state) {
+  const auto probability = [](float p) { return p >= 0.0f && p <= 1.0f; };
+  if (state.last_step == kNeverObserved || !last_applied_step_ || state.last_step > *last_applied_step_) {
+    throw std::invalid_argument("restoreCell: cell (" + std::to_string(x) + ", " + std::to_string(y) +
+                                ") has a last step outside the saved time");
+  }
+  bool valid = probability(state.p_occ) && probability(state.p_occ_given_free) &&
+               probability(state.p_free_given_occ) && std::isfinite(state.log_odds);
+  for (const float s : state.em_stats) valid = valid && std::isfinite(s) && s >= 0.0f;
+  if (!valid) {
+    throw std::invalid_argument("restoreCell: cell (" + std::to_string(x) + ", " + std::to_string(y) +
+                                ") has values out of range");
+  }
+  if (!grid_.insideLimits(x, y)) {
+    throw std::invalid_argument("restoreCell: cell (" + std::to_string(x) + ", " + std::to_string(y) +
+                                ") is outside the map's limits");
+  }
+  CellBox box;
+  box.include(x, y);
+  grid_.reserve(box);
+  CellGrid::Tile* tile = grid_.tileForWriting(x, y);
+  const int i = CellGrid::offsetOf(x, y);
+  tile->p_occ[i] = state.p_occ;
+  tile->last_step[i] = state.last_step;
+  tile->log_odds[i] = state.log_odds;
+  tile->p_occ_given_free[i] = state.p_occ_given_free;
+  tile->p_free_given_occ[i] = state.p_free_given_occ;
+  for (std::size_t k = 0; k < state.em_stats.size(); ++k) tile->em_stats[k][i] = state.em_stats[k];
+  tile->observed_steps[i] = state.observed_steps;
+  changed_cells_.include(x, y);
+}
+
 CellBox Mapper::takeChangedCells() {
   const CellBox changed = changed_cells_;
   changed_cells_ = CellBox{};

@@ -19,6 +19,11 @@ void StepClock::startAt(double stamp_s) {
   if (!origin_s_) origin_s_ = stamp_s;
 }
 
+void StepClock::anchor(double stamp_s, std::int64_t step) {
+  // A millionth of a step of margin keeps rounding from putting stamp_s into step - 1.
+  origin_s_ = stamp_s - (static_cast<double>(step) + 1e-6) * time_step_s_;
+}
+
 std::int64_t StepClock::stepOf(double stamp_s) const {
   // Saturate instead of overflowing the cast for absurd stamps; callers reject those.
   constexpr double kLimit = 4.0e18;

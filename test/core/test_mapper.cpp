@@ -1281,3 +1281,157 @@ TEST(MapperLearning, BadOnlineEmSettingsAreRejected) {
   EXPECT_THROW(dog::Mapper(bad([](auto& c) { c.online_em.min_observed_steps = 70000; })),
                std::invalid_argument);
 }
+
+// ---- restarted time, offline EM results, model restore -------------------------------
+
+TEST(MapperRestart, RestartedClockContinuesFromTheNextStepAndKeepsTheMap) {
+  dog::Mapper mapper(testConfig());
+  for (int s = 0; s < 5; ++s) {
+    ASSERT_EQ(mapper.integrate(makeScan(100.2 + s, {0.75f})).status, dog::ScanStatus::kIntegrated);
+  }
+  // Without the restart, an earlier stamp is refused.
+  EXPECT_EQ(mapper.integrate(makeScan(10.0, {0.75f})).status, dog::ScanStatus::kRejectedTimeBackwards);
+  const double wall_before = mapper.beliefAt(3, 0, 4);
+  mapper.restartClockAt(10.0);
+  ASSERT_EQ(mapper.lastAppliedStep(), std::optional<std::int64_t>(4));  // step 4 was applied
+  EXPECT_EQ(mapper.grid().cell(3, 0)->last_step, 4);
+  ASSERT_EQ(mapper.integrate(makeScan(10.0, {0.75f})).status, dog::ScanStatus::kIntegrated);
+  EXPECT_EQ(mapper.gatheringStep(), std::optional<std::int64_t>(5));
+  ASSERT_EQ(mapper.integrate(makeScan(11.0, {0.75f})).status, dog::ScanStatus::kIntegrated);
+  EXPECT_EQ(mapper.lastAppliedStep(), std::optional<std::int64_t>(5));
+  // The wall cell got one more hit on top of what it had: the map was kept.
+  RefCell wall;
+  for (int s = 0; s <= 5; ++s) wall.observe(s, 1, 0);
+  EXPECT_NEAR(mapper.grid().cell(3, 0)->p_occ, static_cast<double>(wall.p), kTol);
+  EXPECT_GT(mapper.grid().cell(3, 0)->p_occ, wall_before - 1e-9);
+}
+
+namespace {
+
+// A few cells mapped with recording on, then offline EM over them.
+struct RecordedRun {
+  dog::ObservationSequences sequences;
+  dog::OfflineEmResult result;
+};
+
+RecordedRun recordAndLearn(dog::Mapper& mapper, int steps) {
+  dog::SequenceBuilder recorder;
+  mapper.recordObservations(&recorder);
+  std::mt19937 random(7);
+  for (int s = 0; s < steps; ++s) {
+    // The end cell flickers: sometimes the beam stops at 0.5 m, sometimes at 0.75 m.
+    const float range = (random() % 4 == 0) ? 0.5f : 0.75f;
+    EXPECT_EQ(mapper.integrate(makeScan(s + 0.5, {range})).status, dog::ScanStatus::kIntegrated);
+  }
+  mapper.finishStep();
+  mapper.recordObservations(nullptr);
+  RecordedRun run;
+  run.sequences = recorder.build();
+  dog::OfflineEmConfig em;
+  em.max_iterations = 30;
+  // Within the online learner's bounds, as the node configures it.
+  em.p_min = mapper.config().online_em.p_min;
+  em.p_max = mapper.config().online_em.p_max;
+  run.result = dog::runOfflineEm(run.sequences, mapper.sensor(), em);
+  return run;
+}
+
+}  // namespace
+
+TEST(MapperOfflineEm, AppliedResultSetsTransitionsBeliefsAndStatisticsThatReproduceThem) {
+  dog::MapperConfig config = learningConfig();
+  dog::Mapper mapper(config);
+  const RecordedRun run = recordAndLearn(mapper, 200);
+  const dog::OfflineEmApplied applied = mapper.applyOfflineEm(run.sequences, run.result, true);
+  EXPECT_EQ(applied.cells_applied, run.sequences.cellCount());
+  EXPECT_EQ(applied.cells_not_in_map, 0u);
+  for (std::size_t c = 0; c < run.sequences.cellCount(); ++c) {
+    const dog::CellXY xy = run.sequences.cell(c);
+    const dog::CellState state = *mapper.grid().cell(xy.x, xy.y);
+    EXPECT_EQ(state.p_occ_given_free, static_cast<float>(run.result.params[c].p_occ_given_free));
+    EXPECT_EQ(state.p_free_given_occ, static_cast<float>(run.result.params[c].p_free_given_occ));
+    EXPECT_EQ(state.p_occ, static_cast<float>(run.result.final_p_occ[c]));
+    EXPECT_EQ(state.last_step, run.result.final_step[c]);
+    EXPECT_GE(state.observed_steps, config.online_em.min_observed_steps);
+    // The statistics' M-step gives the learned transitions back (online learning goes on
+    // from them), with the weight of the 200 steps seen, split over the two rows.
+    dog::TransitionStats stats;
+    for (std::size_t k = 0; k < 8; ++k) stats.s[k] = state.em_stats[k];
+    const dog::TransitionParams back = dog::onlineMStep(stats, config.online_em, dog::TransitionParams{0.3, 0.3});
+    EXPECT_NEAR(back.p_occ_given_free, run.result.params[c].p_occ_given_free, 1e-5);
+    EXPECT_NEAR(back.p_free_given_occ, run.result.params[c].p_free_given_occ, 1e-5);
+    const double span = run.sequences.end(c)[-1].step - run.sequences.begin(c)->step + 1.0;
+    EXPECT_NEAR(stats.total(), std::min(span, 1.0 / config.online_em.learning_rate_floor), 1e-3);
+  }
+  // The offline result is what the cells use now, not the prior.
+  EXPECT_NE(mapper.grid().cell(2, 0)->p_occ_given_free, static_cast<float>(config.prior_transitions.p_occ_given_free));
+}
+
+TEST(MapperOfflineEm, ParamsOnlyKeepsBeliefsAndSkipsCellsTheMapNeverSaw) {
+  dog::MapperConfig config = learningConfig();
+  dog::Mapper source(config);
+  const RecordedRun run = recordAndLearn(source, 60);
+  // A live map that saw only the laser's own cell and the next one (beam of 0.25 m).
+  dog::Mapper live(config);
+  ASSERT_EQ(live.integrate(makeScan(0.5, {0.3f})).status, dog::ScanStatus::kIntegrated);
+  live.finishStep();
+  const dog::CellBox bounds_before = live.grid().bounds();
+  const std::size_t tiles_before = live.grid().allocatedTiles();
+  const float belief_before = live.grid().cell(1, 0)->p_occ;
+  const dog::OfflineEmApplied applied = live.applyOfflineEm(run.sequences, run.result, false);
+  EXPECT_EQ(applied.cells_applied, 2u);
+  EXPECT_EQ(applied.cells_not_in_map, run.sequences.cellCount() - 2);
+  EXPECT_EQ(live.grid().cell(1, 0)->p_occ, belief_before);
+  EXPECT_EQ(live.grid().cell(1, 0)->last_step, 0);
+  EXPECT_FALSE(live.grid().cell(2, 0).has_value());
+  EXPECT_EQ(live.grid().allocatedTiles(), tiles_before);
+  EXPECT_EQ(live.grid().bounds().max_x, bounds_before.max_x);
+}
+
+TEST(MapperOfflineEm, MismatchedOrCancelledResultsAreRefusedAndChangeNothing) {
+  dog::Mapper mapper(learningConfig());
+  RecordedRun run = recordAndLearn(mapper, 20);
+  const float before = mapper.grid().cell(2, 0)->p_occ_given_free;
+  dog::OfflineEmResult short_result = run.result;
+  short_result.params.pop_back();
+  EXPECT_THROW(mapper.applyOfflineEm(run.sequences, short_result, true), std::invalid_argument);
+  dog::OfflineEmResult cancelled = run.result;
+  cancelled.cancelled = true;
+  EXPECT_THROW(mapper.applyOfflineEm(run.sequences, cancelled, true), std::invalid_argument);
+  EXPECT_EQ(mapper.grid().cell(2, 0)->p_occ_given_free, before);
+}
+
+TEST(MapperRestore, RestoreChecksItsInputs) {
+  dog::Mapper used(testConfig());
+  ASSERT_EQ(used.integrate(makeScan(0.5, {0.75f})).status, dog::ScanStatus::kIntegrated);
+  EXPECT_THROW(used.restoreTime(0.0, 0), std::logic_error);
+
+  dog::Mapper fresh(testConfig());
+  EXPECT_THROW(fresh.restoreTime(std::nullopt, 3), std::invalid_argument);
+  EXPECT_THROW(fresh.restoreTime(kInf, 3), std::invalid_argument);
+  fresh.restoreTime(100.0, 3);
+  EXPECT_EQ(fresh.lastAppliedStep(), std::optional<std::int64_t>(3));
+  EXPECT_EQ(fresh.clock().stepOf(103.0), 3);
+  dog::CellState state{0.25f, 2, 0.5f, 0.1f, 0.2f, {1, 2, 3, 4, 5, 6, 7, 8}, 12};
+  fresh.restoreCell(5, -7, state);
+  const std::optional<dog::CellState> got = fresh.grid().cell(5, -7);
+  ASSERT_TRUE(got.has_value());
+  EXPECT_EQ(std::memcmp(&*got, &state, sizeof state), 0);
+  // The next scan continues after step 3.
+  EXPECT_EQ(fresh.integrate(makeScan(102.5, {0.75f})).status, dog::ScanStatus::kRejectedTimeBackwards);
+  EXPECT_EQ(fresh.integrate(makeScan(104.5, {0.75f})).status, dog::ScanStatus::kIntegrated);
+
+  dog::Mapper other(testConfig());
+  other.restoreTime(0.0, 3);
+  dog::CellState late = state;
+  late.last_step = 4;
+  EXPECT_THROW(other.restoreCell(0, 0, late), std::invalid_argument);
+  dog::CellState bad = state;
+  bad.p_occ = 1.5f;
+  EXPECT_THROW(other.restoreCell(0, 0, bad), std::invalid_argument);
+  bad = state;
+  bad.em_stats[3] = kNaNF;
+  EXPECT_THROW(other.restoreCell(0, 0, bad), std::invalid_argument);
+  EXPECT_THROW(other.restoreCell(1 << 30, 0, state), std::invalid_argument);
+  EXPECT_FALSE(other.grid().cell(0, 0).has_value());
+}

@@ -123,6 +123,9 @@ class CellGrid {
   Tile* tileForWriting(std::int32_t x, std::int32_t y);
   /// The tile holding (x, y) if it was ever allocated.
   const Tile* findTile(std::int32_t x, std::int32_t y) const;
+  Tile* findTile(std::int32_t x, std::int32_t y) {
+    return const_cast<Tile*>(static_cast<const CellGrid&>(*this).findTile(x, y));
+  }
   /// The cell (x, y), or std::nullopt if it was never observed.
   std::optional<CellState> cell(std::int32_t x, std::int32_t y) const;
 
@@ -131,6 +134,12 @@ class CellGrid {
   void forEachTile(Fn&& fn) {
     for (auto& tile : tiles_) {
       if (tile) fn(*tile);
+    }
+  }
+  template <class Fn>
+  void forEachTile(Fn&& fn) const {
+    for (const auto& tile : tiles_) {
+      if (tile) fn(static_cast<const Tile&>(*tile));
     }
   }
 

@@ -63,6 +63,12 @@ struct ScanResult {
   std::size_t cells_outside = 0;     ///< beam cells beyond the map's bounds, dropped
 };
 
+/// What Mapper::applyOfflineEm did.
+struct OfflineEmApplied {
+  std::size_t cells_applied = 0;
+  std::size_t cells_not_in_map = 0;  ///< in the result, never observed by this map: skipped
+};
+
 class Mapper {
  public:
   /// Throws std::invalid_argument for a bad configuration.
@@ -91,6 +97,27 @@ class Mapper {
   /// From now on, every applied cell step is also added to `recorder` (offline EM input);
   /// nullptr stops. The recorder must outlive its use here.
   void recordObservations(SequenceBuilder* recorder) { recorder_ = recorder; }
+
+  /// Time restarted (a bag played again, a simulator reset): applies the step being
+  /// gathered, then re-anchors the clock so that `stamp_s` falls in the step after the last
+  /// applied one. The map is kept; unobserved time between the two is not counted.
+  void restartClockAt(double stamp_s);
+
+  /// Uses an offline EM result (sequences recorded with this mapper's geometry) for the
+  /// cells it covers that this map has observed: their transitions become the learned ones,
+  /// and the online statistics restart from them with the weight of the steps the result
+  /// saw (capped at the online memory 1 / learning_rate_floor), so online learning goes on
+  /// from there. With `use_final_beliefs` (the sequences are this map's own history, as in
+  /// process_bag) each cell's belief also becomes the offline filter's at its last step.
+  OfflineEmApplied applyOfflineEm(const ObservationSequences& sequences, const OfflineEmResult& result,
+                                  bool use_final_beliefs);
+
+  /// Model loading (model_io.h): the saved time, on a mapper that has integrated nothing.
+  /// Throws std::logic_error otherwise, std::invalid_argument for inconsistent values.
+  void restoreTime(std::optional<double> clock_origin_s, std::optional<std::int64_t> last_applied_step);
+  /// Model loading: the whole saved state of cell (x, y) (last_step at or before the last
+  /// applied step). Throws std::invalid_argument for a cell outside the map or bad values.
+  void restoreCell(std::int32_t x, std::int32_t y, const CellState& state);
 
  private:
   void applyGatheredStep();

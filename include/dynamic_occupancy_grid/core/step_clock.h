@@ -18,6 +18,10 @@ class StepClock {
   std::optional<double> origin() const { return origin_s_; }
   /// Anchors step 0 at `stamp_s` if no stamp was seen yet.
   void startAt(double stamp_s);
+  /// Puts the origin where `stamp_s` is the start of `step` (restarted time, restored models).
+  void anchor(double stamp_s, std::int64_t step);
+  /// Sets the origin exactly (a restored model).
+  void restoreOrigin(double origin_s) { origin_s_ = origin_s; }
   /// The step holding `stamp_s` (negative before the origin). Requires origin().
   std::int64_t stepOf(double stamp_s) const;
   /// Sensor time at which `step` starts.
