@@ -11,6 +11,7 @@ add_library(dynamic_occupancy_grid_core
   ${DOG_ROOT}/src/core/layers.cpp
   ${DOG_ROOT}/src/core/map_export.cpp
   ${DOG_ROOT}/src/core/mapper.cpp
+  ${DOG_ROOT}/src/core/model_io.cpp
   ${DOG_ROOT}/src/core/offline_em.cpp
   ${DOG_ROOT}/src/core/online_em.cpp
   ${DOG_ROOT}/src/core/step_clock.cpp

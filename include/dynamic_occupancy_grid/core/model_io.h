@@ -1,0 +1,48 @@
+#pragma once
+// The model file: everything a Mapper knows (configuration and geometry, time, and every
+// observed cell's belief, transitions, online EM statistics and static baseline) in one
+// versioned binary file, so that mapping can stop and go on later, and so that offline
+// tools and Python can read a map. Format: docs/model_format.md (little-endian, values as
+// the grid stores them, CRC-32 at the end); Python reader: scripts/read_model.py.
+//
+// A saved and loaded mapper is the saved one: the same cells bit for bit, the same
+// configuration and time, so it maps on exactly as the saved one would have, and saving it
+// again gives the same bytes.
+//
+// ROS-free: standard library only.
+
+#include <cstdint>
+#include <memory>
+#include <string>
+
+#include "dynamic_occupancy_grid/core/mapper.h"
+
+namespace dynamic_occupancy_grid {
+namespace core {
+
+/// The format version saveModel writes; loadModel reads exactly this version.
+constexpr std::uint32_t kModelFormatVersion = 1;
+
+/// The model as bytes. The evidence of the step still being gathered is not part of it
+/// (call Mapper::finishStep first to include it). Needs one buffer of the file's size
+/// (62 bytes per observed cell) besides the map.
+std::string serializeModel(const Mapper& mapper);
+/// A Mapper holding the model in `bytes`. Throws std::runtime_error with a clear message for
+/// anything but a complete, intact file of kModelFormatVersion (bad magic, other version,
+/// truncated, checksum mismatch, invalid values, trailing bytes); nothing else is affected
+/// then. The returned mapper gathers no step yet: its next scan may be in any step after
+/// the last applied one.
+std::unique_ptr<Mapper> deserializeModel(const std::string& bytes);
+
+/// serializeModel to `path`, atomically (temporary file `path`.tmp, fsync, rename): a
+/// failure (full disk, missing directory) throws std::runtime_error naming the file and
+/// leaves any older file at `path` intact. Not for two saves to the same path at once.
+void saveModel(const Mapper& mapper, const std::string& path);
+/// The file half of saveModel, for bytes from serializeModel (a node serializes under its
+/// map's lock and writes after releasing it).
+void saveModelBytes(const std::string& bytes, const std::string& path);
+/// deserializeModel of the file at `path`; errors name the file.
+std::unique_ptr<Mapper> loadModel(const std::string& path);
+
+}  // namespace core
+}  // namespace dynamic_occupancy_grid

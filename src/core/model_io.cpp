@@ -1,0 +1,522 @@
+// The model file (docs/model_format.md). Byte order is written out explicitly, so the file
+// is the same on any host; the file I/O uses POSIX (open, fsync, rename) for a durable,
+// atomic replace, which the C++17 standard library cannot express.
+
+#include "dynamic_occupancy_grid/core/model_io.h"
+
+#include <fcntl.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <array>
+#include <cerrno>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <limits>
+#include <new>
+#include <optional>
+#include <stdexcept>
+#include <string>
+#include <utility>
+#include <vector>
+
+namespace dynamic_occupancy_grid {
+namespace core {
+namespace {
+
+// ---- layout (docs/model_format.md) ----------------------------------------------------
+
+constexpr char kMagic[8] = {'D', 'O', 'G', 'M', 'O', 'D', 'E', 'L'};
+constexpr std::size_t kMagicSize = sizeof(kMagic);
+constexpr std::size_t kVersionEnd = kMagicSize + 4;
+// magic, version, configuration (19 doubles, 3 flags, 1 uint32), time (2 flags, a double,
+// an int64), cell count.
+constexpr std::size_t kHeaderSize = kMagicSize + 4 + (19 * 8 + 3 * 1 + 4) + (1 + 8 + 1 + 8) + 8;
+static_assert(kHeaderSize == 197, "docs/model_format.md documents a 197-byte header");
+// x, y, p_occ, last_step, log_odds, p_occ_given_free, p_free_given_occ, em_stats[8],
+// observed_steps.
+constexpr std::size_t kCellSize = 4 * 7 + 4 * 8 + 2;
+static_assert(kCellSize == 62, "docs/model_format.md documents 62-byte cell records");
+constexpr std::size_t kChecksumSize = 4;
+constexpr std::size_t kMinimumSize = kHeaderSize + kChecksumSize;
+
+// ---- CRC-32 (IEEE 802.3, reflected, as zlib.crc32), slicing by 8 -----------------------
+
+using CrcTables = std::array<std::array<std::uint32_t, 256>, 8>;
+
+constexpr CrcTables makeCrcTables() {
+  CrcTables tables{};
+  for (std::uint32_t byte = 0; byte < 256; ++byte) {
+    std::uint32_t crc = byte;
+    for (int bit = 0; bit < 8; ++bit) crc = (crc & 1U) != 0 ? (crc >> 1) ^ 0xEDB88320U : crc >> 1;
+    tables[0][byte] = crc;
+  }
+  for (std::size_t byte = 0; byte < 256; ++byte) {
+    for (std::size_t k = 1; k < 8; ++k) {
+      const std::uint32_t previous = tables[k - 1][byte];
+      tables[k][byte] = (previous >> 8) ^ tables[0][previous & 0xFFU];
+    }
+  }
+  return tables;
+}
+
+constexpr CrcTables kCrcTables = makeCrcTables();
+
+std::uint32_t crc32(const unsigned char* data, std::size_t size) {
+  std::uint32_t crc = 0xFFFFFFFFU;
+  // Eight bytes per round (the usual "slicing-by-8"): the checksum of a large map costs a
+  // fraction of writing it.
+  while (size >= 8) {
+    const std::uint32_t low = crc ^ (std::uint32_t{data[0]} | std::uint32_t{data[1]} << 8 |
+                                     std::uint32_t{data[2]} << 16 | std::uint32_t{data[3]} << 24);
+    crc = kCrcTables[7][low & 0xFFU] ^ kCrcTables[6][(low >> 8) & 0xFFU] ^
+          kCrcTables[5][(low >> 16) & 0xFFU] ^ kCrcTables[4][low >> 24] ^ kCrcTables[3][data[4]] ^
+          kCrcTables[2][data[5]] ^ kCrcTables[1][data[6]] ^ kCrcTables[0][data[7]];
+    data += 8;
+    size -= 8;
+  }
+  while (size-- > 0) crc = (crc >> 8) ^ kCrcTables[0][(crc ^ *data++) & 0xFFU];
+  return crc ^ 0xFFFFFFFFU;
+}
+
+// ---- little-endian encoding, whatever the host's byte order ----------------------------
+
+template <class Unsigned>
+void putUnsigned(unsigned char*& out, Unsigned value) {
+  for (std::size_t k = 0; k < sizeof(Unsigned); ++k) *out++ = static_cast<unsigned char>(value >> (8 * k));
+}
+
+template <class Unsigned>
+Unsigned getUnsigned(const unsigned char*& in) {
+  Unsigned value = 0;
+  for (std::size_t k = 0; k < sizeof(Unsigned); ++k) value |= static_cast<Unsigned>(Unsigned{*in++} << (8 * k));
+  return value;
+}
+
+// Bit patterns: floats and doubles are stored exactly (IEEE 754 binary32 / binary64).
+template <class To, class From>
+To bitCast(From from) {
+  static_assert(sizeof(To) == sizeof(From), "bitCast needs equal sizes");
+  To to;
+  std::memcpy(&to, &from, sizeof(To));
+  return to;
+}
+
+class Writer {
+ public:
+  explicit Writer(unsigned char* out) : out_(out) {}
+  void bytes(const char* data, std::size_t size) {
+    std::memcpy(out_, data, size);
+    out_ += size;
+  }
+  void u8(std::uint8_t value) { *out_++ = value; }
+  void flag(bool value) { u8(value ? 1 : 0); }
+  void u16(std::uint16_t value) { putUnsigned(out_, value); }
+  void u32(std::uint32_t value) { putUnsigned(out_, value); }
+  void i32(std::int32_t value) { putUnsigned(out_, bitCast<std::uint32_t>(value)); }
+  void u64(std::uint64_t value) { putUnsigned(out_, value); }
+  void i64(std::int64_t value) { putUnsigned(out_, bitCast<std::uint64_t>(value)); }
+  void f32(float value) { putUnsigned(out_, bitCast<std::uint32_t>(value)); }
+  void f64(double value) { putUnsigned(out_, bitCast<std::uint64_t>(value)); }
+  unsigned char* position() const { return out_; }
+
+ private:
+  unsigned char* out_;
+};
+
+// Reads from a buffer whose size the caller has checked beforehand.
+class Reader {
+ public:
+  explicit Reader(const unsigned char* in) : in_(in) {}
+  std::uint8_t u8() { return *in_++; }
+  std::uint16_t u16() { return getUnsigned<std::uint16_t>(in_); }
+  std::uint32_t u32() { return getUnsigned<std::uint32_t>(in_); }
+  std::int32_t i32() { return bitCast<std::int32_t>(getUnsigned<std::uint32_t>(in_)); }
+  std::uint64_t u64() { return getUnsigned<std::uint64_t>(in_); }
+  std::int64_t i64() { return bitCast<std::int64_t>(getUnsigned<std::uint64_t>(in_)); }
+  float f32() { return bitCast<float>(getUnsigned<std::uint32_t>(in_)); }
+  double f64() { return bitCast<double>(getUnsigned<std::uint64_t>(in_)); }
+  /// A boolean byte: 0 or 1, anything else is a damaged file (and would not save back the same).
+  bool flag(const char* field) {
+    const std::uint8_t value = u8();
+    if (value > 1) {
+      throw std::runtime_error(std::string("invalid model file: ") + field + " is " + std::to_string(value) +
+                               ", must be 0 or 1");
+    }
+    return value == 1;
+  }
+
+ private:
+  const unsigned char* in_;
+};
+
+// ---- the cells, in the documented order ------------------------------------------------
+
+// Calls fn(x, y, tile, offset) for every observed cell, by row (y ascending), then x.
+template <class Fn>
+void forEachObservedCell(const CellGrid& grid, Fn&& fn) {
+  std::vector<const CellGrid::Tile*> tiles;
+  grid.forEachTile([&tiles](const CellGrid::Tile& tile) { tiles.push_back(&tile); });
+  std::sort(tiles.begin(), tiles.end(), [](const CellGrid::Tile* a, const CellGrid::Tile* b) {
+    return std::make_pair(a->tile_y, a->tile_x) < std::make_pair(b->tile_y, b->tile_x);
+  });
+  // One row of tiles at a time, and within it one row of cells across all its tiles.
+  for (std::size_t row_begin = 0; row_begin < tiles.size();) {
+    std::size_t row_end = row_begin;
+    while (row_end < tiles.size() && tiles[row_end]->tile_y == tiles[row_begin]->tile_y) ++row_end;
+    for (int cell_row = 0; cell_row < CellGrid::kTileSize; ++cell_row) {
+      for (std::size_t t = row_begin; t < row_end; ++t) {
+        const CellGrid::Tile& tile = *tiles[t];
+        const int row_offset = cell_row << CellGrid::kTileBits;
+        for (int offset = row_offset; offset < row_offset + CellGrid::kTileSize; ++offset) {
+          if (tile.last_step[offset] != kNeverObserved) fn(tile.cellX(offset), tile.cellY(offset), tile, offset);
+        }
+      }
+    }
+    row_begin = row_end;
+  }
+}
+
+std::size_t countObservedCells(const CellGrid& grid) {
+  std::size_t count = 0;
+  grid.forEachTile([&count](const CellGrid::Tile& tile) {
+    for (const std::int32_t last_step : tile.last_step) count += last_step != kNeverObserved ? 1 : 0;
+  });
+  return count;
+}
+
+std::string cellName(std::uint64_t index, std::int32_t x, std::int32_t y) {
+  return "cell " + std::to_string(index) + " at (" + std::to_string(x) + ", " + std::to_string(y) + ")";
+}
+
+std::unique_ptr<Mapper> deserializeChecked(const std::string& bytes) {
+  const auto* data = reinterpret_cast<const unsigned char*>(bytes.data());
+  const std::size_t size = bytes.size();
+  const auto truncated = [size](const std::string& expected) {
+    return std::runtime_error("truncated model file: expected " + expected + ", " + std::to_string(size) +
+                              " available");
+  };
+
+  // Magic and version first: they say what the rest is.
+  const std::size_t magic_bytes = std::min(size, kMagicSize);
+  if (std::memcmp(data, kMagic, magic_bytes) != 0) {
+    throw std::runtime_error("not a dynamic_occupancy_grid model file (no DOGMODEL magic at its start)");
+  }
+  if (size < kVersionEnd) throw truncated("at least " + std::to_string(kMinimumSize) + " bytes");
+  Reader reader(data + kMagicSize);
+  const std::uint32_t version = reader.u32();
+  if (version != kModelFormatVersion) {
+    throw std::runtime_error("model format version " + std::to_string(version) + ", this build reads version " +
+                             std::to_string(kModelFormatVersion));
+  }
+  if (size < kMinimumSize) throw truncated("at least " + std::to_string(kMinimumSize) + " bytes");
+
+  // The size the cell count implies, checked before anything is allocated for the cells.
+  std::uint64_t cell_count = 0;
+  {
+    Reader count_reader(data + kHeaderSize - 8);
+    cell_count = count_reader.u64();
+  }
+  const std::uint64_t cell_room = (size - kMinimumSize) / kCellSize;
+  if (cell_count > cell_room) {
+    const std::uint64_t max_cells = (std::numeric_limits<std::uint64_t>::max() - kMinimumSize) / kCellSize;
+    if (cell_count > max_cells) {
+      throw std::runtime_error("corrupt model file: absurd cell count " + std::to_string(cell_count) + " in " +
+                               std::to_string(size) + " bytes");
+    }
+    throw truncated(std::to_string(kMinimumSize + cell_count * kCellSize) + " bytes for " +
+                    std::to_string(cell_count) + " cells");
+  }
+  const std::size_t expected_size = kMinimumSize + static_cast<std::size_t>(cell_count) * kCellSize;
+  if (size > expected_size) {
+    throw std::runtime_error("invalid model file: " + std::to_string(size - expected_size) +
+                             " trailing bytes after the checksum (" + std::to_string(expected_size) +
+                             " bytes expected for " + std::to_string(cell_count) + " cells)");
+  }
+  {
+    Reader checksum_reader(data + size - kChecksumSize);
+    const std::uint32_t stored = checksum_reader.u32();
+    const std::uint32_t computed = crc32(data, size - kChecksumSize);
+    if (stored != computed) {
+      char message[128];
+      std::snprintf(message, sizeof(message), "corrupt model file: checksum mismatch (stored %08x, computed %08x)",
+                    static_cast<unsigned>(stored), static_cast<unsigned>(computed));
+      throw std::runtime_error(message);
+    }
+  }
+
+  // Configuration, in MapperConfig's order.
+  MapperConfig config;
+  config.resolution_m = reader.f64();
+  config.time_step_s = reader.f64();
+  config.p_hit_given_occ = reader.f64();
+  config.p_hit_given_free = reader.f64();
+  config.prior_transitions.p_occ_given_free = reader.f64();
+  config.prior_transitions.p_free_given_occ = reader.f64();
+  config.learn_transitions = reader.flag("learn_transitions");
+  config.online_em.prior_weight = reader.f64();
+  config.online_em.learning_rate_floor = reader.f64();
+  config.online_em.p_min = reader.f64();
+  config.online_em.p_max = reader.f64();
+  config.online_em.symmetric = reader.flag("online_em.symmetric");
+  config.online_em.min_observed_steps = reader.u32();
+  config.initial_p_occ = reader.f64();
+  config.static_clamp.min_log_odds = reader.f64();
+  config.static_clamp.max_log_odds = reader.f64();
+  config.max_free_range_m = reader.f64();
+  config.origin_x_m = reader.f64();
+  config.origin_y_m = reader.f64();
+  config.fixed_bounds = reader.flag("fixed_bounds");
+  config.width_m = reader.f64();
+  config.height_m = reader.f64();
+  config.max_map_size_m = reader.f64();
+
+  // Time.
+  const bool has_clock_origin = reader.flag("clock origin present");
+  const double clock_origin_s = reader.f64();
+  const bool has_last_applied_step = reader.flag("last applied step present");
+  const std::int64_t last_applied_step = reader.i64();
+  // An absent value is stored as 0: anything else would not save back the same.
+  if ((!has_clock_origin && bitCast<std::uint64_t>(clock_origin_s) != 0) ||
+      (!has_last_applied_step && last_applied_step != 0)) {
+    throw std::runtime_error("invalid model file: an absent time value is not stored as 0");
+  }
+  static_cast<void>(reader.u64());  // the cell count, read above
+
+  std::unique_ptr<Mapper> mapper;
+  try {
+    config.validate();
+    mapper = std::make_unique<Mapper>(config);
+  } catch (const std::invalid_argument& error) {
+    throw std::runtime_error(std::string("invalid configuration in model file: ") + error.what());
+  }
+  try {
+    mapper->restoreTime(has_clock_origin ? std::optional<double>(clock_origin_s) : std::nullopt, has_last_applied_step ? std::optional<std::int64_t>(last_applied_step)
+                                                      : std::nullopt);
+  } catch (const std::invalid_argument& error) {
+    throw std::runtime_error(std::string("invalid time in model file: ") + error.what());
+  }
+
+  for (std::uint64_t index = 0; index < cell_count; ++index) {
+    const std::int32_t x = reader.i32();
+    const std::int32_t y = reader.i32();
+    CellState state{};
+    state.p_occ = reader.f32();
+    state.last_step = reader.i32();
+    state.log_odds = reader.f32();
+    state.p_occ_given_free = reader.f32();
+    state.p_free_given_occ = reader.f32();
+    for (float& stat : state.em_stats) stat = reader.f32();
+    state.observed_steps = reader.u16();
+    // A second record of the same cell would silently overwrite the first.
+    if (mapper->grid().cell(x, y)) {
+      throw std::runtime_error("invalid model file: " + cellName(index, x, y) + " appears twice");
+    }
+    try {
+      mapper->restoreCell(x, y, state);
+    } catch (const std::invalid_argument& error) {
+      throw std::runtime_error("invalid model file: " + cellName(index, x, y) + ": " + error.what());
+    }
+  }
+  return mapper;
+}
+
+// ---- files -----------------------------------------------------------------------------
+
+std::string errnoText(int error) { return std::strerror(error); }
+
+class FileDescriptor {
+ public:
+  explicit FileDescriptor(int fd) : fd_(fd) {}
+  FileDescriptor(const FileDescriptor&) = delete;
+  FileDescriptor& operator=(const FileDescriptor&) = delete;
+  ~FileDescriptor() {
+    if (fd_ >= 0) ::close(fd_);
+  }
+  int get() const { return fd_; }
+  /// Closes now; false (errno set) if closing failed (a delayed write error).
+  bool close() {
+    const int fd = fd_;
+    fd_ = -1;
+    return ::close(fd) == 0;
+  }
+
+ private:
+  int fd_;
+};
+
+std::string directoryOf(const std::string& path) {
+  const std::size_t slash = path.find_last_of('/');
+  if (slash == std::string::npos) return ".";
+  if (slash == 0) return "/";
+  return path.substr(0, slash);
+}
+
+// writeFileAtomically (map_export.h) plus fsync of the file before the rename and of the
+// directory after it: a model may hold hours of mapping, and without fsync a crash soon
+// after saving can leave an empty file in place of both the old and the new model.
+void writeFileDurably(const std::string& path, const std::string& contents) {
+  const std::string temporary = path + ".tmp";
+  const auto fail = [&path](const std::string& what, int error) {
+    return std::runtime_error("cannot save model file " + path + ": " + what + ": " + errnoText(error));
+  };
+  FileDescriptor file(::open(temporary.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0666));
+  if (file.get() < 0) throw fail("cannot create " + temporary, errno);
+  const auto discard = [&temporary](FileDescriptor& open_file) {
+    if (open_file.get() >= 0) open_file.close();
+    ::unlink(temporary.c_str());
+  };
+  const char* data = contents.data();
+  std::size_t left = contents.size();
+  while (left > 0) {
+    const ssize_t written = ::write(file.get(), data, left);
+    if (written < 0 && errno == EINTR) continue;
+    if (written <= 0) {
+      const int error = written < 0 ? errno : ENOSPC;
+      discard(file);
+      throw fail("writing " + temporary + " failed", error);
+    }
+    data += written;
+    left -= static_cast<std::size_t>(written);
+  }
+  if (::fsync(file.get()) != 0) {
+    const int error = errno;
+    discard(file);
+    throw fail("writing " + temporary + " to disk failed", error);
+  }
+  if (!file.close()) {
+    const int error = errno;
+    ::unlink(temporary.c_str());
+    throw fail("closing " + temporary + " failed", error);
+  }
+  if (std::rename(temporary.c_str(), path.c_str()) != 0) {
+    const int error = errno;
+    ::unlink(temporary.c_str());
+    throw fail("cannot rename " + temporary + " to it", error);
+  }
+  // The rename itself is durable once the directory is; best effort (some file systems
+  // refuse fsync on a directory, and the new file is in place either way).
+  FileDescriptor directory(::open(directoryOf(path).c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC));
+  if (directory.get() >= 0) static_cast<void>(::fsync(directory.get()));
+}
+
+std::string readWholeFile(const std::string& path) {
+  const auto fail = [&path](const std::string& what, int error) {
+    return std::runtime_error("cannot load model file " + path + ": " + what + errnoText(error));
+  };
+  FileDescriptor file(::open(path.c_str(), O_RDONLY | O_CLOEXEC));
+  if (file.get() < 0) throw fail("", errno);
+  struct stat status {};
+  if (::fstat(file.get(), &status) != 0) throw fail("", errno);
+  if (S_ISDIR(status.st_mode)) throw fail("", EISDIR);
+  std::string contents;
+  // One allocation of the file's size (plus a byte to see the end); more if it grows.
+  contents.resize(S_ISREG(status.st_mode) ? static_cast<std::size_t>(status.st_size) + 1 : 65536);
+  std::size_t used = 0;
+  while (true) {
+    if (used == contents.size()) contents.resize(contents.size() * 2);
+    const ssize_t got = ::read(file.get(), &contents[used], contents.size() - used);
+    if (got < 0 && errno == EINTR) continue;
+    if (got < 0) throw fail("read failed: ", errno);
+    if (got == 0) break;
+    used += static_cast<std::size_t>(got);
+  }
+  contents.resize(used);
+  return contents;
+}
+
+}  // namespace
+
+std::string serializeModel(const Mapper& mapper) {
+  const MapperConfig& config = mapper.config();
+  const CellGrid& grid = mapper.grid();
+  const std::size_t cell_count = countObservedCells(grid);
+  // The file is built in one buffer of its exact size: the only copy of the cells besides
+  // the grid itself.
+  std::string bytes(kMinimumSize + cell_count * kCellSize, '\0');
+  auto* const begin = reinterpret_cast<unsigned char*>(&bytes[0]);
+  Writer writer(begin);
+  writer.bytes(kMagic, kMagicSize);
+  writer.u32(kModelFormatVersion);
+
+  writer.f64(config.resolution_m);
+  writer.f64(config.time_step_s);
+  writer.f64(config.p_hit_given_occ);
+  writer.f64(config.p_hit_given_free);
+  writer.f64(config.prior_transitions.p_occ_given_free);
+  writer.f64(config.prior_transitions.p_free_given_occ);
+  writer.flag(config.learn_transitions);
+  writer.f64(config.online_em.prior_weight);
+  writer.f64(config.online_em.learning_rate_floor);
+  writer.f64(config.online_em.p_min);
+  writer.f64(config.online_em.p_max);
+  writer.flag(config.online_em.symmetric);
+  writer.u32(config.online_em.min_observed_steps);
+  writer.f64(config.initial_p_occ);
+  writer.f64(config.static_clamp.min_log_odds);
+  writer.f64(config.static_clamp.max_log_odds);
+  writer.f64(config.max_free_range_m);
+  writer.f64(config.origin_x_m);
+  writer.f64(config.origin_y_m);
+  writer.flag(config.fixed_bounds);
+  writer.f64(config.width_m);
+  writer.f64(config.height_m);
+  writer.f64(config.max_map_size_m);
+
+  const std::optional<double> origin = mapper.clock().origin();
+  const std::optional<std::int64_t> last_applied_step = mapper.lastAppliedStep();
+  writer.flag(origin.has_value());
+  writer.f64(origin.value_or(0.0));
+  writer.flag(last_applied_step.has_value());
+  writer.i64(last_applied_step.value_or(0));
+  writer.u64(cell_count);
+
+  forEachObservedCell(grid, [&writer](std::int32_t x, std::int32_t y, const CellGrid::Tile& tile, int i) {
+    writer.i32(x);
+    writer.i32(y);
+    writer.f32(tile.p_occ[i]);
+    writer.i32(tile.last_step[i]);
+    writer.f32(tile.log_odds[i]);
+    writer.f32(tile.p_occ_given_free[i]);
+    writer.f32(tile.p_free_given_occ[i]);
+    for (const auto& stat : tile.em_stats) writer.f32(stat[i]);
+    writer.u16(tile.observed_steps[i]);
+  });
+  const std::size_t body = static_cast<std::size_t>(writer.position() - begin);
+  if (body != bytes.size() - kChecksumSize) {
+    throw std::logic_error("serializeModel: wrote " + std::to_string(body) + " bytes, expected " +
+                           std::to_string(bytes.size() - kChecksumSize));
+  }
+  writer.u32(crc32(begin, body));
+  return bytes;
+}
+
+std::unique_ptr<Mapper> deserializeModel(const std::string& bytes) {
+  try {
+    return deserializeChecked(bytes);
+  } catch (const std::bad_alloc&) {
+    // Only a configuration that passes validation yet asks for an enormous tile index gets
+    // here (the cell count is checked against the file's size before anything is built).
+    throw std::runtime_error("model file needs more memory than is available");
+  } catch (const std::length_error& error) {
+    throw std::runtime_error(std::string("model file needs more memory than is available: ") + error.what());
+  }
+}
+
+void saveModelBytes(const std::string& bytes, const std::string& path) { writeFileDurably(path, bytes); }
+
+void saveModel(const Mapper& mapper, const std::string& path) { writeFileDurably(path, serializeModel(mapper)); }
+
+std::unique_ptr<Mapper> loadModel(const std::string& path) {
+  const std::string bytes = readWholeFile(path);
+  try {
+    return deserializeModel(bytes);
+  } catch (const std::runtime_error& error) {
+    throw std::runtime_error("cannot load model file " + path + ": " + error.what());
+  }
+}
+
+}  // namespace core
+}  // namespace dynamic_occupancy_grid

@@ -1,0 +1,925 @@
+// Tests of the model file (core/model_io.h, docs/model_format.md): a saved and loaded
+// Mapper is the same Mapper (every cell bit for bit, the configuration field by field, the
+// time), and it goes on mapping exactly as the original does; the file's bytes are the ones
+// documented; every damaged file (any truncation, any single flipped byte, other versions,
+// bad values, trailing bytes, absurd counts) is refused with a clear std::runtime_error; the
+// file is replaced atomically and errors name it.
+//
+// The checksum is checked against a bit-by-bit CRC-32 written here (the file promises the
+// CRC-32 of zlib, which the Python reader uses).
+
+#include "dynamic_occupancy_grid/core/model_io.h"
+
+#include <gtest/gtest.h>
+#include <signal.h>
+#include <sys/resource.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <cstdint>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <iterator>
+#include <limits>
+#include <map>
+#include <memory>
+#include <optional>
+#include <random>
+#include <stdexcept>
+#include <string>
+#include <utility>
+#include <vector>
+
+namespace dog = dynamic_occupancy_grid::core;
+namespace fs = std::filesystem;
+
+namespace {
+
+using XY = std::pair<std::int32_t, std::int32_t>;
+
+constexpr double kPi = 3.14159265358979323846;
+constexpr double kInf = std::numeric_limits<double>::infinity();
+
+// Offsets of docs/model_format.md.
+constexpr std::size_t kVersionOffset = 8;
+constexpr std::size_t kResolutionOffset = 12;
+constexpr std::size_t kPHitGivenOccOffset = 28;
+constexpr std::size_t kLearnOffset = 60;
+constexpr std::size_t kSymmetricOffset = 93;
+constexpr std::size_t kMinObservedOffset = 94;
+constexpr std::size_t kInitialPOccOffset = 98;
+constexpr std::size_t kFixedOffset = 146;
+constexpr std::size_t kMaxMapSizeOffset = 163;
+constexpr std::size_t kHasOriginOffset = 171;
+constexpr std::size_t kOriginOffset = 172;
+constexpr std::size_t kHasLastStepOffset = 180;
+constexpr std::size_t kLastStepOffset = 181;
+constexpr std::size_t kCountOffset = 189;
+constexpr std::size_t kCellsOffset = 197;
+constexpr std::size_t kCellSize = 62;
+
+// ---- bytes ------------------------------------------------------------------------------
+
+// Reference CRC-32 (IEEE, reflected, init and final xor ~0: zlib's), one bit at a time.
+std::uint32_t referenceCrc32(const std::string& bytes, std::size_t size) {
+  std::uint32_t crc = 0xFFFFFFFFU;
+  for (std::size_t i = 0; i < size; ++i) {
+    crc ^= static_cast<unsigned char>(bytes[i]);
+    for (int bit = 0; bit < 8; ++bit) crc = (crc >> 1) ^ (0xEDB88320U & (0U - (crc & 1U)));
+  }
+  return ~crc;
+}
+
+template <class T>
+void putLE(std::string& bytes, std::size_t offset, T value) {
+  std::uint64_t bits = 0;
+  std::memcpy(&bits, &value, sizeof(T));
+  for (std::size_t k = 0; k < sizeof(T); ++k) bytes[offset + k] = static_cast<char>((bits >> (8 * k)) & 0xFFU);
+}
+
+template <class T>
+T getLE(const std::string& bytes, std::size_t offset) {
+  std::uint64_t bits = 0;
+  for (std::size_t k = 0; k < sizeof(T); ++k) {
+    bits |= std::uint64_t{static_cast<unsigned char>(bytes[offset + k])} << (8 * k);
+  }
+  T value;
+  std::memcpy(&value, &bits, sizeof(T));
+  return value;
+}
+
+// Rewrites the checksum so that only the edited field is what is wrong.
+void fixChecksum(std::string& bytes) {
+  putLE<std::uint32_t>(bytes, bytes.size() - 4, referenceCrc32(bytes, bytes.size() - 4));
+}
+
+std::string errorOf(const std::string& bytes) {
+  try {
+    dog::deserializeModel(bytes);
+  } catch (const std::runtime_error& error) {
+    return error.what();
+  } catch (const std::exception& error) {
+    return std::string("WRONG EXCEPTION TYPE: ") + error.what();
+  }
+  return "NO EXCEPTION";
+}
+
+bool contains(const std::string& text, const std::string& part) { return text.find(part) != std::string::npos; }
+
+template <class T>
+bool sameBits(T a, T b) {
+  return std::memcmp(&a, &b, sizeof(T)) == 0;
+}
+
+// ---- scans: a square room with a pillar that moves ---------------------------------------
+
+// The range along (c, s) from (x, y) to the walls of [-half, half]^2 or to a pillar of
+// radius r at (px, py), whichever is nearer.
+double rayRange(double x, double y, double c, double s, double half, double px, double py, double r) {
+  double range = kInf;
+  if (c > 1e-12) range = std::min(range, (half - x) / c);
+  if (c < -1e-12) range = std::min(range, (-half - x) / c);
+  if (s > 1e-12) range = std::min(range, (half - y) / s);
+  if (s < -1e-12) range = std::min(range, (-half - y) / s);
+  // |o + t d - p|^2 = r^2
+  const double ox = x - px;
+  const double oy = y - py;
+  const double b = ox * c + oy * s;
+  const double disc = b * b - (ox * ox + oy * oy - r * r);
+  if (disc >= 0.0) {
+    const double t = -b - std::sqrt(disc);
+    if (t > 0.0) range = std::min(range, t);
+  }
+  return range;
+}
+
+// Scan `k` of a deterministic run: the laser wanders near the centre, the pillar circles.
+// Some beams have no return (+inf), some are NaN.
+dog::Scan roomScan(double stamp_s, int k, double centre_x = 0.0, double centre_y = 0.0) {
+  dog::Scan scan;
+  scan.stamp_s = stamp_s;
+  scan.laser_pose.x_m = centre_x + 0.3 * std::sin(0.37 * k);
+  scan.laser_pose.y_m = centre_y + 0.2 * std::cos(0.23 * k);
+  scan.laser_pose.yaw_rad = 0.05 * k;
+  const int beams = 120;
+  scan.angle_min_rad = -kPi;
+  scan.angle_increment_rad = 2.0 * kPi / beams;
+  scan.range_min_m = 0.05;
+  scan.range_max_m = 6.0;
+  const double pillar_x = centre_x + 1.2 * std::cos(0.5 * k);
+  const double pillar_y = centre_y + 1.2 * std::sin(0.5 * k);
+  for (int i = 0; i < beams; ++i) {
+    const double angle = scan.laser_pose.yaw_rad + scan.angle_min_rad + i * scan.angle_increment_rad;
+    double range = rayRange(scan.laser_pose.x_m - centre_x, scan.laser_pose.y_m - centre_y, std::cos(angle),
+                            std::sin(angle), 2.4, pillar_x - centre_x, pillar_y - centre_y, 0.25);
+    if ((i + k) % 17 == 0) range = kInf;
+    if ((i + 3 * k) % 29 == 0) range = std::numeric_limits<double>::quiet_NaN();
+    scan.ranges_m.push_back(static_cast<float>(range));
+  }
+  return scan;
+}
+
+// Steps first_step .. first_step + steps - 1 of the run, every third step left out (gaps),
+// three scans per step at stamps origin + (step + 0.1 / 0.5 / 0.9) * time_step.
+void runSteps(dog::Mapper& mapper, int first_step, int steps, double origin_s, double centre_x = 0.0,
+              double centre_y = 0.0) {
+  const double dt = mapper.config().time_step_s;
+  for (int step = first_step; step < first_step + steps; ++step) {
+    if (step % 3 == 2) continue;
+    for (const double part : {0.1, 0.5, 0.9}) {
+      const int k = step * 3 + static_cast<int>(part * 10);
+      const dog::ScanResult result = mapper.integrate(roomScan(origin_s + (step + part) * dt, k, centre_x, centre_y));
+      ASSERT_EQ(result.status, dog::ScanStatus::kIntegrated) << result.error;
+    }
+  }
+}
+
+dog::MapperConfig growingLearningConfig() {
+  dog::MapperConfig config;
+  config.resolution_m = 0.1;
+  config.time_step_s = 0.5;
+  config.p_hit_given_occ = 0.75;
+  config.p_hit_given_free = 0.15;
+  config.prior_transitions = dog::TransitionParams{0.02, 0.03};
+  config.learn_transitions = true;
+  config.online_em.prior_weight = 4.0;
+  config.online_em.learning_rate_floor = 0.01;
+  config.online_em.p_min = 0.001;
+  config.online_em.p_max = 0.45;
+  config.online_em.symmetric = false;
+  config.online_em.min_observed_steps = 3;
+  config.initial_p_occ = 0.45;
+  config.static_clamp = dog::LogOddsClamp{-2.5, 3.25};
+  config.max_free_range_m = 3.5;
+  config.origin_x_m = -0.35;
+  config.origin_y_m = 0.2;
+  config.max_map_size_m = 40.0;
+  return config;
+}
+
+dog::MapperConfig fixedStaticConfig() {
+  dog::MapperConfig config;
+  config.resolution_m = 0.125;
+  config.time_step_s = 0.3;
+  config.prior_transitions = dog::TransitionParams{0.0, 0.0};
+  config.learn_transitions = false;
+  config.online_em.symmetric = true;
+  config.online_em.learning_rate_floor = 0.0;
+  config.online_em.min_observed_steps = 65535;
+  config.initial_p_occ = 0.3;
+  config.max_free_range_m = 0.0;
+  config.origin_x_m = -4.0;
+  config.origin_y_m = -3.75;
+  config.fixed_bounds = true;
+  config.width_m = 7.0;  // the room (+-2.4) sticks out on the right: cells outside are dropped
+  config.height_m = 7.5;
+  config.max_map_size_m = 8.0;
+  return config;
+}
+
+// ---- comparing mappers ------------------------------------------------------------------
+
+std::map<XY, dog::CellState> cellsOf(const dog::Mapper& mapper) {
+  std::map<XY, dog::CellState> cells;
+  mapper.grid().forEachTile([&cells](const dog::CellGrid::Tile& tile) {
+    for (int i = 0; i < dog::CellGrid::kTileCells; ++i) {
+      if (tile.last_step[i] == dog::kNeverObserved) continue;
+      dog::CellState state{tile.p_occ[i], tile.last_step[i], tile.log_odds[i], tile.p_occ_given_free[i],
+                           tile.p_free_given_occ[i], {}, tile.observed_steps[i]};
+      for (std::size_t k = 0; k < state.em_stats.size(); ++k) state.em_stats[k] = tile.em_stats[k][i];
+      cells[{tile.cellX(i), tile.cellY(i)}] = state;
+    }
+  });
+  return cells;
+}
+
+void expectSameCells(const dog::Mapper& a, const dog::Mapper& b) {
+  const auto cells_a = cellsOf(a);
+  const auto cells_b = cellsOf(b);
+  ASSERT_EQ(cells_a.size(), cells_b.size());
+  auto it = cells_b.begin();
+  for (const auto& [xy, ca] : cells_a) {
+    const auto& [xy_b, cb] = *it++;
+    ASSERT_EQ(xy, xy_b);
+    const std::string where = "cell (" + std::to_string(xy.first) + ", " + std::to_string(xy.second) + ")";
+    ASSERT_TRUE(sameBits(ca.p_occ, cb.p_occ)) << where << ": " << ca.p_occ << " vs " << cb.p_occ;
+    ASSERT_EQ(ca.last_step, cb.last_step) << where;
+    ASSERT_TRUE(sameBits(ca.log_odds, cb.log_odds)) << where;
+    ASSERT_TRUE(sameBits(ca.p_occ_given_free, cb.p_occ_given_free)) << where;
+    ASSERT_TRUE(sameBits(ca.p_free_given_occ, cb.p_free_given_occ)) << where;
+    for (std::size_t k = 0; k < ca.em_stats.size(); ++k) {
+      ASSERT_TRUE(sameBits(ca.em_stats[k], cb.em_stats[k])) << where << " em_stats[" << k << "]";
+    }
+    ASSERT_EQ(ca.observed_steps, cb.observed_steps) << where;
+  }
+  const dog::CellBox box_a = a.grid().bounds();
+  const dog::CellBox box_b = b.grid().bounds();
+  EXPECT_EQ(box_a.empty(), box_b.empty());
+  if (!box_a.empty() && !box_b.empty()) {
+    EXPECT_EQ(box_a.min_x, box_b.min_x);
+    EXPECT_EQ(box_a.min_y, box_b.min_y);
+    EXPECT_EQ(box_a.max_x, box_b.max_x);
+    EXPECT_EQ(box_a.max_y, box_b.max_y);
+  }
+  EXPECT_EQ(a.grid().isFixed(), b.grid().isFixed());
+}
+
+void expectSameConfig(const dog::MapperConfig& a, const dog::MapperConfig& b) {
+  EXPECT_TRUE(sameBits(a.resolution_m, b.resolution_m));
+  EXPECT_TRUE(sameBits(a.time_step_s, b.time_step_s));
+  EXPECT_TRUE(sameBits(a.p_hit_given_occ, b.p_hit_given_occ));
+  EXPECT_TRUE(sameBits(a.p_hit_given_free, b.p_hit_given_free));
+  EXPECT_TRUE(sameBits(a.prior_transitions.p_occ_given_free, b.prior_transitions.p_occ_given_free));
+  EXPECT_TRUE(sameBits(a.prior_transitions.p_free_given_occ, b.prior_transitions.p_free_given_occ));
+  EXPECT_EQ(a.learn_transitions, b.learn_transitions);
+  EXPECT_TRUE(sameBits(a.online_em.prior_weight, b.online_em.prior_weight));
+  EXPECT_TRUE(sameBits(a.online_em.learning_rate_floor, b.online_em.learning_rate_floor));
+  EXPECT_TRUE(sameBits(a.online_em.p_min, b.online_em.p_min));
+  EXPECT_TRUE(sameBits(a.online_em.p_max, b.online_em.p_max));
+  EXPECT_EQ(a.online_em.symmetric, b.online_em.symmetric);
+  EXPECT_EQ(a.online_em.min_observed_steps, b.online_em.min_observed_steps);
+  EXPECT_TRUE(sameBits(a.initial_p_occ, b.initial_p_occ));
+  EXPECT_TRUE(sameBits(a.static_clamp.min_log_odds, b.static_clamp.min_log_odds));
+  EXPECT_TRUE(sameBits(a.static_clamp.max_log_odds, b.static_clamp.max_log_odds));
+  EXPECT_TRUE(sameBits(a.max_free_range_m, b.max_free_range_m));
+  EXPECT_TRUE(sameBits(a.origin_x_m, b.origin_x_m));
+  EXPECT_TRUE(sameBits(a.origin_y_m, b.origin_y_m));
+  EXPECT_EQ(a.fixed_bounds, b.fixed_bounds);
+  EXPECT_TRUE(sameBits(a.width_m, b.width_m));
+  EXPECT_TRUE(sameBits(a.height_m, b.height_m));
+  EXPECT_TRUE(sameBits(a.max_map_size_m, b.max_map_size_m));
+}
+
+void expectSameTime(const dog::Mapper& a, const dog::Mapper& b) {
+  ASSERT_EQ(a.clock().origin().has_value(), b.clock().origin().has_value());
+  if (a.clock().origin()) {
+    EXPECT_TRUE(sameBits(*a.clock().origin(), *b.clock().origin()))
+        << std::hexfloat << *a.clock().origin() << " vs " << *b.clock().origin();
+  }
+  EXPECT_EQ(a.lastAppliedStep(), b.lastAppliedStep());
+  EXPECT_TRUE(sameBits(a.clock().timeStep(), b.clock().timeStep()));
+}
+
+// Save, load, and check that the loaded mapper is the original (state and bytes).
+std::unique_ptr<dog::Mapper> roundTrip(const dog::Mapper& original) {
+  const std::string bytes = dog::serializeModel(original);
+  std::unique_ptr<dog::Mapper> loaded = dog::deserializeModel(bytes);
+  EXPECT_NE(loaded, nullptr);
+  if (!loaded) return loaded;
+  expectSameConfig(original.config(), loaded->config());
+  expectSameTime(original, *loaded);
+  expectSameCells(original, *loaded);
+  EXPECT_FALSE(loaded->gatheringStep().has_value());
+  EXPECT_TRUE(dog::serializeModel(*loaded) == bytes) << "save -> load -> save is not byte-identical";
+  return loaded;
+}
+
+// The real proof: both mappers go on with the same scans and stay identical.
+void expectSameFuture(dog::Mapper& original, dog::Mapper& loaded, int first_step, int steps, double origin_s,
+                      double centre_x = 0.0, double centre_y = 0.0) {
+  runSteps(original, first_step, steps, origin_s, centre_x, centre_y);
+  runSteps(loaded, first_step, steps, origin_s, centre_x, centre_y);
+  original.finishStep();
+  loaded.finishStep();
+  expectSameTime(original, loaded);
+  expectSameCells(original, loaded);
+  EXPECT_TRUE(dog::serializeModel(original) == dog::serializeModel(loaded)) << "the continued maps differ";
+}
+
+// A small model (a few dozen cells) for the loops over every byte.
+std::string smallModel() {
+  dog::MapperConfig config = fixedStaticConfig();
+  config.learn_transitions = true;
+  config.prior_transitions = dog::TransitionParams{0.05, 0.05};
+  config.online_em.min_observed_steps = 2;
+  config.width_m = 1.0;
+  config.height_m = 1.0;
+  config.origin_x_m = -0.5;
+  config.origin_y_m = -0.5;
+  dog::Mapper mapper(config);
+  for (int step = 0; step < 4; ++step) {
+    dog::Scan scan;
+    scan.stamp_s = 100.0 + step * config.time_step_s;
+    scan.angle_min_rad = 0.0;
+    scan.angle_increment_rad = kPi / 2.0;
+    scan.range_min_m = 0.0;
+    scan.range_max_m = 5.0;
+    scan.ranges_m = {0.3f, step % 2 == 0 ? 0.4f : 0.2f, 5.0f};
+    EXPECT_EQ(mapper.integrate(scan).status, dog::ScanStatus::kIntegrated);
+  }
+  mapper.finishStep();
+  return dog::serializeModel(mapper);
+}
+
+// A temporary directory, removed with everything in it at the end of the test.
+class TempDir {
+ public:
+  TempDir() {
+    static std::atomic<int> counter{0};
+    path_ = fs::temp_directory_path() /
+            ("dog_model_io_" + std::to_string(::getpid()) + "_" + std::to_string(counter++));
+    fs::remove_all(path_);
+    fs::create_directories(path_);
+  }
+  ~TempDir() {
+    std::error_code ignored;
+    fs::remove_all(path_, ignored);
+  }
+  std::string file(const std::string& name) const { return (path_ / name).string(); }
+  std::vector<std::string> entries() const {
+    std::vector<std::string> names;
+    for (const auto& entry : fs::directory_iterator(path_)) names.push_back(entry.path().filename().string());
+    std::sort(names.begin(), names.end());
+    return names;
+  }
+
+ private:
+  fs::path path_;
+};
+
+std::string readFile(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  return std::string(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+}
+
+void writeFile(const std::string& path, const std::string& contents) {
+  std::ofstream out(path, std::ios::binary | std::ios::trunc);
+  out << contents;
+}
+
+}  // namespace
+
+// ---- round trips -------------------------------------------------------------------------
+
+TEST(ModelIoRoundTrip, GrowingLearningMapIsTheSameMapAndGoesOnTheSame) {
+  dog::Mapper original(growingLearningConfig());
+  const double origin_s = 1700000000.123;
+  runSteps(original, 0, 40, origin_s);
+  original.finishStep();
+  ASSERT_GT(cellsOf(original).size(), 1000U);
+  ASSERT_EQ(original.lastAppliedStep(), std::optional<std::int64_t>(39));
+  // Learning has moved transitions away from the prior somewhere.
+  bool learned = false;
+  for (const auto& [xy, cell] : cellsOf(original)) {
+    learned = learned || cell.p_occ_given_free != static_cast<float>(original.config().prior_transitions.p_occ_given_free);
+  }
+  ASSERT_TRUE(learned);
+
+  std::unique_ptr<dog::Mapper> loaded = roundTrip(original);
+  ASSERT_NE(loaded, nullptr);
+  // On, with a step right after the last one, gaps, and the laser moved so that the map grows.
+  expectSameFuture(original, *loaded, 40, 25, origin_s, 1.5, -1.0);
+  // And once more, through a second save and load.
+  std::unique_ptr<dog::Mapper> reloaded = roundTrip(*loaded);
+  ASSERT_NE(reloaded, nullptr);
+  expectSameFuture(original, *reloaded, 70, 10, origin_s);
+}
+
+TEST(ModelIoRoundTrip, FixedBoundsStaticMapIsTheSameMapAndGoesOnTheSame) {
+  dog::Mapper original(fixedStaticConfig());
+  const double origin_s = 12.7;
+  runSteps(original, 0, 30, origin_s);
+  original.finishStep();
+  ASSERT_GT(cellsOf(original).size(), 500U);
+  std::unique_ptr<dog::Mapper> loaded = roundTrip(original);
+  ASSERT_NE(loaded, nullptr);
+  EXPECT_TRUE(loaded->grid().isFixed());
+  expectSameFuture(original, *loaded, 31, 20, origin_s, 0.5, 0.5);
+}
+
+TEST(ModelIoRoundTrip, EmptyMapperRoundTripsAndStartsTheSame) {
+  dog::Mapper original(growingLearningConfig());
+  const std::string bytes = dog::serializeModel(original);
+  EXPECT_EQ(bytes.size(), kCellsOffset + 4);
+  EXPECT_EQ(getLE<std::uint8_t>(bytes, kHasOriginOffset), 0);
+  EXPECT_EQ(getLE<std::uint8_t>(bytes, kHasLastStepOffset), 0);
+  std::unique_ptr<dog::Mapper> loaded = roundTrip(original);
+  ASSERT_NE(loaded, nullptr);
+  EXPECT_FALSE(loaded->clock().origin().has_value());
+  EXPECT_FALSE(loaded->lastAppliedStep().has_value());
+  expectSameFuture(original, *loaded, 0, 10, 3.25);
+}
+
+TEST(ModelIoRoundTrip, EmptyFixedMapperRoundTrips) {
+  dog::Mapper original(fixedStaticConfig());
+  std::unique_ptr<dog::Mapper> loaded = roundTrip(original);
+  ASSERT_NE(loaded, nullptr);
+  expectSameFuture(original, *loaded, 0, 5, -7.5);
+}
+
+TEST(ModelIoRoundTrip, StepStillGatheredIsNotSaved) {
+  // Saved while step 6 is gathered: the file holds steps up to 4 (5 had no scans); given
+  // step 6's scans again, the loaded mapper ends where the original does.
+  dog::Mapper original(growingLearningConfig());
+  const double origin_s = 50.0;
+  runSteps(original, 0, 6, origin_s);
+  runSteps(original, 6, 1, origin_s);
+  ASSERT_EQ(original.gatheringStep(), std::optional<std::int64_t>(6));
+  const std::string bytes = dog::serializeModel(original);
+  std::unique_ptr<dog::Mapper> loaded = dog::deserializeModel(bytes);
+  expectSameTime(original, *loaded);
+  expectSameCells(original, *loaded);
+  EXPECT_EQ(loaded->lastAppliedStep(), std::optional<std::int64_t>(4));
+  EXPECT_FALSE(loaded->gatheringStep().has_value());
+  runSteps(*loaded, 6, 1, origin_s);
+  original.finishStep();
+  loaded->finishStep();
+  expectSameCells(original, *loaded);
+  EXPECT_TRUE(dog::serializeModel(original) == dog::serializeModel(*loaded));
+}
+
+TEST(ModelIoRoundTrip, ClockStartedWithoutAppliedStep) {
+  dog::Mapper original(growingLearningConfig());
+  ASSERT_EQ(original.integrate(roomScan(8.0, 0)).status, dog::ScanStatus::kIntegrated);
+  const std::string bytes = dog::serializeModel(original);
+  EXPECT_EQ(getLE<std::uint8_t>(bytes, kHasOriginOffset), 1);
+  EXPECT_EQ(getLE<double>(bytes, kOriginOffset), 8.0);
+  EXPECT_EQ(getLE<std::uint8_t>(bytes, kHasLastStepOffset), 0);
+  EXPECT_EQ(getLE<std::uint64_t>(bytes, kCountOffset), 0U);
+  std::unique_ptr<dog::Mapper> loaded = dog::deserializeModel(bytes);
+  expectSameTime(original, *loaded);
+  EXPECT_TRUE(dog::serializeModel(*loaded) == bytes);
+}
+
+TEST(ModelIoRoundTrip, ClockOriginComesBackExactly) {
+  // Awkward stamps and steps: the origin must come back bit for bit (same steps for the
+  // same stamps), also after restartClockAt, which moves the origin by a step multiple.
+  for (const double time_step_s : {1.0, 0.1, 0.05, 0.3, 7.3}) {
+    for (const double stamp_s : {0.0, 0.001, 0.123456789, 3.0, -3.3, 1234.5678, 1.7e9 + 0.123456, 1e12 + 0.5}) {
+      SCOPED_TRACE("time_step " + std::to_string(time_step_s) + " stamp " + std::to_string(stamp_s));
+      dog::MapperConfig config = growingLearningConfig();
+      config.time_step_s = time_step_s;
+      dog::Mapper original(config);
+      ASSERT_EQ(original.integrate(roomScan(stamp_s, 1)).status, dog::ScanStatus::kIntegrated);
+      original.finishStep();
+      std::unique_ptr<dog::Mapper> loaded = roundTrip(original);
+      ASSERT_NE(loaded, nullptr);
+      original.restartClockAt(stamp_s * 0.5 + 0.77);
+      const std::unique_ptr<dog::Mapper> restarted = roundTrip(original);
+      ASSERT_NE(restarted, nullptr);
+      // A stamp just after a step boundary lands in the same step on both.
+      const double boundary = original.clock().stepStart(3);
+      EXPECT_EQ(original.clock().stepOf(boundary), restarted->clock().stepOf(boundary));
+      EXPECT_EQ(original.clock().stepOf(std::nextafter(boundary, -kInf)),
+                restarted->clock().stepOf(std::nextafter(boundary, -kInf)));
+    }
+  }
+}
+
+TEST(ModelIoRoundTrip, LargeMapWithNegativeCoordinatesAcrossManyTiles) {
+  // 300 x 300 cells around the origin (tiles with negative coordinates, partly filled), every
+  // field with distinct values: the order of the records and all fields survive.
+  dog::MapperConfig config = growingLearningConfig();
+  dog::Mapper original(config);
+  original.restoreTime(0.0, 1000);
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<float> unit(0.0f, 1.0f);
+  for (std::int32_t y = -150; y < 150; ++y) {
+    for (std::int32_t x = -150; x < 150; ++x) {
+      if ((x * 7 + y * 13) % 11 == 0) continue;  // holes
+      dog::CellState state{};
+      state.p_occ = unit(rng);
+      state.last_step = static_cast<std::int32_t>(rng() % 1001);
+      state.log_odds = unit(rng) * 4.0f - 2.0f;
+      state.p_occ_given_free = unit(rng) * 0.5f;
+      state.p_free_given_occ = unit(rng) * 0.5f;
+      for (float& s : state.em_stats) s = unit(rng) * 100.0f;
+      state.observed_steps = static_cast<std::uint16_t>(rng());
+      original.restoreCell(x, y, state);
+    }
+  }
+  const std::string bytes = dog::serializeModel(original);
+  const std::size_t count = cellsOf(original).size();
+  ASSERT_EQ(bytes.size(), kCellsOffset + count * kCellSize + 4);
+  // Records by row (y ascending), then x ascending (docs/model_format.md).
+  XY previous{std::numeric_limits<std::int32_t>::min(), std::numeric_limits<std::int32_t>::min()};
+  for (std::size_t i = 0; i < count; ++i) {
+    const XY xy{getLE<std::int32_t>(bytes, kCellsOffset + i * kCellSize),
+                getLE<std::int32_t>(bytes, kCellsOffset + i * kCellSize + 4)};
+    ASSERT_LT(std::make_pair(previous.second, previous.first), std::make_pair(xy.second, xy.first)) << i;
+    previous = xy;
+  }
+  std::unique_ptr<dog::Mapper> loaded = roundTrip(original);
+  ASSERT_NE(loaded, nullptr);
+  expectSameFuture(original, *loaded, 1001, 5, 0.0);
+}
+
+// ---- the bytes are the documented ones -----------------------------------------------------
+
+TEST(ModelIoFormat, BytesAreAsDocumented) {
+  const dog::MapperConfig config = growingLearningConfig();
+  dog::Mapper mapper(config);
+  runSteps(mapper, 0, 4, 20.0);
+  mapper.finishStep();
+  const std::string bytes = dog::serializeModel(mapper);
+  const auto cells = cellsOf(mapper);
+  ASSERT_EQ(bytes.size(), kCellsOffset + cells.size() * kCellSize + 4);
+  EXPECT_EQ(bytes.substr(0, 8), "DOGMODEL");
+  EXPECT_EQ(getLE<std::uint32_t>(bytes, kVersionOffset), dog::kModelFormatVersion);
+  EXPECT_EQ(getLE<double>(bytes, kResolutionOffset), config.resolution_m);
+  EXPECT_EQ(getLE<double>(bytes, kPHitGivenOccOffset), config.p_hit_given_occ);
+  EXPECT_EQ(getLE<std::uint8_t>(bytes, kLearnOffset), 1);
+  EXPECT_EQ(getLE<double>(bytes, kLearnOffset + 1), config.online_em.prior_weight);
+  EXPECT_EQ(getLE<std::uint8_t>(bytes, kSymmetricOffset), 0);
+  EXPECT_EQ(getLE<std::uint32_t>(bytes, kMinObservedOffset), config.online_em.min_observed_steps);
+  EXPECT_EQ(getLE<double>(bytes, kInitialPOccOffset), config.initial_p_occ);
+  EXPECT_EQ(getLE<std::uint8_t>(bytes, kFixedOffset), 0);
+  EXPECT_EQ(getLE<double>(bytes, kMaxMapSizeOffset), config.max_map_size_m);
+  EXPECT_EQ(getLE<std::uint8_t>(bytes, kHasOriginOffset), 1);
+  EXPECT_EQ(getLE<double>(bytes, kOriginOffset), 20.0 + 0.1 * config.time_step_s);  // the first stamp
+  EXPECT_EQ(getLE<std::uint8_t>(bytes, kHasLastStepOffset), 1);
+  EXPECT_EQ(getLE<std::int64_t>(bytes, kLastStepOffset), 3);
+  EXPECT_EQ(getLE<std::uint64_t>(bytes, kCountOffset), cells.size());
+  // The first record is the cell with the smallest (y, x).
+  XY first = cells.begin()->first;
+  for (const auto& kv : cells) {
+    if (std::make_pair(kv.first.second, kv.first.first) < std::make_pair(first.second, first.first)) first = kv.first;
+  }
+  const dog::CellState& c = cells.at(first);
+  const std::size_t r = kCellsOffset;
+  EXPECT_EQ(getLE<std::int32_t>(bytes, r + 0), first.first);
+  EXPECT_EQ(getLE<std::int32_t>(bytes, r + 4), first.second);
+  EXPECT_TRUE(sameBits(getLE<float>(bytes, r + 8), c.p_occ));
+  EXPECT_EQ(getLE<std::int32_t>(bytes, r + 12), c.last_step);
+  EXPECT_TRUE(sameBits(getLE<float>(bytes, r + 16), c.log_odds));
+  EXPECT_TRUE(sameBits(getLE<float>(bytes, r + 20), c.p_occ_given_free));
+  EXPECT_TRUE(sameBits(getLE<float>(bytes, r + 24), c.p_free_given_occ));
+  for (std::size_t k = 0; k < 8; ++k) EXPECT_TRUE(sameBits(getLE<float>(bytes, r + 28 + 4 * k), c.em_stats[k]));
+  EXPECT_EQ(getLE<std::uint16_t>(bytes, r + 60), c.observed_steps);
+  // The checksum is zlib's CRC-32 of everything before it.
+  EXPECT_EQ(referenceCrc32("123456789", 9), 0xCBF43926U);  // the reference's check value
+  EXPECT_EQ(getLE<std::uint32_t>(bytes, bytes.size() - 4), referenceCrc32(bytes, bytes.size() - 4));
+}
+
+// ---- damaged files ---------------------------------------------------------------------------
+
+TEST(ModelIoDamage, EveryTruncationIsRefused) {
+  const std::string bytes = smallModel();
+  ASSERT_NO_THROW(dog::deserializeModel(bytes));
+  ASSERT_GT(getLE<std::uint64_t>(bytes, kCountOffset), 3U);
+  for (std::size_t length = 0; length < bytes.size(); ++length) {
+    const std::string message = errorOf(bytes.substr(0, length));
+    ASSERT_TRUE(contains(message, "truncated")) << "length " << length << ": " << message;
+    ASSERT_TRUE(contains(message, std::to_string(length) + " available")) << message;
+  }
+  EXPECT_EQ(errorOf(bytes.substr(0, 100)), "truncated model file: expected at least 201 bytes, 100 available");
+  const std::uint64_t count = getLE<std::uint64_t>(bytes, kCountOffset);
+  EXPECT_EQ(errorOf(bytes.substr(0, bytes.size() - 1)),
+            "truncated model file: expected " + std::to_string(bytes.size()) + " bytes for " + std::to_string(count) +
+                " cells, " + std::to_string(bytes.size() - 1) + " available");
+}
+
+TEST(ModelIoDamage, EverySingleByteChangeIsRefused) {
+  const std::string bytes = smallModel();
+  for (std::size_t i = 0; i < bytes.size(); ++i) {
+    for (const unsigned char flip : {0x01, 0x80, 0xFF}) {
+      std::string damaged = bytes;
+      damaged[i] = static_cast<char>(static_cast<unsigned char>(damaged[i]) ^ flip);
+      const std::string message = errorOf(damaged);
+      ASSERT_FALSE(contains(message, "NO EXCEPTION") || contains(message, "WRONG EXCEPTION"))
+          << "byte " << i << " ^ " << int{flip} << ": " << message;
+    }
+  }
+}
+
+TEST(ModelIoDamage, MessagesSayWhatIsWrong) {
+  const std::string bytes = smallModel();
+  {
+    std::string other = bytes;
+    other[0] = 'X';
+    EXPECT_TRUE(contains(errorOf(other), "not a dynamic_occupancy_grid model file")) << errorOf(other);
+    EXPECT_TRUE(contains(errorOf("P5\n# a PGM image"), "not a dynamic_occupancy_grid model file"));
+    EXPECT_TRUE(contains(errorOf("DOG"), "truncated"));
+    EXPECT_TRUE(contains(errorOf(""), "truncated"));
+  }
+  {
+    std::string newer = bytes;
+    putLE<std::uint32_t>(newer, kVersionOffset, 2);
+    fixChecksum(newer);
+    EXPECT_EQ(errorOf(newer), "model format version 2, this build reads version 1");
+    putLE<std::uint32_t>(newer, kVersionOffset, 0);
+    EXPECT_EQ(errorOf(newer), "model format version 0, this build reads version 1");
+  }
+  {
+    std::string corrupt = bytes;
+    corrupt[kCellsOffset + 9] ^= 0x10;  // inside the first cell's p_occ
+    EXPECT_TRUE(contains(errorOf(corrupt), "corrupt")) << errorOf(corrupt);
+    EXPECT_TRUE(contains(errorOf(corrupt), "checksum")) << errorOf(corrupt);
+  }
+  {
+    std::string longer = bytes + std::string(1, '\0');
+    EXPECT_TRUE(contains(errorOf(longer), "1 trailing bytes")) << errorOf(longer);
+    longer = bytes + bytes;
+    EXPECT_TRUE(contains(errorOf(longer), "trailing")) << errorOf(longer);
+  }
+}
+
+TEST(ModelIoDamage, AbsurdCellCountsAreRefusedBeforeAllocating) {
+  const std::string bytes = smallModel();
+  const std::uint64_t count = getLE<std::uint64_t>(bytes, kCountOffset);
+  for (const std::uint64_t absurd :
+       {count + 1, std::uint64_t{1} << 40, std::uint64_t{1} << 58, std::numeric_limits<std::uint64_t>::max() / 62,
+        std::numeric_limits<std::uint64_t>::max() / 62 + 1, std::numeric_limits<std::uint64_t>::max()}) {
+    std::string damaged = bytes;
+    putLE<std::uint64_t>(damaged, kCountOffset, absurd);
+    fixChecksum(damaged);
+    const std::string message = errorOf(damaged);
+    EXPECT_TRUE(contains(message, "truncated") || contains(message, "absurd cell count")) << absurd << ": " << message;
+  }
+  std::string fewer = bytes;
+  putLE<std::uint64_t>(fewer, kCountOffset, count - 1);
+  fixChecksum(fewer);
+  EXPECT_TRUE(contains(errorOf(fewer), "62 trailing bytes")) << errorOf(fewer);
+}
+
+TEST(ModelIoDamage, InvalidConfigurationIsRefusedWithValidatesMessage) {
+  const std::string bytes = smallModel();
+  const auto edited = [&bytes](auto edit) {
+    std::string copy = bytes;
+    edit(copy);
+    fixChecksum(copy);
+    return errorOf(copy);
+  };
+  std::string message = edited([](std::string& b) { putLE<double>(b, kResolutionOffset, -0.1); });
+  EXPECT_TRUE(contains(message, "invalid configuration")) << message;
+  EXPECT_TRUE(contains(message, "resolution")) << message;
+  message = edited([](std::string& b) { putLE<double>(b, kPHitGivenOccOffset, 0.1); });  // below p_hit_given_free
+  EXPECT_TRUE(contains(message, "invalid configuration")) << message;
+  message = edited([](std::string& b) { putLE<double>(b, kInitialPOccOffset, std::nan("")); });
+  EXPECT_TRUE(contains(message, "initial_p_occ")) << message;
+  message = edited([](std::string& b) { putLE<std::uint32_t>(b, kMinObservedOffset, 70000); });
+  EXPECT_TRUE(contains(message, "min_observed_steps")) << message;
+  message = edited([](std::string& b) { putLE<double>(b, kMaxMapSizeOffset, 0.5); });  // below the fixed size
+  EXPECT_TRUE(contains(message, "invalid configuration")) << message;
+  // A boolean byte other than 0 or 1.
+  for (const std::size_t offset : {kLearnOffset, kSymmetricOffset, kFixedOffset, kHasOriginOffset, kHasLastStepOffset}) {
+    message = edited([offset](std::string& b) { b[offset] = 2; });
+    EXPECT_TRUE(contains(message, "must be 0 or 1")) << offset << ": " << message;
+  }
+}
+
+TEST(ModelIoDamage, InvalidTimeIsRefused) {
+  const std::string bytes = smallModel();
+  std::string damaged = bytes;
+  damaged[kHasOriginOffset] = 0;  // a last step without a clock origin
+  putLE<double>(damaged, kOriginOffset, 0.0);
+  fixChecksum(damaged);
+  EXPECT_TRUE(contains(errorOf(damaged), "invalid time")) << errorOf(damaged);
+  damaged = bytes;
+  putLE<double>(damaged, kOriginOffset, kInf);
+  fixChecksum(damaged);
+  EXPECT_TRUE(contains(errorOf(damaged), "invalid time")) << errorOf(damaged);
+  damaged = bytes;
+  putLE<std::int64_t>(damaged, kLastStepOffset, -5);
+  fixChecksum(damaged);
+  EXPECT_TRUE(contains(errorOf(damaged), "invalid time")) << errorOf(damaged);
+  // An absent value must be stored as 0.
+  dog::Mapper empty(fixedStaticConfig());
+  damaged = dog::serializeModel(empty);
+  putLE<std::int64_t>(damaged, kLastStepOffset, 3);
+  fixChecksum(damaged);
+  EXPECT_TRUE(contains(errorOf(damaged), "absent")) << errorOf(damaged);
+}
+
+TEST(ModelIoDamage, InvalidCellsAreRefusedNamingTheCell) {
+  const std::string bytes = smallModel();
+  const std::int32_t x = getLE<std::int32_t>(bytes, kCellsOffset);
+  const std::int32_t y = getLE<std::int32_t>(bytes, kCellsOffset + 4);
+  const std::string first = "cell 0 at (" + std::to_string(x) + ", " + std::to_string(y) + ")";
+  const auto edited = [&bytes](std::size_t field_offset, auto value) {
+    std::string copy = bytes;
+    putLE(copy, kCellsOffset + field_offset, value);
+    fixChecksum(copy);
+    return errorOf(copy);
+  };
+  for (const std::string& message :
+       {edited(8, 1.5f), edited(8, std::nanf("")), edited(16, std::numeric_limits<float>::infinity()),
+        edited(20, -0.25f), edited(24, 2.0f), edited(28, -1.0f), edited(56, std::nanf("")),
+        edited(12, std::int32_t{1000}) /* after the last applied step */,
+        edited(12, dog::kNeverObserved)}) {
+    EXPECT_TRUE(contains(message, "invalid model file: " + first)) << message;
+  }
+  // A cell outside the fixed bounds.
+  std::string message = edited(0, std::int32_t{500});
+  EXPECT_TRUE(contains(message, "cell 0 at (500, " + std::to_string(y) + ")")) << message;
+  EXPECT_TRUE(contains(message, "outside")) << message;
+  // The same cell twice.
+  std::string twice = bytes;
+  twice.replace(kCellsOffset + kCellSize, 8, bytes.substr(kCellsOffset, 8));
+  fixChecksum(twice);
+  EXPECT_TRUE(contains(errorOf(twice), "cell 1 at (" + std::to_string(x) + ", " + std::to_string(y) +
+                                           ") appears twice"))
+      << errorOf(twice);
+}
+
+TEST(ModelIoDamage, RandomGarbageNeverCrashes) {
+  // Garbage with a valid magic, version and checksum: only runtime_errors (or a model).
+  const std::string bytes = smallModel();
+  std::mt19937 rng(99);
+  for (int round = 0; round < 2000; ++round) {
+    std::string garbage = bytes.substr(0, 12);
+    const std::size_t length = rng() % (bytes.size() + 200);
+    while (garbage.size() < length + 12) garbage.push_back(static_cast<char>(rng()));
+    if (round % 2 == 0) {
+      // Keep a plausible header now and then so the cell loop is reached.
+      garbage.replace(0, std::min(garbage.size(), kCellsOffset), bytes.substr(0, std::min(garbage.size(), kCellsOffset)));
+      if (garbage.size() >= kCellsOffset + 4) {
+        putLE<std::uint64_t>(garbage, kCountOffset, (garbage.size() - kCellsOffset - 4) / kCellSize);
+        garbage.resize(kCellsOffset + 4 + getLE<std::uint64_t>(garbage, kCountOffset) * kCellSize);
+      }
+    }
+    if (garbage.size() >= 16) fixChecksum(garbage);
+    try {
+      dog::deserializeModel(garbage);
+    } catch (const std::runtime_error&) {
+    }
+  }
+}
+
+// ---- files -------------------------------------------------------------------------------------
+
+TEST(ModelIoFiles, SaveAndLoadAFile) {
+  TempDir dir;
+  dog::Mapper original(growingLearningConfig());
+  runSteps(original, 0, 8, 5.0);
+  original.finishStep();
+  const std::string path = dir.file("model.dogm");
+  dog::saveModel(original, path);
+  EXPECT_EQ(readFile(path), dog::serializeModel(original));
+  EXPECT_EQ(dir.entries(), std::vector<std::string>{"model.dogm"});  // no temporary left
+  std::unique_ptr<dog::Mapper> loaded = dog::loadModel(path);
+  expectSameCells(original, *loaded);
+  expectSameTime(original, *loaded);
+  expectSameFuture(original, *loaded, 9, 4, 5.0);
+}
+
+TEST(ModelIoFiles, SavingReplacesAnOlderFile) {
+  TempDir dir;
+  const std::string path = dir.file("model.dogm");
+  dog::Mapper first(growingLearningConfig());
+  dog::saveModel(first, path);
+  dog::Mapper second(fixedStaticConfig());
+  runSteps(second, 0, 3, 1.0);
+  second.finishStep();
+  dog::saveModel(second, path);
+  EXPECT_EQ(readFile(path), dog::serializeModel(second));
+  EXPECT_EQ(dir.entries(), std::vector<std::string>{"model.dogm"});
+}
+
+TEST(ModelIoFiles, LoadErrorsNameTheFile) {
+  TempDir dir;
+  const std::string missing = dir.file("missing.dogm");
+  try {
+    dog::loadModel(missing);
+    FAIL() << "no exception";
+  } catch (const std::runtime_error& error) {
+    EXPECT_TRUE(contains(error.what(), missing)) << error.what();
+    EXPECT_TRUE(contains(error.what(), "No such file")) << error.what();
+  }
+  const std::string directory = dir.file("a_directory");
+  fs::create_directory(directory);
+  try {
+    dog::loadModel(directory);
+    FAIL() << "no exception";
+  } catch (const std::runtime_error& error) {
+    EXPECT_TRUE(contains(error.what(), directory)) << error.what();
+  }
+  const std::string corrupt = dir.file("corrupt.dogm");
+  std::string bytes = smallModel();
+  bytes[kCellsOffset + 3] ^= 1;
+  writeFile(corrupt, bytes);
+  try {
+    dog::loadModel(corrupt);
+    FAIL() << "no exception";
+  } catch (const std::runtime_error& error) {
+    EXPECT_TRUE(contains(error.what(), corrupt)) << error.what();
+    EXPECT_TRUE(contains(error.what(), "corrupt")) << error.what();
+  }
+  const std::string empty = dir.file("empty.dogm");
+  writeFile(empty, "");
+  try {
+    dog::loadModel(empty);
+    FAIL() << "no exception";
+  } catch (const std::runtime_error& error) {
+    EXPECT_TRUE(contains(error.what(), empty)) << error.what();
+    EXPECT_TRUE(contains(error.what(), "truncated")) << error.what();
+  }
+}
+
+TEST(ModelIoFiles, SavingIntoAMissingDirectoryThrowsNamingTheFile) {
+  TempDir dir;
+  const std::string path = dir.file("no/such/dir/model.dogm");
+  dog::Mapper mapper(growingLearningConfig());
+  try {
+    dog::saveModel(mapper, path);
+    FAIL() << "no exception";
+  } catch (const std::runtime_error& error) {
+    EXPECT_TRUE(contains(error.what(), path)) << error.what();
+    EXPECT_TRUE(contains(error.what(), "No such file or directory")) << error.what();
+  }
+  EXPECT_TRUE(dir.entries().empty());
+}
+
+TEST(ModelIoFiles, FailedSaveKeepsTheOldFile_TemporaryNotWritable) {
+  // The temporary path (path + ".tmp") is a directory: it cannot be opened for writing, not
+  // even by root.
+  TempDir dir;
+  const std::string path = dir.file("model.dogm");
+  dog::Mapper old_mapper(fixedStaticConfig());
+  dog::saveModel(old_mapper, path);
+  const std::string old_bytes = readFile(path);
+  fs::create_directory(path + ".tmp");
+  dog::Mapper new_mapper(growingLearningConfig());
+  runSteps(new_mapper, 0, 3, 0.0);
+  new_mapper.finishStep();
+  try {
+    dog::saveModel(new_mapper, path);
+    FAIL() << "no exception";
+  } catch (const std::runtime_error& error) {
+    EXPECT_TRUE(contains(error.what(), path)) << error.what();
+  }
+  EXPECT_EQ(readFile(path), old_bytes);
+  EXPECT_NO_THROW(dog::loadModel(path));
+}
+
+TEST(ModelIoFiles, FailedSaveKeepsTheOldFile_DiskFull) {
+  // A full disk, simulated with a file size limit (RLIMIT_FSIZE; root is bound by it too):
+  // writing the temporary fails part way; the old file stays, the temporary goes.
+  TempDir dir;
+  const std::string path = dir.file("model.dogm");
+  dog::Mapper old_mapper(fixedStaticConfig());
+  dog::saveModel(old_mapper, path);
+  const std::string old_bytes = readFile(path);
+  dog::Mapper new_mapper(growingLearningConfig());
+  runSteps(new_mapper, 0, 5, 0.0);
+  new_mapper.finishStep();
+  const std::string new_bytes = dog::serializeModel(new_mapper);
+  ASSERT_GT(new_bytes.size(), 20000U);
+
+  rlimit saved_limit{};
+  ASSERT_EQ(::getrlimit(RLIMIT_FSIZE, &saved_limit), 0);
+  if (saved_limit.rlim_max != RLIM_INFINITY && saved_limit.rlim_max < 20000) GTEST_SKIP() << "file size limit too low";
+  const auto saved_handler = ::signal(SIGXFSZ, SIG_IGN);  // the write then fails with EFBIG
+  rlimit small_limit = saved_limit;
+  small_limit.rlim_cur = 10000;
+  ASSERT_EQ(::setrlimit(RLIMIT_FSIZE, &small_limit), 0);
+  std::string message = "NO EXCEPTION";
+  try {
+    dog::saveModel(new_mapper, path);
+  } catch (const std::runtime_error& error) {
+    message = error.what();
+  }
+  ::setrlimit(RLIMIT_FSIZE, &saved_limit);
+  ::signal(SIGXFSZ, saved_handler);
+  EXPECT_TRUE(contains(message, "cannot save model file " + path)) << message;
+  EXPECT_TRUE(contains(message, "File too large")) << message;
+  EXPECT_EQ(readFile(path), old_bytes);
+  EXPECT_EQ(dir.entries(), std::vector<std::string>{"model.dogm"});
+  // And with room again, the save goes through.
+  dog::saveModel(new_mapper, path);
+  EXPECT_EQ(readFile(path), new_bytes);
+}

@@ -1,0 +1,282 @@
+#!/usr/bin/env python3
+"""Checks scripts/read_model.py against the C++ core, value for value.
+
+Usage:
+    test_read_model.py WRITE_MODEL_CLI [unittest options]
+
+WRITE_MODEL_CLI is the test tool (or the environment variable DOG_WRITE_MODEL_CLI, e.g. under
+pytest; without either the tests are skipped there) test/tools/write_model_cli.cpp: it maps a scripted run,
+saves the model with core::saveModel and writes the mapper's configuration, time and
+cells as exact text (%a). The reader's config, time and arrays must equal those exactly (bit
+for bit for the floats), its dense grids must put every cell where it belongs, and damaged
+files (truncated, flipped bytes, other magic or version, trailing bytes, bad flags) must
+raise ModelFormatError. Runs with /usr/bin/python3 and numpy; registered as a ctest by
+test/core_standalone/CMakeLists.txt.
+"""
+
+import os
+import struct
+import subprocess
+import sys
+import tempfile
+import unittest
+import zlib
+
+import numpy as np
+
+SCRIPTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "scripts")
+sys.path.insert(0, SCRIPTS)
+import read_model  # noqa: E402  (after the path is set)
+
+CLI = os.environ.get("DOG_WRITE_MODEL_CLI")
+
+FLOAT_FIELDS = ("p_occ", "log_odds", "p_occ_given_free", "p_free_given_occ")
+
+
+def parse_values(path):
+    """The CLI's text: (config dict with dotted names, origin, last step, cell columns)."""
+    config = {}
+    origin = last = None
+    count = None
+    rows = []
+    header = None
+    with open(path) as file:
+        for line in file:
+            line = line.strip()
+            if line.startswith("# config "):
+                _, _, name, value = line.split(" ")
+                config[name] = value
+            elif line.startswith("# clock_origin_s "):
+                value = line.split(" ")[2]
+                origin = None if value == "none" else float.fromhex(value)
+            elif line.startswith("# last_applied_step "):
+                value = line.split(" ")[2]
+                last = None if value == "none" else int(value)
+            elif line.startswith("# cells "):
+                count = int(line.split(" ")[2])
+            elif header is None:
+                header = line.split(",")
+            else:
+                rows.append(line.split(","))
+    assert count == len(rows), (count, len(rows))
+    columns = {name: [row[i] for row in rows] for i, name in enumerate(header)}
+    cells = {
+        "x": np.array([int(v) for v in columns["x"]], dtype=np.int32),
+        "y": np.array([int(v) for v in columns["y"]], dtype=np.int32),
+        "last_step": np.array([int(v) for v in columns["last_step"]], dtype=np.int32),
+        "observed_steps": np.array([int(v) for v in columns["observed_steps"]], dtype=np.uint16),
+    }
+    for name in FLOAT_FIELDS:
+        cells[name] = np.array([float.fromhex(v) for v in columns[name]], dtype=np.float32)
+    cells["em_stats"] = np.array(
+        [[float.fromhex(row[header.index(f"em_stats_{k}")]) for k in range(8)] for row in rows],
+        dtype=np.float32).reshape(len(rows), 8)
+    return config, origin, last, cells
+
+
+def flat_config(config, prefix=""):
+    """The reader's nested config with dotted names."""
+    flat = {}
+    for name, value in config.items():
+        if isinstance(value, dict):
+            flat.update(flat_config(value, prefix + name + "."))
+        else:
+            flat[prefix + name] = value
+    return flat
+
+
+def with_checksum(data):
+    data = bytearray(data)
+    data[-4:] = struct.pack("<I", zlib.crc32(bytes(data[:-4])) & 0xFFFFFFFF)
+    return bytes(data)
+
+
+class ReadModelTest(unittest.TestCase):
+    @classmethod
+    def setUpClass(cls):
+        if not CLI:
+            raise unittest.SkipTest("no write_model_cli given (see the usage)")
+        cls.directory = tempfile.TemporaryDirectory(prefix="dog_read_model_")
+        cls.runs = {}
+        for mode in ("growing", "fixed", "empty"):
+            model = os.path.join(cls.directory.name, mode + ".dogm")
+            values = os.path.join(cls.directory.name, mode + ".txt")
+            command = [CLI] + ([] if mode == "growing" else ["--" + mode]) + [model, values]
+            subprocess.run(command, check=True)
+            cls.runs[mode] = (model, parse_values(values))
+
+    @classmethod
+    def tearDownClass(cls):
+        cls.directory.cleanup()
+
+    def bytes_of(self, mode):
+        with open(self.runs[mode][0], "rb") as file:
+            return file.read()
+
+    def expect_error(self, data, *parts):
+        with self.assertRaises(read_model.ModelFormatError) as caught:
+            read_model.parse_model(data)
+        for part in parts:
+            self.assertIn(part, str(caught.exception))
+        return str(caught.exception)
+
+    # ---- the values are the C++ ones -------------------------------------------------------
+
+    def check_matches_cpp(self, mode, min_cells):
+        path, (config, origin, last, cells) = self.runs[mode]
+        model = read_model.load_model(path)
+        flat = flat_config(model.config)
+        self.assertEqual(sorted(flat), sorted(config))
+        for name, text in config.items():
+            value = flat[name]
+            if isinstance(value, bool) or isinstance(value, int):
+                self.assertEqual(int(value), int(text), name)
+            else:
+                self.assertEqual(struct.pack("<d", value), struct.pack("<d", float.fromhex(text)), name)
+        if origin is None:
+            self.assertIsNone(model.clock_origin_s)
+        else:
+            self.assertEqual(struct.pack("<d", model.clock_origin_s), struct.pack("<d", origin))
+        self.assertEqual(model.last_applied_step, last)
+        self.assertGreaterEqual(model.cell_count, min_cells)
+        self.assertEqual(model.cell_count, len(cells["x"]))
+        # Same cells in the same order (both by row, then column), every value bit for bit.
+        for name in read_model.CELL_FIELDS:
+            mine = getattr(model, name)
+            theirs = cells[name]
+            self.assertEqual((mine.dtype.kind, mine.dtype.itemsize), (theirs.dtype.kind, theirs.dtype.itemsize), name)
+            self.assertEqual(mine.shape, theirs.shape, name)
+            self.assertTrue(mine.flags["C_CONTIGUOUS"], name)
+            self.assertTrue(np.array_equal(mine.view(np.uint8), theirs.view(np.uint8)), name)
+        order = np.lexsort((model.x, model.y))
+        self.assertTrue(np.array_equal(order, np.arange(model.cell_count)))
+        self.assertEqual(model["p_occ"] is model.p_occ, True)
+        return model
+
+    def test_growing_learning_model_matches_cpp(self):
+        model = self.check_matches_cpp("growing", 1000)
+        self.assertTrue(model.config["learn_transitions"])
+        # Learning moved transitions away from the prior: the values are not all the same.
+        self.assertGreater(len(np.unique(model.p_occ_given_free)), 10)
+        self.assertGreater(float(model.em_stats.sum()), 0.0)
+
+    def test_fixed_bounds_model_matches_cpp(self):
+        model = self.check_matches_cpp("fixed", 500)
+        self.assertTrue(model.config["fixed_bounds"])
+        self.assertFalse(model.config["learn_transitions"])
+
+    def test_empty_model_matches_cpp(self):
+        model = self.check_matches_cpp("empty", 0)
+        self.assertEqual(model.cell_count, 0)
+        self.assertIsNone(model.clock_origin_s)
+        self.assertIsNone(model.last_applied_step)
+        self.assertIsNone(model.bounds())
+        grid, window = read_model.dense_field(model, "p_occ")
+        self.assertEqual(grid.shape, (0, 0))
+        self.assertEqual(window["width"], 0)
+
+    # ---- dense grids ----------------------------------------------------------------------------
+
+    def test_dense_field_puts_every_cell_in_its_place(self):
+        model = read_model.load_model(self.runs["growing"][0])
+        min_x, min_y, max_x, max_y = model.bounds()
+        for field, component in (("p_occ", None), ("last_step", None), ("observed_steps", None),
+                                 ("p_free_given_occ", None), ("em_stats", 5)):
+            grid, window = read_model.dense_field(model, field, component)
+            self.assertEqual(grid.shape, (max_y - min_y + 1, max_x - min_x + 1))
+            self.assertEqual((window["min_x"], window["min_y"]), (min_x, min_y))
+            self.assertEqual((window["height"], window["width"]), grid.shape)
+            values = getattr(model, field)
+            if component is not None:
+                values = values[:, component]
+            self.assertTrue(np.array_equal(grid[model.y - min_y, model.x - min_x],
+                                           values.astype(np.float64)), field)
+            self.assertEqual(int(np.isnan(grid).sum()), grid.size - model.cell_count, field)
+        # Row = y: the cell with the largest y is in the last row.
+        grid, window = read_model.dense_field(model, "p_occ")
+        top = int(np.argmax(model.y))
+        self.assertEqual(grid[-1, model.x[top] - min_x], np.float64(model.p_occ[top]))
+        resolution = model.config["resolution_m"]
+        self.assertEqual(window["origin_x_m"], model.config["origin_x_m"] + min_x * resolution)
+        self.assertEqual(window["origin_y_m"], model.config["origin_y_m"] + min_y * resolution)
+        with self.assertRaises(KeyError):
+            read_model.dense_field(model, "no_such_field")
+        with self.assertRaises(ValueError):
+            read_model.dense_field(model, "em_stats")
+
+    # ---- damaged files ----------------------------------------------------------------------------
+
+    def test_every_truncation_raises(self):
+        for mode in ("empty", "fixed"):
+            data = self.bytes_of(mode)
+            read_model.parse_model(data)
+            lengths = range(len(data)) if mode == "empty" else list(range(0, 400)) + list(
+                range(len(data) - 200, len(data)))
+            for length in lengths:
+                self.expect_error(data[:length], "truncated", f"{length} available")
+
+    def test_flipped_bytes_raise(self):
+        data = self.bytes_of("fixed")
+        for position in list(range(0, 260)) + list(range(len(data) - 70, len(data))) + [len(data) // 2]:
+            damaged = bytearray(data)
+            damaged[position] ^= 0x40
+            self.expect_error(bytes(damaged))
+        damaged = bytearray(data)
+        damaged[len(data) // 2] ^= 0x01
+        self.expect_error(bytes(damaged), "corrupt", "checksum")
+
+    def test_messages_say_what_is_wrong(self):
+        data = self.bytes_of("growing")
+        self.expect_error(b"P5\n# an image", "not a dynamic_occupancy_grid model file")
+        self.expect_error(b"X" + data[1:], "not a dynamic_occupancy_grid model file")
+        newer = bytearray(data)
+        newer[8:12] = struct.pack("<I", 2)
+        self.expect_error(with_checksum(newer), "model format version 2, this reader reads version 1")
+        self.expect_error(data + b"\0", "1 trailing bytes")
+        flag = bytearray(data)
+        flag[146] = 2  # fixed_bounds
+        self.expect_error(with_checksum(flag), "fixed_bounds is 2, must be 0 or 1")
+        absurd = bytearray(data)
+        absurd[189:197] = struct.pack("<Q", 2 ** 64 - 1)
+        self.expect_error(with_checksum(absurd), "truncated")
+
+    def test_load_model_names_the_file(self):
+        data = bytearray(self.bytes_of("growing"))
+        data[300] ^= 0xFF
+        path = os.path.join(self.directory.name, "corrupt.dogm")
+        with open(path, "wb") as file:
+            file.write(data)
+        with self.assertRaises(read_model.ModelFormatError) as caught:
+            read_model.load_model(path)
+        self.assertIn(path, str(caught.exception))
+        self.assertIn("corrupt", str(caught.exception))
+        with self.assertRaises(OSError):
+            read_model.load_model(os.path.join(self.directory.name, "missing.dogm"))
+
+    # ---- the command ------------------------------------------------------------------------------
+
+    def test_command_prints_a_summary(self):
+        path = self.runs["growing"][0]
+        model = read_model.load_model(path)
+        script = os.path.join(SCRIPTS, "read_model.py")
+        done = subprocess.run([sys.executable, script, path], capture_output=True, text=True)
+        self.assertEqual(done.returncode, 0, done.stderr)
+        self.assertIn(f"cells observed:     {model.cell_count}", done.stdout)
+        self.assertIn("time step:          0.5 s", done.stdout)
+        self.assertIn("mean p_occ_given_free:", done.stdout)
+        corrupt = os.path.join(self.directory.name, "corrupt_for_command.dogm")
+        with open(corrupt, "wb") as file:
+            file.write(self.bytes_of("growing")[:-1])
+        done = subprocess.run([sys.executable, script, corrupt], capture_output=True, text=True)
+        self.assertEqual(done.returncode, 1)
+        self.assertIn("truncated", done.stderr)
+        self.assertIn(corrupt, done.stderr)
+
+
+if __name__ == "__main__":
+    if len(sys.argv) > 1 and not sys.argv[1].startswith("-"):
+        CLI = os.path.abspath(sys.argv.pop(1))
+    if not CLI:
+        print("usage: test_read_model.py WRITE_MODEL_CLI [unittest options]", file=sys.stderr)
+        sys.exit(2)
+    unittest.main()
