@@ -1,108 +1,186 @@
 // process_bag: runs the mapping pipeline over the laser scans of a bag, faster than real
-// time, and writes the map layers as map_server files. See README.md, "process_bag".
+// time, optionally offline EM over the whole recording, and writes the map layers as
+// map_server files and the model file. See README.md, "process_bag".
 
 #include <chrono>
 #include <cmath>
+#include <cstdint>
 #include <cstdio>
-#include <cstdlib>
 #include <exception>
 #include <filesystem>
-#include <iostream>
-#include <sstream>
 #include <string>
-#include <unistd.h>
 #include <vector>
 
+#include "bag_tools.h"
 #include "dynamic_occupancy_grid/core/layers.h"
 #include "dynamic_occupancy_grid/core/map_export.h"
 #include "dynamic_occupancy_grid/core/mapper.h"
+#include "dynamic_occupancy_grid/core/model_io.h"
+#include "dynamic_occupancy_grid/ros/bag_offline_em.h"
 #include "dynamic_occupancy_grid/ros/bag_scan_source.h"
 
 namespace dog = dynamic_occupancy_grid;
 
 namespace {
 
-const char* const kUsage =
+const std::string kUsage = std::string(
     "usage: process_bag BAG [options]\n"
-    "  --topic NAME          LaserScan topic (default /scan)\n"
-    "  --fixed-frame NAME    frame the map is built in (default odom)\n"
-    "  --laser-pose X,Y,YAW  static laser pose in the fixed frame (m, m, rad); tf is not\n"
-    "                        read (for bags recorded without tf)\n"
-    "  --resolution M        cell size in metres (default 0.05)\n"
-    "  --time-step S         HMM time step in seconds (default 1.0)\n"
-    "  --out DIR             output directory (default ./dynamic_occupancy_grid_output)\n";
+    "  --out DIR             output directory (default ./dynamic_occupancy_grid_output)\n"
+    "  --model FILE          model file to write (default DIR/model.dogm)\n"
+    "  --offline-em          after mapping, learn every cell's transitions by offline EM\n"
+    "                        over the whole bag and use them (and its final beliefs)\n"
+    "  --no-learning         no online learning: cells keep the prior transitions\n"
+    "  --snapshot-every S    also write all layers every S seconds of bag time into\n"
+    "                        DIR/snapshots/<t>s/\n"
+    "  --prediction-horizon S  the 'predicted' layer looks S seconds ahead (default 60)\n"
+    "  --transition-scale P  transition layers: P per step is written as 100 (default 0.1)\n") +
+    dog::bag_tools::kSharedUsage;
 
 struct Options {
-  dog::ros_layer::BagScanSourceOptions source;
-  dog::core::MapperConfig mapper;
+  dog::bag_tools::SharedOptions shared;
   std::string out_dir = "dynamic_occupancy_grid_output";
+  std::string model_path;  ///< empty: out_dir/model.dogm
+  bool offline_em = false;
+  double snapshot_every_s = 0.0;  ///< 0: no snapshots
+  double prediction_horizon_s = 60.0;
+  double transition_scale = 0.1;
 };
-
-[[noreturn]] void usageError(const std::string& message) {
-  std::cerr << "process_bag: " << message << "\n" << kUsage;
-  std::exit(2);
-}
-
-double parseNumber(const std::string& option, const std::string& text) {
-  std::size_t used = 0;
-  double value = 0.0;
-  try {
-    value = std::stod(text, &used);
-  } catch (const std::exception&) {
-    used = 0;
-  }
-  if (used != text.size() || !std::isfinite(value)) usageError(option + " expects a number, got '" + text + "'");
-  return value;
-}
 
 Options parseArguments(int argc, char** argv) {
   Options options;
-  std::vector<std::string> args(argv + 1, argv + argc);
-  for (std::size_t i = 0; i < args.size(); ++i) {
-    const std::string& arg = args[i];
-    const auto value = [&]() -> const std::string& {
-      if (i + 1 >= args.size()) usageError(arg + " needs a value");
-      return args[++i];
-    };
+  dog::bag_tools::Arguments args(argc, argv, "process_bag", kUsage);
+  std::string arg;
+  while (args.next(&arg)) {
     if (arg == "-h" || arg == "--help") {
-      std::cout << kUsage;
-      std::exit(0);
-    } else if (arg == "--topic") {
-      options.source.scan_topic = value();
-    } else if (arg == "--fixed-frame") {
-      options.source.fixed_frame = value();
-    } else if (arg == "--laser-pose") {
-      std::stringstream parts(value());
-      std::string item;
-      std::vector<double> numbers;
-      while (std::getline(parts, item, ',')) numbers.push_back(parseNumber(arg, item));
-      if (numbers.size() != 3) usageError("--laser-pose expects X,Y,YAW");
-      options.source.static_laser_pose = dog::core::Pose2D{numbers[0], numbers[1], numbers[2]};
-    } else if (arg == "--resolution") {
-      options.mapper.resolution_m = parseNumber(arg, value());
-    } else if (arg == "--time-step") {
-      options.mapper.time_step_s = parseNumber(arg, value());
+      args.help();
+    } else if (dog::bag_tools::parseSharedOption(arg, args, &options.shared)) {
+      continue;
     } else if (arg == "--out") {
-      options.out_dir = value();
+      options.out_dir = args.value();
+    } else if (arg == "--model") {
+      options.model_path = args.value();
+    } else if (arg == "--offline-em") {
+      options.offline_em = true;
+    } else if (arg == "--no-learning") {
+      options.shared.mapper.learn_transitions = false;
+    } else if (arg == "--snapshot-every") {
+      options.snapshot_every_s = args.positiveNumber();
+    } else if (arg == "--prediction-horizon") {
+      options.prediction_horizon_s = args.number(0.0, 1.0e9);
+    } else if (arg == "--transition-scale") {
+      options.transition_scale = args.number(1.0e-6, 1.0);
     } else if (!arg.empty() && arg[0] == '-') {
-      usageError("unknown option " + arg);
-    } else if (options.source.bag_path.empty()) {
-      options.source.bag_path = arg;
+      args.fail("unknown option " + arg);
+    } else if (options.shared.source.bag_path.empty()) {
+      options.shared.source.bag_path = arg;
     } else {
-      usageError("more than one bag given");
+      args.fail("more than one bag given");
     }
   }
-  if (options.source.bag_path.empty()) usageError("no bag given");
+  if (options.shared.source.bag_path.empty()) args.fail("no bag given");
+  if (options.out_dir.empty()) args.fail("--out needs a directory");
+  dog::bag_tools::validateSharedOptions(args, &options.shared);
+  if (options.model_path.empty()) options.model_path = (std::filesystem::path(options.out_dir) / "model.dogm").string();
   return options;
 }
 
-void showProgress(double fraction) {
-  if (!isatty(STDERR_FILENO)) return;
-  const int width = 40;
-  const int filled = static_cast<int>(std::lround(fraction * width));
-  std::fprintf(stderr, "\r[%s%s] %3d%%", std::string(filled, '#').c_str(),
-               std::string(width - filled, ' ').c_str(), static_cast<int>(std::lround(fraction * 100)));
-  if (fraction >= 1.0) std::fputc('\n', stderr);
+// All six layers at the mapper's last applied step into `directory`; with `report`, one
+// line per layer on stdout.
+void exportLayers(const dog::core::Mapper& mapper, const Options& options, const std::string& directory, bool report) {
+  using dog::core::Layer;
+  std::filesystem::create_directories(directory);
+  const std::int64_t step = *mapper.lastAppliedStep();
+  const auto horizon_steps = static_cast<std::int64_t>(std::llround(options.prediction_horizon_s / options.shared.mapper.time_step_s));
+  const dog::core::CellBox box = mapper.grid().bounds();
+  const dog::core::MapWindow window = mapper.grid().window(box);
+  std::vector<float> values;
+  std::vector<std::int8_t> occupancy;
+  for (const Layer layer : {Layer::kBelief, Layer::kPredicted, Layer::kStationary, Layer::kOccGivenFree,
+                            Layer::kFreeGivenOcc, Layer::kStatic}) {
+    dog::core::evaluateLayer(mapper.grid(), layer, step, horizon_steps, box, &values);
+    const bool transitions = layer == Layer::kOccGivenFree || layer == Layer::kFreeGivenOcc;
+    dog::core::toOccupancyValues(values, transitions ? static_cast<float>(options.transition_scale) : 1.0f,
+                                 &occupancy);
+    const std::string name = dog::core::layerName(layer);
+    dog::core::writeMapServerFiles(directory, name, window, occupancy);
+    if (!report) continue;
+    std::size_t known = 0;
+    std::size_t occupied = 0;
+    for (const std::int8_t value : occupancy) {
+      known += value >= 0 ? 1 : 0;
+      occupied += value >= 65 ? 1 : 0;
+    }
+    std::printf("%-10s %lld x %lld cells, %zu observed, %zu occupied -> %s/%s.pgm\n", name.c_str(),
+                static_cast<long long>(box.width()), static_cast<long long>(box.height()), known, occupied,
+                directory.c_str(), name.c_str());
+  }
+}
+
+int run(const Options& options) {
+  dog::core::Mapper mapper(options.shared.mapper);
+  dog::ros_layer::BagScanSource source(options.shared.source);
+  dog::core::SequenceBuilder recorder;
+  if (options.offline_em) mapper.recordObservations(&recorder);
+  dog::bag_tools::ProgressBar bar;
+
+  // Snapshots: after the first scan past each multiple of snapshot_every_s (bag time since
+  // the first scan), the layers at the last applied step.
+  double next_snapshot_s = options.snapshot_every_s;
+  std::size_t snapshots = 0;
+  const auto snapshot = [&](const dog::core::Scan& scan) {
+    if (options.snapshot_every_s <= 0.0 || !mapper.lastAppliedStep()) return;
+    const double elapsed_s = scan.stamp_s - *mapper.clock().origin();
+    if (elapsed_s < next_snapshot_s) return;
+    const double taken_at_s = std::floor(elapsed_s / options.snapshot_every_s) * options.snapshot_every_s;
+    exportLayers(mapper, options,
+                 (std::filesystem::path(options.out_dir) / "snapshots" / dog::bag_tools::secondsName(taken_at_s)).string(),
+                 false);
+    ++snapshots;
+    next_snapshot_s = taken_at_s + options.snapshot_every_s;
+  };
+
+  const auto start = std::chrono::steady_clock::now();
+  const dog::ros_layer::BagMappingStats mapping = dog::ros_layer::mapBag(
+      source, mapper, false,
+      [&bar](double fraction) {
+        bar.show("reading", fraction);
+        return true;
+      },
+      snapshot);
+  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  const dog::ros_layer::BagScanStats& stats = mapping.source;
+
+  std::printf("scans read: %zu, integrated: %zu, rejected: %zu", stats.scans_read, mapping.scans_integrated,
+              mapping.scans_rejected);
+  if (options.shared.source.static_laser_pose) {
+    std::printf(" (static laser pose given, tf not read)\n");
+  } else {
+    std::printf(", without a pose in '%s': %zu\n", source.options().fixed_frame.c_str(), stats.scans_without_pose);
+  }
+  if (stats.scans_outside_time_range > 0) std::printf("  outside the time range: %zu\n", stats.scans_outside_time_range);
+  if (mapping.scans_rejected > 0) std::printf("  last rejection: %s\n", mapping.last_rejection.c_str());
+  if (stats.scans_without_pose > 0) std::printf("  last tf error: %s\n", stats.last_pose_error.c_str());
+  std::printf("beams: %zu hits, %zu without return, %zu ignored (NaN, -inf, < range_min)\n", mapping.beams_hit,
+              mapping.beams_no_return, mapping.beams_ignored);
+  if (!mapper.lastAppliedStep()) {
+    std::fprintf(stderr, "process_bag: %s; nothing to write\n",
+                 dog::ros_layer::describeUnusableBag(options.shared.source.bag_path, mapping).c_str());
+    return 1;
+  }
+  std::printf("time steps: %lld of %.3f s; bag %.1f s processed in %.2f s (%.0fx real time)\n",
+              static_cast<long long>(*mapper.lastAppliedStep() + 1), options.shared.mapper.time_step_s,
+              stats.bag_duration_s, seconds, seconds > 0.0 ? stats.bag_duration_s / seconds : 0.0);
+  if (snapshots > 0) {
+    std::printf("snapshots: %zu, every %g s -> %s/snapshots/\n", snapshots, options.snapshot_every_s,
+                options.out_dir.c_str());
+  }
+
+  if (options.offline_em) dog::bag_tools::runOfflineEmAndApply(mapper, recorder, options.shared.em, bar);
+
+  exportLayers(mapper, options, options.out_dir, true);
+  dog::core::saveModel(mapper, options.model_path);
+  std::printf("model -> %s\n", options.model_path.c_str());
+  return 0;
 }
 
 }  // namespace
@@ -110,73 +188,9 @@ void showProgress(double fraction) {
 int main(int argc, char** argv) {
   const Options options = parseArguments(argc, argv);
   try {
-    dog::core::Mapper mapper(options.mapper);
-    dog::ros_layer::BagScanSource source(options.source);
-    std::size_t integrated = 0;
-    std::size_t rejected = 0;
-    std::size_t beams_hit = 0;
-    std::size_t beams_no_return = 0;
-    std::size_t beams_ignored = 0;
-    std::string last_rejection;
-    const auto start = std::chrono::steady_clock::now();
-    const dog::ros_layer::BagScanStats stats = source.forEachScan(
-        [&](const dog::core::Scan& scan) {
-          const dog::core::ScanResult result = mapper.integrate(scan);
-          if (result.status != dog::core::ScanStatus::kIntegrated) {
-            ++rejected;
-            last_rejection = result.error;
-            return;
-          }
-          ++integrated;
-          beams_hit += result.beams_hit;
-          beams_no_return += result.beams_no_return;
-          beams_ignored += result.beams_ignored;
-        },
-        showProgress);
-    mapper.finishStep();
-    const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-
-    std::printf("scans read: %zu, integrated: %zu, rejected: %zu", stats.scans_read, integrated, rejected);
-    if (options.source.static_laser_pose) {
-      std::printf(" (static laser pose given, tf not read)\n");
-    } else {
-      std::printf(", without a pose in '%s': %zu\n", options.source.fixed_frame.c_str(), stats.scans_without_pose);
-    }
-    if (rejected > 0) std::printf("  last rejection: %s\n", last_rejection.c_str());
-    if (stats.scans_without_pose > 0) std::printf("  last tf error: %s\n", stats.last_pose_error.c_str());
-    std::printf("beams: %zu hits, %zu without return, %zu ignored (NaN, -inf, < range_min)\n",
-                beams_hit, beams_no_return, beams_ignored);
-    if (!mapper.lastAppliedStep()) {
-      std::fprintf(stderr, "process_bag: no scan could be integrated; nothing to write\n");
-      return 1;
-    }
-    std::printf("time steps: %lld of %.3f s; bag %.1f s processed in %.2f s (%.0fx real time)\n",
-                static_cast<long long>(*mapper.lastAppliedStep() + 1), options.mapper.time_step_s,
-                stats.bag_duration_s, seconds, seconds > 0.0 ? stats.bag_duration_s / seconds : 0.0);
-
-    std::filesystem::create_directories(options.out_dir);
-    const dog::core::CellBox box = mapper.grid().bounds();
-    const dog::core::MapWindow window = mapper.grid().window(box);
-    std::vector<float> values;
-    std::vector<std::int8_t> occupancy;
-    for (const dog::core::Layer layer : {dog::core::Layer::kBelief, dog::core::Layer::kStatic}) {
-      dog::core::evaluateLayer(mapper.grid(), layer, *mapper.lastAppliedStep(), 0, box, &values);
-      dog::core::toOccupancyValues(values, 1.0f, &occupancy);
-      std::size_t known = 0;
-      std::size_t occupied = 0;
-      for (const std::int8_t value : occupancy) {
-        known += value >= 0 ? 1 : 0;
-        occupied += value >= 65 ? 1 : 0;
-      }
-      const std::string name = dog::core::layerName(layer);
-      dog::core::writeMapServerFiles(options.out_dir, name, window, occupancy);
-      std::printf("%-10s %lld x %lld cells, %zu observed, %zu occupied -> %s/%s.pgm\n", name.c_str(),
-                  static_cast<long long>(box.width()), static_cast<long long>(box.height()), known,
-                  occupied, options.out_dir.c_str(), name.c_str());
-    }
+    return run(options);
   } catch (const std::exception& e) {
     std::fprintf(stderr, "process_bag: %s\n", e.what());
     return 1;
   }
-  return 0;
 }
