@@ -1,6 +1,7 @@
 #include "dynamic_occupancy_grid/ros/conversions.h"
 
 #include <cmath>
+#include <string>
 
 namespace dynamic_occupancy_grid {
 namespace ros_layer {
@@ -29,6 +30,23 @@ bool toLaserPose(const geometry_msgs::Transform& fixed_from_laser, core::Pose2D*
   pose->y_m = fixed_from_laser.translation.y;
   pose->yaw_rad = std::atan2(x_axis_y, x_axis_x);
   *upside_down = z_axis_z < 0.0;
+  return true;
+}
+
+bool checkScanShape(const sensor_msgs::LaserScan& msg, std::string* error) {
+  if (msg.ranges.size() < 2) return true;
+  const double span = static_cast<double>(msg.angle_max) - msg.angle_min;
+  if (!std::isfinite(span) || !std::isfinite(msg.angle_increment) || msg.angle_increment == 0.0f) {
+    return true;  // the core rejects these with its own message
+  }
+  const double beams = span / msg.angle_increment + 1.0;
+  if (!(std::abs(beams - static_cast<double>(msg.ranges.size())) <= 1.5)) {
+    *error = "scan has " + std::to_string(msg.ranges.size()) + " ranges, but angle_min " +
+             std::to_string(msg.angle_min) + ", angle_max " + std::to_string(msg.angle_max) +
+             " and angle_increment " + std::to_string(msg.angle_increment) + " make " +
+             std::to_string(static_cast<long long>(std::lround(beams))) + " beams";
+    return false;
+  }
   return true;
 }
 

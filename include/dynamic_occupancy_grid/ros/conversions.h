@@ -17,6 +17,11 @@ namespace ros_layer {
 bool toLaserPose(const geometry_msgs::Transform& fixed_from_laser, core::Pose2D* pose,
                  bool* upside_down, std::string* error);
 
+/// Checks what the core cannot see: the number of ranges against angle_min/angle_max/
+/// angle_increment (one off is tolerated: drivers round differently). The core checks the
+/// rest (empty scan, range_min/range_max, non-finite angles). Returns false with a reason.
+bool checkScanShape(const sensor_msgs::LaserScan& msg, std::string* error);
+
 /// A LaserScan seen from `pose` as a core::Scan.
 core::Scan toCoreScan(const sensor_msgs::LaserScan& msg, const core::Pose2D& pose, bool upside_down);
 

@@ -1,0 +1,40 @@
+#pragma once
+// Map layers as nav_msgs/OccupancyGrid and map_msgs/OccupancyGridUpdate: the one place that
+// turns core layer values into messages.
+
+#include <map_msgs/OccupancyGridUpdate.h>
+#include <nav_msgs/OccupancyGrid.h>
+#include <ros/time.h>
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "dynamic_occupancy_grid/core/cell_grid.h"
+#include "dynamic_occupancy_grid/core/layers.h"
+
+namespace dynamic_occupancy_grid {
+namespace ros_layer {
+
+/// How one published layer is evaluated and scaled.
+struct LayerView {
+  core::Layer layer = core::Layer::kBelief;
+  float full_scale = 1.0f;            ///< value shown as 100 (probabilities: 1)
+  std::int64_t horizon_steps = 0;     ///< kPredicted only
+};
+
+/// `view` over `box` at `step` as 0..100 / -1 values (row-major, OccupancyGrid order).
+std::vector<std::int8_t> layerValues(const core::CellGrid& grid, const LayerView& view, std::int64_t step,
+                                     const core::CellBox& box);
+
+/// A full grid over `window` (an empty window gives a 0 x 0 grid).
+nav_msgs::OccupancyGrid toOccupancyGrid(const core::MapWindow& window, std::vector<std::int8_t> values,
+                                        const std::string& frame_id, const ros::Time& stamp);
+
+/// An update of `box`, which lies inside `full` (the window of the last full grid sent).
+map_msgs::OccupancyGridUpdate toOccupancyGridUpdate(const core::CellBox& full, const core::CellBox& box,
+                                                    std::vector<std::int8_t> values,
+                                                    const std::string& frame_id, const ros::Time& stamp);
+
+}  // namespace ros_layer
+}  // namespace dynamic_occupancy_grid

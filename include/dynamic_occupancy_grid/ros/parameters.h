@@ -1,0 +1,41 @@
+#pragma once
+// The mapping node's parameters: read from the private namespace, checked, and turned into
+// the core's configuration. Every name here is the one in config/dynamic_occupancy_grid.yaml
+// and in README.md.
+
+#include <ros/node_handle.h>
+
+#include <string>
+#include <vector>
+
+#include "dynamic_occupancy_grid/core/mapper.h"
+#include "dynamic_occupancy_grid/core/offline_em.h"
+
+namespace dynamic_occupancy_grid {
+namespace ros_layer {
+
+struct NodeParameters {
+  std::string fixed_frame = "map";
+  std::vector<std::string> scan_topics{"scan"};
+  int scan_queue_size = 50;            ///< scans waiting for their transform, per topic
+  double publish_period_s = 1.0;       ///< layers and their updates
+  double full_map_period_s = 10.0;     ///< full layers also at least this often; 0 = every publish
+  double prediction_horizon_s = 60.0;  ///< ~predicted shows p(occ) this far ahead
+  double transition_scale = 0.1;       ///< p per step shown as 100 in the transition layers
+  bool publish_map_topic = false;      ///< belief also on `map` / `map_updates`
+  double max_scan_latency_s = 0.5;     ///< a step is applied this long after it ends
+  double time_jump_threshold_s = 3.0;  ///< a scan this much older than the newest restarts time
+  std::string model_file;              ///< loaded at start-up when set
+  core::MapperConfig mapper;
+  core::OfflineEmConfig offline_em;
+};
+
+/// Reads and validates every parameter under `private_nh` (defaults for missing ones).
+/// Returns false and a message naming the parameter for a wrong type or a bad value.
+/// Parameters under the namespace that the node does not know are listed in `unknown`
+/// (likely typos; the node warns).
+bool readParameters(const ros::NodeHandle& private_nh, NodeParameters* parameters, std::string* error,
+                    std::vector<std::string>* unknown);
+
+}  // namespace ros_layer
+}  // namespace dynamic_occupancy_grid

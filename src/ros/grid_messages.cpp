@@ -1,0 +1,49 @@
+#include "dynamic_occupancy_grid/ros/grid_messages.h"
+
+#include <utility>
+
+namespace dynamic_occupancy_grid {
+namespace ros_layer {
+
+std::vector<std::int8_t> layerValues(const core::CellGrid& grid, const LayerView& view, std::int64_t step,
+                                     const core::CellBox& box) {
+  std::vector<float> values;
+  core::evaluateLayer(grid, view.layer, step, view.horizon_steps, box, &values);
+  std::vector<std::int8_t> occupancy;
+  core::toOccupancyValues(values, view.full_scale, &occupancy);
+  return occupancy;
+}
+
+nav_msgs::OccupancyGrid toOccupancyGrid(const core::MapWindow& window, std::vector<std::int8_t> values,
+                                        const std::string& frame_id, const ros::Time& stamp) {
+  nav_msgs::OccupancyGrid msg;
+  msg.header.frame_id = frame_id;
+  msg.header.stamp = stamp;
+  msg.info.map_load_time = stamp;
+  msg.info.resolution = static_cast<float>(window.resolution_m);
+  msg.info.width = static_cast<std::uint32_t>(window.cells.width());
+  msg.info.height = static_cast<std::uint32_t>(window.cells.height());
+  msg.info.origin.position.x = window.origin_x_m;
+  msg.info.origin.position.y = window.origin_y_m;
+  msg.info.origin.orientation.w = 1.0;
+  msg.data = std::move(values);
+  return msg;
+}
+
+map_msgs::OccupancyGridUpdate toOccupancyGridUpdate(const core::CellBox& full, const core::CellBox& box,
+                                                    std::vector<std::int8_t> values,
+                                                    const std::string& frame_id, const ros::Time& stamp) {
+  map_msgs::OccupancyGridUpdate msg;
+  msg.header.frame_id = frame_id;
+  msg.header.stamp = stamp;
+  // Offsets are in cells from the full grid's first cell.
+  msg.x = static_cast<std::int32_t>(std::int64_t{box.min_x} - full.min_x);
+  msg.y = static_cast<std::int32_t>(std::int64_t{box.min_y} - full.min_y);
+  msg.width = static_cast<std::uint32_t>(box.width());
+  msg.height = static_cast<std::uint32_t>(box.height());
+  msg.data = std::move(values);
+  return msg;
+}
+
+}  // namespace ros_layer
+}  // namespace dynamic_occupancy_grid

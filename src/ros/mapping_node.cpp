@@ -1,0 +1,552 @@
+#include "dynamic_occupancy_grid/ros/mapping_node.h"
+
+#include <dynamic_occupancy_grid/OfflineEmProgress.h>
+#include <tf2/exceptions.h>
+
+#include <boost/bind/bind.hpp>
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <exception>
+#include <filesystem>
+#include <limits>
+#include <sstream>
+#include <utility>
+
+#include "dynamic_occupancy_grid/core/cell_model.h"
+#include "dynamic_occupancy_grid/core/map_export.h"
+#include "dynamic_occupancy_grid/core/model_io.h"
+#include "dynamic_occupancy_grid/core/online_em.h"
+#include "dynamic_occupancy_grid/ros/bag_offline_em.h"
+#include "dynamic_occupancy_grid/ros/conversions.h"
+
+namespace dynamic_occupancy_grid {
+namespace ros_layer {
+namespace {
+
+// Seconds between repeated warnings of the same kind from per-message callbacks.
+constexpr double kWarnPeriodS = 5.0;
+
+bool sameBox(const core::CellBox& a, const core::CellBox& b) {
+  return (a.empty() && b.empty()) ||
+         (a.min_x == b.min_x && a.min_y == b.min_y && a.max_x == b.max_x && a.max_y == b.max_y);
+}
+
+// Map stamps are sensor times; ros::Time cannot hold negative ones.
+ros::Time toRosTime(double stamp_s) {
+  return stamp_s > 0.0 && stamp_s < 4.0e9 ? ros::Time(stamp_s) : ros::Time(0, 0);
+}
+
+// Same lattice: the cells of one map are the cells of the other.
+bool sameLattice(const core::MapperConfig& a, const core::MapperConfig& b) {
+  return a.resolution_m == b.resolution_m && a.origin_x_m == b.origin_x_m && a.origin_y_m == b.origin_y_m &&
+         a.time_step_s == b.time_step_s;
+}
+
+std::int64_t horizonSteps(double horizon_s, double time_step_s) {
+  return static_cast<std::int64_t>(std::llround(horizon_s / time_step_s));
+}
+
+}  // namespace
+
+MappingNode::MappingNode(const ros::NodeHandle& nh, const ros::NodeHandle& private_nh)
+    : nh_(nh), private_nh_(private_nh) {}
+
+MappingNode::~MappingNode() {
+  offline_em_cancel_ = true;
+  if (offline_em_thread_.joinable()) offline_em_thread_.join();
+}
+
+bool MappingNode::start() {
+  std::string error;
+  std::vector<std::string> unknown;
+  if (!readParameters(private_nh_, &parameters_, &error, &unknown)) {
+    ROS_FATAL("%s", error.c_str());
+    return false;
+  }
+  for (const std::string& name : unknown) {
+    ROS_WARN("parameter %s is not one of this node's parameters (a typo?); it is ignored", name.c_str());
+  }
+  if (!parameters_.model_file.empty()) {
+    try {
+      mapper_ = core::loadModel(parameters_.model_file);
+    } catch (const std::exception& e) {
+      ROS_FATAL("~model_file: %s", e.what());
+      return false;
+    }
+    if (!sameLattice(mapper_->config(), parameters_.mapper)) {
+      ROS_WARN("the model %s has its own resolution/origin/time step (%.3f m, %.3f s), which replace the "
+               "parameters'", parameters_.model_file.c_str(), mapper_->config().resolution_m,
+               mapper_->config().time_step_s);
+    }
+    if (mapper_->lastAppliedStep()) {
+      newest_stamp_s_ = mapper_->clock().stepStart(*mapper_->lastAppliedStep() + 1);
+    }
+    ROS_INFO("loaded model %s", parameters_.model_file.c_str());
+  } else {
+    mapper_ = std::make_unique<core::Mapper>(parameters_.mapper);
+  }
+
+  const double time_step_s = mapper_->config().time_step_s;
+  const auto add_output = [this](ros::NodeHandle& nh, const std::string& name, LayerView view) {
+    const std::size_t index = outputs_.size();
+    outputs_.emplace_back();
+    Output& output = outputs_.back();
+    output.view = view;
+    output.horizon_from_parameter = view.layer == core::Layer::kPredicted;
+    // A new subscriber gets a full grid at once (costmap_2d does the same), also when time
+    // stands still (a paused or finished bag with /use_sim_time).
+    const ros::SubscriberStatusCallback connected = [this, index](const ros::SingleSubscriberPublisher&) {
+      std::lock_guard<std::mutex> lock(mutex_);
+      publishFull(outputs_[index]);
+    };
+    output.full = nh.advertise<nav_msgs::OccupancyGrid>(name, 1, connected, ros::SubscriberStatusCallback(),
+                                                        ros::VoidConstPtr(), true);
+    output.updates = nh.advertise<map_msgs::OccupancyGridUpdate>(name + "_updates", 10);
+  };
+  const auto probability = [](core::Layer layer) { return LayerView{layer, 1.0f, 0}; };
+  const auto transition = [this](core::Layer layer) {
+    return LayerView{layer, static_cast<float>(parameters_.transition_scale), 0};
+  };
+  outputs_.reserve(7);
+  add_output(private_nh_, "belief", probability(core::Layer::kBelief));
+  add_output(private_nh_, "predicted",
+             LayerView{core::Layer::kPredicted, 1.0f, horizonSteps(parameters_.prediction_horizon_s, time_step_s)});
+  add_output(private_nh_, "stationary", probability(core::Layer::kStationary));
+  add_output(private_nh_, "p_occ_given_free", transition(core::Layer::kOccGivenFree));
+  add_output(private_nh_, "p_free_given_occ", transition(core::Layer::kFreeGivenOcc));
+  add_output(private_nh_, "static_map", probability(core::Layer::kStatic));
+  if (parameters_.publish_map_topic) add_output(nh_, "map", probability(core::Layer::kBelief));
+
+  offline_em_progress_ = private_nh_.advertise<OfflineEmProgress>("offline_em_progress", 10, true);
+  services_.push_back(private_nh_.advertiseService("run_offline_em", &MappingNode::runOfflineEm, this));
+  services_.push_back(private_nh_.advertiseService("save_model", &MappingNode::saveModel, this));
+  services_.push_back(private_nh_.advertiseService("load_model", &MappingNode::loadModel, this));
+  services_.push_back(private_nh_.advertiseService("export_layers", &MappingNode::exportLayers, this));
+  services_.push_back(private_nh_.advertiseService("reset", &MappingNode::reset, this));
+  services_.push_back(private_nh_.advertiseService("get_cell", &MappingNode::getCell, this));
+  services_.push_back(private_nh_.advertiseService("predict_map", &MappingNode::predictMap, this));
+
+  tf_listener_ = std::make_unique<tf2_ros::TransformListener>(tf_buffer_, nh_);
+  for (const std::string& topic : parameters_.scan_topics) {
+    scan_subscribers_.push_back(
+        std::make_unique<message_filters::Subscriber<sensor_msgs::LaserScan>>(nh_, topic, parameters_.scan_queue_size));
+    scan_filters_.push_back(std::make_unique<tf2_ros::MessageFilter<sensor_msgs::LaserScan>>(
+        *scan_subscribers_.back(), tf_buffer_, parameters_.fixed_frame,
+        static_cast<std::uint32_t>(parameters_.scan_queue_size), nh_));
+    scan_filters_.back()->registerCallback(boost::bind(&MappingNode::scanCallback, this, boost::placeholders::_1));
+    scan_filters_.back()->registerFailureCallback(
+        boost::bind(&MappingNode::scanDropped, this, boost::placeholders::_1, boost::placeholders::_2));
+  }
+  publish_timer_ = private_nh_.createTimer(ros::Duration(parameters_.publish_period_s), &MappingNode::publishTimer, this);
+
+  std::ostringstream topics;
+  for (const std::string& topic : parameters_.scan_topics) topics << " " << nh_.resolveName(topic);
+  ROS_INFO("mapping scans from%s in frame '%s': %.3f m cells, time step %.3f s, transitions %s",
+           topics.str().c_str(), parameters_.fixed_frame.c_str(), mapper_->config().resolution_m, time_step_s,
+           mapper_->config().learn_transitions ? "learned online" : "fixed");
+  return true;
+}
+
+void MappingNode::scanDropped(const sensor_msgs::LaserScan::ConstPtr& msg, tf2_ros::FilterFailureReason reason) {
+  const char* why = "no transform arrived in time (the scan waited longest in the queue)";
+  if (reason == tf2_ros::filter_failure_reasons::OutTheBack) {
+    why = "it is older than the oldest transform in the tf buffer";
+  } else if (reason == tf2_ros::filter_failure_reasons::EmptyFrameID) {
+    why = "its header.frame_id is empty";
+  }
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    ++scans_dropped_;
+  }
+  ROS_WARN_THROTTLE(kWarnPeriodS, "dropping scan from frame '%s' stamped %.3f: %s (transform to '%s')",
+                    msg->header.frame_id.c_str(), msg->header.stamp.toSec(), why, parameters_.fixed_frame.c_str());
+}
+
+void MappingNode::scanCallback(const sensor_msgs::LaserScan::ConstPtr& msg) {
+  std::string error;
+  const auto drop = [this, &msg](const std::string& why) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    ++scans_dropped_;
+    ROS_WARN_THROTTLE(kWarnPeriodS, "dropping scan from frame '%s' stamped %.3f: %s", msg->header.frame_id.c_str(),
+                      msg->header.stamp.toSec(), why.c_str());
+  };
+  if (!checkScanShape(*msg, &error)) return drop(error);
+  geometry_msgs::TransformStamped transform;
+  try {
+    transform = tf_buffer_.lookupTransform(parameters_.fixed_frame, msg->header.frame_id, msg->header.stamp);
+  } catch (const tf2::LookupException& e) {
+    return drop(std::string("unknown frame: ") + e.what());
+  } catch (const tf2::ConnectivityException& e) {
+    return drop(std::string("frames not connected: ") + e.what());
+  } catch (const tf2::ExtrapolationException& e) {
+    return drop(std::string("no transform at the scan's stamp: ") + e.what());
+  } catch (const tf2::TransformException& e) {
+    return drop(std::string("transform failed: ") + e.what());
+  }
+  core::Pose2D pose;
+  bool upside_down = false;
+  if (!toLaserPose(transform.transform, &pose, &upside_down, &error)) return drop(error);
+  const core::Scan scan = toCoreScan(*msg, pose, upside_down);
+
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (newest_stamp_s_ && scan.stamp_s < *newest_stamp_s_ - parameters_.time_jump_threshold_s) {
+    // A bag played again or a simulator reset: keep the map, go on from the next step.
+    ROS_WARN_THROTTLE(1.0, "time jumped back by %.1f s (bag restarted?): keeping the map, continuing it after step %lld",
+                      *newest_stamp_s_ - scan.stamp_s,
+                      static_cast<long long>(mapper_->lastAppliedStep().value_or(-1)));
+    mapper_->restartClockAt(scan.stamp_s);
+    newest_stamp_s_.reset();
+  }
+  const core::ScanResult result = mapper_->integrate(scan);
+  if (result.status != core::ScanStatus::kIntegrated) {
+    ++scans_dropped_;
+    ROS_WARN_THROTTLE(kWarnPeriodS, "dropping scan from frame '%s' stamped %.3f: %s", msg->header.frame_id.c_str(),
+                      scan.stamp_s, result.error.c_str());
+    return;
+  }
+  ++scans_integrated_;
+  newest_stamp_s_ = std::max(newest_stamp_s_.value_or(scan.stamp_s), scan.stamp_s);
+  if (result.cells_outside > 0) {
+    ROS_WARN_THROTTLE(30.0, "beams reach beyond the map's bounds (fixed_bounds / max_map_size); those cells are not mapped");
+  }
+}
+
+void MappingNode::publishTimer(const ros::TimerEvent&) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  // Apply the step being gathered once no scan of it can still come (scans of a later step
+  // apply it anyway). Only when ROS time and the scans' stamps agree: a bag played without
+  // --clock has stamps far from ROS time.
+  const std::optional<std::int64_t> gathering = mapper_->gatheringStep();
+  if (gathering && newest_stamp_s_) {
+    const double now_s = ros::Time::now().toSec();
+    const double step_end_s = mapper_->clock().stepStart(*gathering + 1);
+    const bool clocks_agree = std::abs(now_s - *newest_stamp_s_) < 10.0 * mapper_->config().time_step_s + 10.0;
+    if (clocks_agree && now_s >= step_end_s + parameters_.max_scan_latency_s) mapper_->finishStep();
+  }
+  publishLayers(false);
+}
+
+void MappingNode::publishLayers(bool force_full) {
+  const ros::Time now = ros::Time::now();
+  const std::optional<std::int64_t> step = mapper_->lastAppliedStep();
+  const core::CellBox bounds = step ? mapper_->grid().bounds() : core::CellBox{};
+  const core::CellBox changed = mapper_->takeChangedCells();
+  const bool full_due = force_full || !sameBox(bounds, published_bounds_) || parameters_.full_map_period_s == 0.0 ||
+                        (now - last_full_publish_).toSec() >= parameters_.full_map_period_s;
+  const ros::Time stamp = step ? toRosTime(mapper_->clock().stepStart(*step + 1)) : now;
+  bool sent_full = false;
+  for (Output& output : outputs_) {
+    if (full_due || output.needs_full) {
+      if (output.full.getNumSubscribers() == 0) {
+        output.needs_full = true;  // evaluated when someone listens
+        continue;
+      }
+      publishFull(output);
+      sent_full = true;
+    } else if (step && !changed.empty() && output.updates.getNumSubscribers() > 0) {
+      output.updates.publish(toOccupancyGridUpdate(bounds, changed, layerValues(mapper_->grid(), output.view, *step, changed),
+                                                   parameters_.fixed_frame, stamp));
+    }
+  }
+  if (full_due || sent_full) {
+    published_bounds_ = bounds;
+    if (full_due) last_full_publish_ = now;
+  }
+}
+
+void MappingNode::publishFull(Output& output) {
+  const std::optional<std::int64_t> step = mapper_->lastAppliedStep();
+  const core::CellBox bounds = step ? mapper_->grid().bounds() : core::CellBox{};
+  const ros::Time stamp = step ? toRosTime(mapper_->clock().stepStart(*step + 1)) : ros::Time::now();
+  std::vector<std::int8_t> values =
+      step ? layerValues(mapper_->grid(), output.view, *step, bounds) : std::vector<std::int8_t>{};
+  output.full.publish(toOccupancyGrid(mapper_->grid().window(bounds), std::move(values), parameters_.fixed_frame, stamp));
+  output.needs_full = false;
+}
+
+void MappingNode::replaceMapper(std::unique_ptr<core::Mapper> mapper) {
+  mapper_ = std::move(mapper);
+  newest_stamp_s_.reset();
+  if (mapper_->lastAppliedStep()) newest_stamp_s_ = mapper_->clock().stepStart(*mapper_->lastAppliedStep() + 1);
+  for (Output& output : outputs_) {
+    if (output.horizon_from_parameter) {
+      output.view.horizon_steps = horizonSteps(parameters_.prediction_horizon_s, mapper_->config().time_step_s);
+    }
+  }
+  publishLayers(true);
+}
+
+bool MappingNode::runOfflineEm(RunOfflineEm::Request& request, RunOfflineEm::Response& response) {
+  if (offline_em_running_) {
+    response.success = false;
+    response.message = "an offline EM run is already in progress; wait for phase 'done' or 'failed' on " +
+                       offline_em_progress_.getTopic();
+    return true;
+  }
+  BagOfflineEmOptions options;
+  options.source.bag_path = request.bag_path;
+  options.source.scan_topic = request.scan_topic.empty() ? parameters_.scan_topics.front() : request.scan_topic;
+  options.source.fixed_frame = parameters_.fixed_frame;
+  options.source.start_time_s = request.start_time.toSec();
+  options.source.end_time_s = request.end_time.toSec();
+  options.em = parameters_.offline_em;
+  if (request.max_iterations > 0) options.em.max_iterations = request.max_iterations;
+  if (request.tolerance >= 0.0) options.em.tolerance = request.tolerance;
+  const auto refuse = [&response](const std::string& why) {
+    response.success = false;
+    response.message = why;
+    ROS_ERROR("run_offline_em refused: %s", why.c_str());
+    return true;
+  };
+  if (request.bag_path.empty()) return refuse("bag_path is empty");
+  if (!std::isfinite(request.tolerance)) return refuse("tolerance must be a finite number");
+  if (options.source.end_time_s > 0.0 && options.source.end_time_s < options.source.start_time_s) {
+    return refuse("end_time is before start_time");
+  }
+  try {
+    options.em.validate();
+  } catch (const std::invalid_argument& e) {
+    return refuse(e.what());
+  }
+  // Open the bag now (index and /tf_static), so that a bad path, a corrupt bag, a topic it
+  // lacks or a bag without tf is refused at once.
+  std::shared_ptr<BagScanSource> source;
+  try {
+    source = std::make_shared<BagScanSource>(options.source);
+  } catch (const std::exception& e) {
+    return refuse(e.what());
+  }
+  core::MapperConfig geometry;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    geometry = mapper_->config();
+  }
+  if (offline_em_thread_.joinable()) offline_em_thread_.join();  // the previous run has ended
+  offline_em_running_ = true;
+  offline_em_cancel_ = false;
+  offline_em_thread_ = std::thread([this, options, geometry, source] {
+    OfflineEmProgress progress;
+    progress.bag_path = options.source.bag_path;
+    auto last_report = std::chrono::steady_clock::now();
+    const auto report = [&](const std::string& phase, double fraction, const std::string& message) {
+      progress.phase = phase;
+      progress.fraction = static_cast<float>(fraction);
+      progress.message = message;
+      offline_em_progress_.publish(progress);
+    };
+    report("reading", 0.0, "reading the bag");
+    ROS_INFO("offline EM: reading %s", options.source.bag_path.c_str());
+    try {
+      std::string current_phase = "reading";
+      const BagOfflineEmRun run = runOfflineEmOnBag(*source, options.em, geometry, [&](const std::string& phase, double fraction) {
+        const auto now = std::chrono::steady_clock::now();
+        if (phase != current_phase || now - last_report > std::chrono::milliseconds(500)) {
+          if (phase != current_phase) ROS_INFO("offline EM: %s", phase == "em" ? "running EM" : phase.c_str());
+          current_phase = phase;
+          last_report = now;
+          report(phase, fraction, phase == "em" ? "running EM over the cells" : "reading the bag");
+        }
+        return !offline_em_cancel_;
+      });
+      if (run.result.cancelled) {
+        report("failed", 0.0, "cancelled (the node is shutting down)");
+      } else {
+        std::lock_guard<std::mutex> lock(mutex_);
+        if (!sameLattice(mapper_->config(), geometry)) {
+          const std::string message =
+              "a model with another resolution, origin or time step was loaded during the run; nothing applied";
+          ROS_ERROR("offline EM: %s", message.c_str());
+          report("failed", 1.0, message);
+        } else {
+          const core::OfflineEmApplied applied = mapper_->applyOfflineEm(run.sequences, run.result, false);
+          std::ostringstream message;
+          message << "transitions of " << applied.cells_applied << " cells replaced (" << applied.cells_not_in_map
+                  << " cells of the bag not in this map were skipped); " << run.scans_integrated << " scans, "
+                  << run.result.cells_converged << " of " << run.sequences.cellCount() << " cells converged";
+          progress.cells_applied = static_cast<std::uint32_t>(applied.cells_applied);
+          progress.cells_not_in_map = static_cast<std::uint32_t>(applied.cells_not_in_map);
+          ROS_INFO("offline EM done: %s", message.str().c_str());
+          report("done", 1.0, message.str());
+        }
+      }
+    } catch (const std::exception& e) {
+      ROS_ERROR("offline EM on %s failed, the live model is unchanged: %s", options.source.bag_path.c_str(), e.what());
+      report("failed", 0.0, e.what());
+    }
+    offline_em_running_ = false;
+  });
+  response.success = true;
+  response.message = "offline EM started on " + request.bag_path + "; progress on " + offline_em_progress_.getTopic();
+  return true;
+}
+
+bool MappingNode::saveModel(SaveModel::Request& request, SaveModel::Response& response) {
+  if (request.path.empty()) {
+    response.success = false;
+    response.message = "path is empty";
+    return true;
+  }
+  std::string bytes;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    bytes = core::serializeModel(*mapper_);
+  }
+  try {
+    core::saveModelBytes(bytes, request.path);
+  } catch (const std::exception& e) {
+    response.success = false;
+    response.message = e.what();
+    ROS_ERROR("save_model: %s", e.what());
+    return true;
+  }
+  response.success = true;
+  response.message = "saved " + std::to_string(bytes.size()) + " bytes to " + request.path;
+  return true;
+}
+
+bool MappingNode::loadModel(LoadModel::Request& request, LoadModel::Response& response) {
+  std::unique_ptr<core::Mapper> loaded;
+  try {
+    loaded = core::loadModel(request.path);
+  } catch (const std::exception& e) {
+    response.success = false;
+    response.message = std::string(e.what()) + "; the live model is unchanged";
+    ROS_ERROR("load_model: %s", response.message.c_str());
+    return true;
+  }
+  std::ostringstream message;
+  message << "loaded " << request.path << ": " << loaded->config().resolution_m << " m cells, time step "
+          << loaded->config().time_step_s << " s";
+  if (loaded->lastAppliedStep()) message << ", steps up to " << *loaded->lastAppliedStep();
+  std::lock_guard<std::mutex> lock(mutex_);
+  replaceMapper(std::move(loaded));
+  response.success = true;
+  response.message = message.str();
+  ROS_INFO("%s", response.message.c_str());
+  return true;
+}
+
+bool MappingNode::exportLayers(ExportLayers::Request& request, ExportLayers::Response& response) {
+  struct Export {
+    std::string name;
+    std::vector<std::int8_t> values;
+  };
+  std::vector<Export> exports;
+  core::MapWindow window;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    const std::optional<std::int64_t> step = mapper_->lastAppliedStep();
+    if (!step) {
+      response.success = false;
+      response.message = "no map yet: nothing to export";
+      return true;
+    }
+    const core::CellBox bounds = mapper_->grid().bounds();
+    window = mapper_->grid().window(bounds);
+    // The six layers once each (the `map` output repeats the belief).
+    for (std::size_t i = 0; i < 6 && i < outputs_.size(); ++i) {
+      exports.push_back(Export{core::layerName(outputs_[i].view.layer),
+                               layerValues(mapper_->grid(), outputs_[i].view, *step, bounds)});
+    }
+  }
+  try {
+    if (request.directory.empty()) throw std::runtime_error("directory is empty");
+    std::filesystem::create_directories(request.directory);
+    for (const Export& layer : exports) {
+      core::writeMapServerFiles(request.directory, layer.name, window, layer.values);
+      response.files.push_back(request.directory + "/" + layer.name + ".pgm");
+      response.files.push_back(request.directory + "/" + layer.name + ".yaml");
+    }
+  } catch (const std::exception& e) {
+    response.success = false;
+    response.message = e.what();
+    ROS_ERROR("export_layers: %s", e.what());
+    return true;
+  }
+  response.success = true;
+  response.message = "wrote " + std::to_string(exports.size()) + " layers to " + request.directory;
+  return true;
+}
+
+bool MappingNode::reset(std_srvs::Trigger::Request&, std_srvs::Trigger::Response& response) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  // An empty map with the current model's configuration (a loaded model's, if any).
+  replaceMapper(std::make_unique<core::Mapper>(mapper_->config()));
+  response.success = true;
+  response.message = "map cleared";
+  ROS_INFO("map cleared by ~reset");
+  return true;
+}
+
+bool MappingNode::getCell(GetCell::Request& request, GetCell::Response& response) {
+  if (!std::isfinite(request.x) || !std::isfinite(request.y)) {
+    response.message = "x and y must be finite";
+    return true;
+  }
+  std::lock_guard<std::mutex> lock(mutex_);
+  const core::CellGrid& grid = mapper_->grid();
+  const double u = std::floor(grid.toLatticeX(request.x));
+  const double v = std::floor(grid.toLatticeY(request.y));
+  constexpr double kLimit = std::numeric_limits<std::int32_t>::max();
+  if (std::abs(u) >= kLimit || std::abs(v) >= kLimit) {
+    response.message = "point is far outside any map";
+    return true;
+  }
+  response.cell_x = static_cast<std::int32_t>(u);
+  response.cell_y = static_cast<std::int32_t>(v);
+  response.center_x = grid.anchorX() + (u + 0.5) * grid.resolution();
+  response.center_y = grid.anchorY() + (v + 0.5) * grid.resolution();
+  const std::optional<core::CellState> state = grid.cell(response.cell_x, response.cell_y);
+  if (!state || !mapper_->lastAppliedStep()) {
+    response.observed = false;
+    response.message = "cell never observed";
+    return true;
+  }
+  const std::int64_t now = *mapper_->lastAppliedStep();
+  const core::TransitionParams params{state->p_occ_given_free, state->p_free_given_occ};
+  response.observed = true;
+  response.belief = core::predictOccupancy(state->p_occ, params, now - state->last_step);
+  response.p_occ_given_free = params.p_occ_given_free;
+  response.p_free_given_occ = params.p_free_given_occ;
+  response.stationary_p_occ = core::stationaryOccupancy(params).value_or(std::numeric_limits<double>::quiet_NaN());
+  const std::optional<std::int64_t> mixing = core::mixingTime(response.belief, params, 0.01);
+  response.mixing_time_steps = mixing.value_or(-1);
+  response.mixing_time_s = mixing ? static_cast<double>(*mixing) * mapper_->config().time_step_s : -1.0;
+  response.static_p_occ = core::logOddsToProbability(state->log_odds);
+  response.last_observed_step = state->last_step;
+  response.steps_since_observed = now - state->last_step;
+  response.observed_steps = state->observed_steps;
+  core::TransitionStats stats;
+  for (std::size_t k = 0; k < stats.s.size(); ++k) stats.s[k] = state->em_stats[k];
+  response.expected_transitions = {stats.transitions(0, 0), stats.transitions(0, 1), stats.transitions(1, 0),
+                                   stats.transitions(1, 1)};
+  response.message = "ok";
+  return true;
+}
+
+bool MappingNode::predictMap(PredictMap::Request& request, PredictMap::Response& response) {
+  if (!std::isfinite(request.horizon) || request.horizon < 0.0 || request.horizon > 1.0e12) {
+    response.success = false;
+    response.message = "horizon must be a number of seconds in [0, 1e12]";
+    return true;
+  }
+  std::lock_guard<std::mutex> lock(mutex_);
+  const std::optional<std::int64_t> step = mapper_->lastAppliedStep();
+  if (!step) {
+    response.success = false;
+    response.message = "no map yet";
+    return true;
+  }
+  const LayerView view{core::Layer::kPredicted, 1.0f, horizonSteps(request.horizon, mapper_->config().time_step_s)};
+  const core::CellBox bounds = mapper_->grid().bounds();
+  response.map = toOccupancyGrid(mapper_->grid().window(bounds), layerValues(mapper_->grid(), view, *step, bounds),
+                                 parameters_.fixed_frame,
+                                 toRosTime(mapper_->clock().stepStart(*step + 1 + view.horizon_steps)));
+  response.success = true;
+  response.message = "p(occ) " + std::to_string(view.horizon_steps) + " steps after step " + std::to_string(*step);
+  return true;
+}
+
+}  // namespace ros_layer
+}  // namespace dynamic_occupancy_grid

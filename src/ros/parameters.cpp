@@ -1,0 +1,216 @@
+#include "dynamic_occupancy_grid/ros/parameters.h"
+
+#include <ros/param.h>
+#include <xmlrpcpp/XmlRpcValue.h>
+
+#include "dynamic_occupancy_grid/ros/bag_offline_em.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <set>
+#include <stdexcept>
+
+namespace dynamic_occupancy_grid {
+namespace ros_layer {
+namespace {
+
+// Reads typed parameters, remembering every name it was asked for and the first error.
+class Reader {
+ public:
+  explicit Reader(const ros::NodeHandle& nh) : nh_(nh) {}
+
+  void number(const std::string& name, double* value) {
+    known_.insert(name);
+    XmlRpc::XmlRpcValue raw;
+    if (!nh_.getParam(name, raw)) return;
+    if (raw.getType() == XmlRpc::XmlRpcValue::TypeDouble) {
+      *value = static_cast<double>(raw);
+    } else if (raw.getType() == XmlRpc::XmlRpcValue::TypeInt) {
+      *value = static_cast<int>(raw);
+    } else {
+      fail(name, "must be a number");
+      return;
+    }
+    if (!std::isfinite(*value)) fail(name, "must be finite");
+  }
+
+  void integer(const std::string& name, int* value, int min_value, int max_value) {
+    known_.insert(name);
+    XmlRpc::XmlRpcValue raw;
+    if (!nh_.getParam(name, raw)) return;
+    if (raw.getType() != XmlRpc::XmlRpcValue::TypeInt) {
+      fail(name, "must be an integer");
+      return;
+    }
+    *value = static_cast<int>(raw);
+    if (*value < min_value || *value > max_value) {
+      fail(name, "must be in [" + std::to_string(min_value) + ", " + std::to_string(max_value) + "], got " +
+                     std::to_string(*value));
+    }
+  }
+
+  void boolean(const std::string& name, bool* value) {
+    known_.insert(name);
+    XmlRpc::XmlRpcValue raw;
+    if (!nh_.getParam(name, raw)) return;
+    if (raw.getType() != XmlRpc::XmlRpcValue::TypeBoolean) {
+      fail(name, "must be true or false");
+      return;
+    }
+    *value = static_cast<bool>(raw);
+  }
+
+  void text(const std::string& name, std::string* value) {
+    known_.insert(name);
+    XmlRpc::XmlRpcValue raw;
+    if (!nh_.getParam(name, raw)) return;
+    if (raw.getType() != XmlRpc::XmlRpcValue::TypeString) {
+      fail(name, "must be a string");
+      return;
+    }
+    *value = static_cast<std::string>(raw);
+  }
+
+  void textList(const std::string& name, std::vector<std::string>* value) {
+    known_.insert(name);
+    XmlRpc::XmlRpcValue raw;
+    if (!nh_.getParam(name, raw)) return;
+    if (raw.getType() == XmlRpc::XmlRpcValue::TypeString) {  // one topic given as a string
+      *value = {static_cast<std::string>(raw)};
+      return;
+    }
+    if (raw.getType() != XmlRpc::XmlRpcValue::TypeArray) {
+      fail(name, "must be a list of strings");
+      return;
+    }
+    value->clear();
+    for (int i = 0; i < raw.size(); ++i) {
+      if (raw[i].getType() != XmlRpc::XmlRpcValue::TypeString) {
+        fail(name, "must be a list of strings");
+        return;
+      }
+      value->push_back(static_cast<std::string>(raw[i]));
+    }
+  }
+
+  /// A value check: fails with `message` unless `ok`.
+  void require(bool ok, const std::string& name, const std::string& message) {
+    if (!ok) fail(name, message);
+  }
+
+  void fail(const std::string& name, const std::string& message) {
+    if (error_.empty()) error_ = "parameter " + nh_.resolveName(name) + " " + message;
+  }
+
+  const std::string& error() const { return error_; }
+  const std::set<std::string>& known() const { return known_; }
+
+ private:
+  const ros::NodeHandle& nh_;
+  std::set<std::string> known_;
+  std::string error_;
+};
+
+}  // namespace
+
+bool readParameters(const ros::NodeHandle& private_nh, NodeParameters* parameters, std::string* error,
+                    std::vector<std::string>* unknown) {
+  NodeParameters p;
+  Reader read(private_nh);
+  read.text("fixed_frame", &p.fixed_frame);
+  read.textList("scan_topics", &p.scan_topics);
+  read.integer("scan_queue_size", &p.scan_queue_size, 1, 100000);
+  read.number("publish_period", &p.publish_period_s);
+  read.number("full_map_period", &p.full_map_period_s);
+  read.number("prediction_horizon", &p.prediction_horizon_s);
+  read.number("transition_scale", &p.transition_scale);
+  read.boolean("publish_map_topic", &p.publish_map_topic);
+  read.number("max_scan_latency", &p.max_scan_latency_s);
+  read.number("time_jump_threshold", &p.time_jump_threshold_s);
+  read.text("model_file", &p.model_file);
+
+  core::MapperConfig& m = p.mapper;
+  read.number("resolution", &m.resolution_m);
+  read.number("time_step", &m.time_step_s);
+  read.number("p_hit_given_occ", &m.p_hit_given_occ);
+  read.number("p_hit_given_free", &m.p_hit_given_free);
+  read.number("prior_p_occ_given_free", &m.prior_transitions.p_occ_given_free);
+  read.number("prior_p_free_given_occ", &m.prior_transitions.p_free_given_occ);
+  read.boolean("learn_transitions", &m.learn_transitions);
+  read.number("online_em/prior_weight", &m.online_em.prior_weight);
+  read.number("online_em/learning_rate_floor", &m.online_em.learning_rate_floor);
+  read.number("online_em/p_min", &m.online_em.p_min);
+  read.number("online_em/p_max", &m.online_em.p_max);
+  read.boolean("online_em/symmetric", &m.online_em.symmetric);
+  int min_observed_steps = static_cast<int>(m.online_em.min_observed_steps);
+  read.integer("online_em/min_observed_steps", &min_observed_steps, 0, 65535);
+  m.online_em.min_observed_steps = static_cast<std::uint32_t>(min_observed_steps);
+  read.number("initial_p_occ", &m.initial_p_occ);
+  read.number("static_min_log_odds", &m.static_clamp.min_log_odds);
+  read.number("static_max_log_odds", &m.static_clamp.max_log_odds);
+  read.number("max_free_range", &m.max_free_range_m);
+  read.number("origin_x", &m.origin_x_m);
+  read.number("origin_y", &m.origin_y_m);
+  read.boolean("fixed_bounds", &m.fixed_bounds);
+  read.number("width", &m.width_m);
+  read.number("height", &m.height_m);
+  read.number("max_map_size", &m.max_map_size_m);
+
+  core::OfflineEmConfig& em = p.offline_em;
+  em.prior_weight = kDefaultOfflinePriorWeight;
+  int max_iterations = em.max_iterations;
+  read.integer("offline_em/max_iterations", &max_iterations, 1, 65535);
+  em.max_iterations = max_iterations;
+  read.number("offline_em/tolerance", &em.tolerance);
+  int threads = static_cast<int>(em.threads);
+  read.integer("offline_em/threads", &threads, 0, 1024);
+  em.threads = static_cast<unsigned>(threads);
+  read.number("offline_em/prior_weight", &em.prior_weight);
+  read.boolean("offline_em/symmetric", &em.symmetric);
+  // Offline EM learns within the same bounds as online EM and starts from the prior.
+  em.p_min = m.online_em.p_min;
+  em.p_max = m.online_em.p_max;
+  em.initial_params = m.prior_transitions;
+  em.prior = m.prior_transitions;
+  em.initial_p_occ = m.initial_p_occ;
+
+  read.require(!p.fixed_frame.empty(), "fixed_frame", "must not be empty");
+  read.require(!p.scan_topics.empty(), "scan_topics", "must list at least one topic");
+  for (const std::string& topic : p.scan_topics) read.require(!topic.empty(), "scan_topics", "has an empty topic");
+  read.require(p.publish_period_s > 0.0, "publish_period", "must be > 0 s");
+  read.require(p.full_map_period_s >= 0.0, "full_map_period", "must be >= 0 s");
+  read.require(p.prediction_horizon_s >= 0.0, "prediction_horizon", "must be >= 0 s");
+  read.require(p.transition_scale > 0.0 && p.transition_scale <= 1.0, "transition_scale", "must be in (0, 1]");
+  read.require(p.max_scan_latency_s >= 0.0, "max_scan_latency", "must be >= 0 s");
+  read.require(p.time_jump_threshold_s > 0.0, "time_jump_threshold", "must be > 0 s");
+  if (read.error().empty()) {
+    // The core's own checks name the value (their names are these parameters' names).
+    try {
+      m.validate();
+      em.validate();
+    } catch (const std::invalid_argument& e) {
+      *error = std::string("invalid parameter value (in ") + private_nh.getNamespace() + "): " + e.what();
+      return false;
+    }
+  }
+  if (!read.error().empty()) {
+    *error = read.error();
+    return false;
+  }
+
+  unknown->clear();
+  std::vector<std::string> names;
+  ros::param::getParamNames(names);
+  const std::string prefix = private_nh.getNamespace() + "/";
+  for (const std::string& name : names) {
+    if (name.compare(0, prefix.size(), prefix) != 0) continue;
+    const std::string relative = name.substr(prefix.size());
+    if (read.known().count(relative) == 0) unknown->push_back(name);
+  }
+  *parameters = p;
+  return true;
+}
+
+}  // namespace ros_layer
+}  // namespace dynamic_occupancy_grid
