@@ -20,6 +20,16 @@ rm -rf "$results_dir"
 mkdir -p "$results_dir"
 (cd "$workspace" && catkin_make run_tests -j2) || { status=1; broken+=("catkin_make run_tests exited non-zero"); }
 
+# The rviz config in a real rviz under Xvfb, and the launch files through roslaunch's loader
+# (test/rviz/). Each writes its JUnit file; one that exits without it crashed or timed out.
+for check in check_rviz_config check_launch_files; do
+  result="$results_dir/${check#check_}.xml"
+  if ! timeout -k 30 600 "$package_dir/test/rviz/$check.sh" "$result"; then
+    status=1
+    [ -s "$result" ] || broken+=("test/rviz/$check.sh crashed or timed out (no $result)")
+  fi
+done
+
 # The core alone, built by plain CMake with no ROS anywhere, plus its include audit.
 standalone="$workspace/build/core_standalone"
 if cmake -S "$package_dir/test/core_standalone" -B "$standalone" -DCMAKE_BUILD_TYPE=Release >/dev/null &&
