@@ -14,4 +14,4 @@ source "$DOG_WORKSPACE/devel/setup.bash"
 set -u
 rosrun dynamic_occupancy_grid process_bag "$package_dir/data/example/stationary_laser_people.bag" \
   --laser-pose 0,0,0 --out "$out_dir"
-echo "demo: map layers (map_server PGM + YAML) are in $out_dir"
+echo "demo: the six map layers (map_server PGM + YAML) and model.dogm are in $out_dir"
