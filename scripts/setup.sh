@@ -29,14 +29,16 @@ debian_ros_packages=(
   libnodelet-dev libnodeletlib-dev pluginlib-dev librostest-dev
   python3-rostest python3-roslaunch python3-rosbag python3-rostopic python3-rosservice
   python3-sensor-msgs python3-nav-msgs python3-map-msgs python3-tf2-msgs python3-geometry-msgs
-  python3-std-srvs rosbash rviz tf2-tools
+  python3-std-srvs python3-rospy python3-rosgraph-msgs python3-tf2-ros python3-roslib python3-rospkg
+  python3-yaml libnodeletlib-tools rosbash rviz tf2-tools
 )
 noetic_ros_packages=(
   ros-noetic-catkin ros-noetic-roscpp ros-noetic-rosbag ros-noetic-tf2 ros-noetic-tf2-ros
   ros-noetic-tf2-msgs ros-noetic-tf2-geometry-msgs ros-noetic-sensor-msgs ros-noetic-nav-msgs
   ros-noetic-map-msgs ros-noetic-geometry-msgs ros-noetic-std-srvs ros-noetic-nodelet
   ros-noetic-pluginlib ros-noetic-rostest ros-noetic-rosbash ros-noetic-rviz
-  ros-noetic-message-generation ros-noetic-message-runtime python3-catkin-pkg
+  ros-noetic-message-generation ros-noetic-message-runtime ros-noetic-rospy ros-noetic-rosgraph-msgs
+  python3-catkin-pkg python3-yaml
 )
 
 if [ -f /opt/ros/noetic/setup.bash ]; then

@@ -171,6 +171,14 @@ void MappingNode::scanCallback(const sensor_msgs::LaserScan::ConstPtr& msg) {
     ROS_WARN_THROTTLE(kWarnPeriodS, "dropping scan from frame '%s' stamped %.3f: %s", msg->header.frame_id.c_str(),
                       msg->header.stamp.toSec(), why.c_str());
   };
+  // A zero stamp means "no time" (tf2 even reads it as "latest"); as a time it would look
+  // like time jumping back to 0 and restart the map's clock.
+  if (msg->header.stamp.isZero()) return drop("its header.stamp is zero (unset)");
+  // So would one stamped far ahead: the map would jump there and back.
+  const double now_s = ros::Time::now().toSec();
+  if (now_s > 0.0 && msg->header.stamp.toSec() > now_s + parameters_.time_jump_threshold_s) {
+    return drop("it is stamped " + std::to_string(msg->header.stamp.toSec() - now_s) + " s in the future");
+  }
   if (!checkScanShape(*msg, &error)) return drop(error);
   geometry_msgs::TransformStamped transform;
   try {
@@ -187,7 +195,10 @@ void MappingNode::scanCallback(const sensor_msgs::LaserScan::ConstPtr& msg) {
   core::Pose2D pose;
   bool upside_down = false;
   if (!toLaserPose(transform.transform, &pose, &upside_down, &error)) return drop(error);
-  const core::Scan scan = toCoreScan(*msg, pose, upside_down);
+  core::Scan scan = toCoreScan(*msg, pose, upside_down);
+  // Readings beyond max_range count as "no return" (free up to max_free_range): one absurd
+  // reading must not trace (and allocate) hundreds of metres of map.
+  scan.range_max_m = std::min(scan.range_max_m, parameters_.max_range_m);
 
   std::lock_guard<std::mutex> lock(mutex_);
   if (newest_stamp_s_ && scan.stamp_s < *newest_stamp_s_ - parameters_.time_jump_threshold_s) {

@@ -128,6 +128,7 @@ bool readParameters(const ros::NodeHandle& private_nh, NodeParameters* parameter
   read.boolean("publish_map_topic", &p.publish_map_topic);
   read.number("max_scan_latency", &p.max_scan_latency_s);
   read.number("time_jump_threshold", &p.time_jump_threshold_s);
+  read.number("max_range", &p.max_range_m);
   read.text("model_file", &p.model_file);
 
   core::MapperConfig& m = p.mapper;
@@ -184,6 +185,7 @@ bool readParameters(const ros::NodeHandle& private_nh, NodeParameters* parameter
   read.require(p.transition_scale > 0.0 && p.transition_scale <= 1.0, "transition_scale", "must be in (0, 1]");
   read.require(p.max_scan_latency_s >= 0.0, "max_scan_latency", "must be >= 0 s");
   read.require(p.time_jump_threshold_s > 0.0, "time_jump_threshold", "must be > 0 s");
+  read.require(p.max_range_m > 0.0, "max_range", "must be > 0 m");
   if (read.error().empty()) {
     // The core's own checks name the value (their names are these parameters' names).
     try {

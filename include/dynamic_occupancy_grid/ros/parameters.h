@@ -25,6 +25,7 @@ struct NodeParameters {
   bool publish_map_topic = false;      ///< belief also on `map` / `map_updates`
   double max_scan_latency_s = 0.5;     ///< a step is applied this long after it ends
   double time_jump_threshold_s = 3.0;  ///< a scan this much older than the newest restarts time
+  double max_range_m = 50.0;           ///< longer readings count as no return
   std::string model_file;              ///< loaded at start-up when set
   core::MapperConfig mapper;
   core::OfflineEmConfig offline_em;
