@@ -155,19 +155,13 @@ void MappingNode::scanDropped(const sensor_msgs::LaserScan::ConstPtr& msg, tf2_r
   } else if (reason == tf2_ros::filter_failure_reasons::EmptyFrameID) {
     why = "its header.frame_id is empty";
   }
-  {
-    std::lock_guard<std::mutex> lock(mutex_);
-    ++scans_dropped_;
-  }
   ROS_WARN_THROTTLE(kWarnPeriodS, "dropping scan from frame '%s' stamped %.3f: %s (transform to '%s')",
                     msg->header.frame_id.c_str(), msg->header.stamp.toSec(), why, parameters_.fixed_frame.c_str());
 }
 
 void MappingNode::scanCallback(const sensor_msgs::LaserScan::ConstPtr& msg) {
   std::string error;
-  const auto drop = [this, &msg](const std::string& why) {
-    std::lock_guard<std::mutex> lock(mutex_);
-    ++scans_dropped_;
+  const auto drop = [&msg](const std::string& why) {
     ROS_WARN_THROTTLE(kWarnPeriodS, "dropping scan from frame '%s' stamped %.3f: %s", msg->header.frame_id.c_str(),
                       msg->header.stamp.toSec(), why.c_str());
   };
@@ -211,12 +205,10 @@ void MappingNode::scanCallback(const sensor_msgs::LaserScan::ConstPtr& msg) {
   }
   const core::ScanResult result = mapper_->integrate(scan);
   if (result.status != core::ScanStatus::kIntegrated) {
-    ++scans_dropped_;
     ROS_WARN_THROTTLE(kWarnPeriodS, "dropping scan from frame '%s' stamped %.3f: %s", msg->header.frame_id.c_str(),
                       scan.stamp_s, result.error.c_str());
     return;
   }
-  ++scans_integrated_;
   newest_stamp_s_ = std::max(newest_stamp_s_.value_or(scan.stamp_s), scan.stamp_s);
   if (result.cells_outside > 0) {
     ROS_WARN_THROTTLE(30.0, "beams reach beyond the map's bounds (fixed_bounds / max_map_size); those cells are not mapped");

@@ -94,8 +94,6 @@ class MappingNode {
   std::optional<double> newest_stamp_s_;  ///< newest scan stamp integrated
   core::CellBox published_bounds_;        ///< bounds of the last full grids
   ros::Time last_full_publish_;
-  std::size_t scans_integrated_ = 0;
-  std::size_t scans_dropped_ = 0;
 
   std::thread offline_em_thread_;
   std::atomic<bool> offline_em_running_{false};
