@@ -436,6 +436,28 @@ void Mapper::restoreCell(std::int32_t x, std::int32_t y, const CellState& state)
   changed_cells_.include(x, y);
 }
 
+void Mapper::setCellTransitions(std::int32_t x, std::int32_t y, const TransitionParams& params) {
+  const std::string cell = "setCellTransitions: cell (" + std::to_string(x) + ", " + std::to_string(y) + ")";
+  if (!params.isValid()) throw std::invalid_argument(cell + ": transition probabilities must be in [0, 1]");
+  if (!grid_.insideLimits(x, y)) throw std::invalid_argument(cell + " is outside the map's limits");
+  CellBox box;
+  box.include(x, y);
+  grid_.reserve(box);
+  CellGrid::Tile* tile = grid_.tileForWriting(x, y);
+  const int i = CellGrid::offsetOf(x, y);
+  const std::int32_t last = tile->last_step[i];
+  if (!config_.learn_transitions && last != kNeverObserved && last_applied_step_ && *last_applied_step_ > last) {
+    // The steps since the cell's last update happened under the old transitions: carry the
+    // belief over them first, so the new ones only act from now on.
+    const TransitionParams old{tile->p_occ_given_free[i], tile->p_free_given_occ[i]};
+    tile->p_occ[i] = static_cast<float>(predictOccupancy(tile->p_occ[i], old, *last_applied_step_ - last));
+    tile->last_step[i] = static_cast<std::int32_t>(*last_applied_step_);
+  }
+  tile->p_occ_given_free[i] = static_cast<float>(params.p_occ_given_free);
+  tile->p_free_given_occ[i] = static_cast<float>(params.p_free_given_occ);
+  if (last != kNeverObserved) changed_cells_.include(x, y);
+}
+
 CellBox Mapper::takeChangedCells() {
   const CellBox changed = changed_cells_;
   changed_cells_ = CellBox{};

@@ -1435,3 +1435,40 @@ TEST(MapperRestore, RestoreChecksItsInputs) {
   EXPECT_THROW(other.restoreCell(1 << 30, 0, state), std::invalid_argument);
   EXPECT_FALSE(other.grid().cell(0, 0).has_value());
 }
+
+// ---- fixed transitions per cell (the evaluation's oracle and offline methods) ----------
+
+TEST(MapperSetCellTransitions, UsedFromTheFirstObservationAndOnlyFromNowOn) {
+  dog::Mapper mapper(testConfig());
+  const dog::TransitionParams first{0.2, 0.3};
+  const dog::TransitionParams second{0.01, 0.02};
+  // Before the cell was ever observed: its first step already uses them.
+  mapper.setCellTransitions(1, 0, first);
+  EXPECT_FALSE(mapper.grid().cell(1, 0).has_value());
+  ASSERT_EQ(mapper.integrate(makeScan(0.5, {0.3f})).status, dog::ScanStatus::kIntegrated);  // hit in (1, 0)
+  mapper.finishStep();
+  const double hit = mapper.sensor().logLikelihoodRatio(1, 0);
+  const double after_hit = dog::filterStep(0.5, first, hit);
+  ASSERT_NEAR(mapper.grid().cell(1, 0)->p_occ, after_hit, 1e-6);
+  // Five steps later, looking the other way: (1, 0) is not observed.
+  ASSERT_EQ(mapper.integrate(makeScan(5.5, {0.3f}, kPi)).status, dog::ScanStatus::kIntegrated);
+  mapper.finishStep();
+  ASSERT_EQ(mapper.grid().cell(1, 0)->last_step, 0);
+  // The five steps happened under the first transitions; the second act from step 5 on.
+  mapper.setCellTransitions(1, 0, second);
+  const double at_five = dog::predictOccupancy(after_hit, first, 5);
+  EXPECT_EQ(mapper.grid().cell(1, 0)->last_step, 5);
+  EXPECT_NEAR(mapper.grid().cell(1, 0)->p_occ, at_five, 1e-6);
+  EXPECT_NEAR(mapper.beliefAt(1, 0, 9), dog::predictOccupancy(at_five, second, 4), 1e-6);
+  EXPECT_FLOAT_EQ(mapper.grid().cell(1, 0)->p_occ_given_free, 0.01f);
+  EXPECT_EQ(mapper.takeChangedCells().max_x, 1);
+
+  EXPECT_THROW(mapper.setCellTransitions(1, 0, dog::TransitionParams{-0.1, 0.2}), std::invalid_argument);
+  dog::MapperConfig fixed = testConfig();
+  fixed.fixed_bounds = true;
+  fixed.width_m = 1.0;
+  fixed.height_m = 1.0;
+  dog::Mapper bounded(fixed);
+  EXPECT_THROW(bounded.setCellTransitions(4, 0, first), std::invalid_argument);
+  EXPECT_NO_THROW(bounded.setCellTransitions(3, 3, first));
+}

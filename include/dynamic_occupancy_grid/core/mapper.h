@@ -112,6 +112,14 @@ class Mapper {
   OfflineEmApplied applyOfflineEm(const ObservationSequences& sequences, const OfflineEmResult& result,
                                   bool use_final_beliefs);
 
+  /// Fixes the transitions cell (x, y) uses from now on, observed yet or not (the true
+  /// parameters of a simulated world, or offline EM results learned on another recording):
+  /// an observed cell's belief is first carried to the last applied step with the old ones.
+  /// Meant for learn_transitions = false; with learning on, the online M-step replaces them
+  /// at the cell's next observed step (and they also predict the gap before it). Throws std::invalid_argument for invalid parameters
+  /// or a cell outside the map's limits.
+  void setCellTransitions(std::int32_t x, std::int32_t y, const TransitionParams& params);
+
   /// Model loading (model_io.h): the saved time, on a mapper that has integrated nothing.
   /// Throws std::logic_error otherwise, std::invalid_argument for inconsistent values.
   void restoreTime(std::optional<double> clock_origin_s, std::optional<std::int64_t> last_applied_step);
