@@ -8,12 +8,17 @@ set(DOG_ROOT ${CMAKE_CURRENT_LIST_DIR}/..)
 add_library(dynamic_occupancy_grid_core
   ${DOG_ROOT}/src/core/cell_grid.cpp
   ${DOG_ROOT}/src/core/cell_model.cpp
+  ${DOG_ROOT}/src/core/evaluation.cpp
   ${DOG_ROOT}/src/core/layers.cpp
   ${DOG_ROOT}/src/core/map_export.cpp
   ${DOG_ROOT}/src/core/mapper.cpp
   ${DOG_ROOT}/src/core/model_io.cpp
   ${DOG_ROOT}/src/core/offline_em.cpp
   ${DOG_ROOT}/src/core/online_em.cpp
+  ${DOG_ROOT}/src/core/path_planning.cpp
+  ${DOG_ROOT}/src/core/planner.cpp
+  ${DOG_ROOT}/src/core/prediction_check.cpp
+  ${DOG_ROOT}/src/core/simulator.cpp
   ${DOG_ROOT}/src/core/step_clock.cpp
 )
 target_include_directories(dynamic_occupancy_grid_core PUBLIC ${DOG_ROOT}/include)

@@ -1,0 +1,265 @@
+#pragma once
+// A simulator of changing worlds for the evaluation (and for tests): a grid of static and
+// dynamic cells, each dynamic cell a 2-state Markov chain with its own true transition
+// probabilities (THEORY.md §1), a robot driving a scripted path, and a 2D laser cast
+// against the true state of the cells. The true state of every cell at every step is
+// available next to the scans, which is what the accuracy of THEORY.md §9 needs.
+//
+// World cell (x, y) is the square [x r, (x + 1) r) x [y r, (y + 1) r) in metres (r the
+// resolution): the lattice of a Mapper with origin (0, 0) and the same resolution.
+//
+// All randomness comes from Rng (xoshiro256**), seeded explicitly: a run is reproducible
+// on any platform. ROS-free: standard library only.
+
+#include <array>
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "dynamic_occupancy_grid/core/cell_model.h"
+#include "dynamic_occupancy_grid/core/scan.h"
+#include "dynamic_occupancy_grid/core/traversal.h"
+
+namespace dynamic_occupancy_grid {
+namespace core {
+
+/// xoshiro256** seeded through splitmix64: the same numbers on every platform (unlike the
+/// standard library's distributions).
+class Rng {
+ public:
+  explicit Rng(std::uint64_t seed);
+  std::uint64_t next();
+  /// Uniform in [0, 1), 53 random bits.
+  double uniform();
+  /// True with probability p.
+  bool bernoulli(double p) { return uniform() < p; }
+  /// Standard normal (Box–Muller).
+  double normal();
+  /// Uniform integer in [0, n), n > 0 (rejection: no modulo bias).
+  std::uint64_t below(std::uint64_t n);
+
+ private:
+  std::array<std::uint64_t, 4> state_;
+};
+
+/// The true world: every cell's state now, and its true per-step transition probabilities.
+class World {
+ public:
+  /// All cells static and free. Throws std::invalid_argument for a non-positive size or
+  /// resolution.
+  World(std::int32_t width, std::int32_t height, double resolution_m);
+
+  std::int32_t width() const { return width_; }
+  std::int32_t height() const { return height_; }
+  double resolution() const { return resolution_m_; }
+  bool inside(std::int32_t x, std::int32_t y) const { return x >= 0 && y >= 0 && x < width_ && y < height_; }
+  std::size_t index(std::int32_t x, std::int32_t y) const {
+    return static_cast<std::size_t>(y) * static_cast<std::size_t>(width_) + static_cast<std::size_t>(x);
+  }
+  CellXY cellOf(std::size_t index) const {
+    return CellXY{static_cast<std::int32_t>(index % static_cast<std::size_t>(width_)),
+                  static_cast<std::int32_t>(index / static_cast<std::size_t>(width_))};
+  }
+
+  /// State now; cells outside the world are free.
+  bool occupied(std::int32_t x, std::int32_t y) const { return inside(x, y) && occupancy_[index(x, y)] != 0; }
+  /// True transition probabilities per step ({0, 0} for a static cell).
+  TransitionParams truth(std::int32_t x, std::int32_t y) const { return truth_[index(x, y)]; }
+  /// Whether step() changes the cell at random (with truth(x, y)).
+  bool isDynamic(std::int32_t x, std::int32_t y) const { return random_[index(x, y)] != 0; }
+
+  /// A static cell (never changes by itself; truth {0, 0}).
+  void setStatic(std::int32_t x, std::int32_t y, bool occupied);
+  /// A cell that step() changes at random with `truth`, starting in state `occupied`.
+  void setDynamic(std::int32_t x, std::int32_t y, const TransitionParams& truth, bool occupied);
+  /// A cell changed by scheduled events only (parking bays), whose true parameters are the
+  /// per-step Markov rates of those events: step() leaves it alone.
+  void setScheduled(std::int32_t x, std::int32_t y, const TransitionParams& truth, bool occupied);
+  /// Changes the state of a cell now (an event), keeping its kind and truth.
+  void setState(std::int32_t x, std::int32_t y, bool occupied);
+
+  /// One step of the random dynamics: each dynamic cell changes state with its probability.
+  void step(Rng& rng);
+
+  /// State of every cell, row-major (index(x, y)), 1 = occupied.
+  const std::vector<std::uint8_t>& occupancy() const { return occupancy_; }
+  /// Indices of the cells step() changes.
+  std::vector<std::size_t> dynamicCells() const;
+
+ private:
+  void check(std::int32_t x, std::int32_t y) const;
+
+  std::int32_t width_;
+  std::int32_t height_;
+  double resolution_m_;
+  std::vector<std::uint8_t> occupancy_;
+  std::vector<std::uint8_t> random_;
+  std::vector<TransitionParams> truth_;
+};
+
+/// Where a ray meets the first occupied cell: the distances (m) along it at which it enters
+/// and leaves that cell; both +inf if there is none within max_range_m. Entry 0 when the
+/// start cell itself is occupied. A ray whose chord through an occupied cell is shorter than
+/// a tenth of a cell only grazes its corner and passes (objects have slightly rounded
+/// corners). Exact up to rounding (the ray is intersected with the cell
+/// squares).
+struct RayHit {
+  double entry_m;
+  double exit_m;
+};
+RayHit castRay(const World& world, double x_m, double y_m, double angle_rad, double max_range_m);
+
+/// A 2D laser (sensor_msgs/LaserScan conventions).
+struct LaserConfig {
+  int beams = 360;
+  double angle_min_rad = -3.14159265358979323846;
+  double angle_increment_rad = 2.0 * 3.14159265358979323846 / 360.0;
+  double range_min_m = 0.05;
+  double range_max_m = 8.0;
+  double noise_sigma_m = 0.01;        ///< Gaussian range noise
+  double dropout_probability = 0.01;  ///< a beam gives no reading (NaN)
+
+  /// Throws std::invalid_argument naming the first bad field.
+  void validate() const;
+};
+
+/// One scan of `laser` at `laser_pose`. A beam's true range is the middle of its chord
+/// through the first occupied cell: objects of a grid world fill their cells, and reading
+/// their boundary would put half of the noisy end points in the free cell in front (an
+/// artefact of the grid world, not of a real laser, whose surfaces lie inside cells). Plus
+/// Gaussian noise; a return at or beyond range_max (or none) reads +inf (no return), a
+/// dropout NaN, a reading below range_min is clamped to range_min.
+Scan simulateScan(const World& world, const Pose2D& laser_pose, const LaserConfig& laser, double stamp_s,
+                  Rng& rng);
+
+/// Pose of a frame mounted at `mount` (in the robot frame) on a robot at `robot`.
+Pose2D compose(const Pose2D& robot, const Pose2D& mount);
+
+/// A robot driving a closed polygon at constant speed, heading along the current segment.
+class LoopPath {
+ public:
+  /// At least two distinct waypoints (m); speed > 0 (m per step). Throws
+  /// std::invalid_argument otherwise.
+  LoopPath(std::vector<std::array<double, 2>> waypoints_m, double speed_m_per_step);
+  /// Pose after `steps` (fractional) steps from the first waypoint.
+  Pose2D poseAt(double steps) const;
+  double lengthM() const { return cumulative_.back(); }
+
+ private:
+  std::vector<std::array<double, 2>> waypoints_;
+  std::vector<double> cumulative_;  ///< distance at each waypoint; back() = loop length
+  double speed_;
+};
+
+enum class ScenarioKind {
+  kRandomDynamic,  ///< the papers' grid: a fraction of cells change at random
+  kParkingLot,     ///< bays whose cars change every "hour"
+  kDoor,           ///< a door on the short path between A and B, and a long detour
+};
+
+/// A named configuration of a simulated world (scenarioConfig(name)).
+struct ScenarioConfig {
+  std::string name;
+  std::string description;
+  ScenarioKind kind = ScenarioKind::kRandomDynamic;
+  std::int32_t width_cells = 50;
+  std::int32_t height_cells = 50;
+  double resolution_m = 0.1;
+  double time_step_s = 1.0;
+  std::int64_t steps = 1000;  ///< length of a run
+  int scans_per_step = 1;
+  LaserConfig laser;
+  Pose2D laser_mount{0.05, 0.0, 0.0};  ///< laser pose in the robot frame (base_link -> laser)
+  double robot_speed_m_per_step = 0.2;
+  /// The sensor model for mapping this scenario's scans: the laser's per-beam hit rates on
+  /// occupied and free cells as measured on its runs (test_simulator checks them), rounded
+  /// towards less certainty.
+  double p_hit_given_occ = 0.9;
+  double p_hit_given_free = 0.05;
+
+  // kRandomDynamic
+  double dynamic_fraction = 0.05;     ///< of the cells that may be dynamic (not walls, not the robot's lane)
+  double change_probability = 0.05;   ///< p_occ_given_free = p_free_given_occ of every dynamic cell
+  std::int64_t redraw_at_step = -1;   ///< from this step on, a new set of dynamic cells (-1: never)
+
+  // kParkingLot
+  int hours = 12;                     ///< configurations, one run each
+  std::int64_t steps_per_hour = 100;
+  double p_arrive_per_hour = 0.3;     ///< an empty bay gets a car at the hour's change
+  double p_leave_per_hour = 0.3;      ///< a car leaves its bay at the hour's change
+
+  // kDoor
+  double door_change_probability = 0.001;  ///< p_occ_given_free = p_free_given_occ of the door
+
+  /// Throws std::invalid_argument naming the first bad field.
+  void validate() const;
+};
+
+/// Names of the built-in scenarios, in the evaluation's order.
+std::vector<std::string> scenarioNames();
+/// The built-in scenario `name`; throws std::invalid_argument listing the names otherwise.
+ScenarioConfig scenarioConfig(const std::string& name);
+
+/// The door scenario's places (cells).
+struct DoorLayout {
+  CellXY a;            ///< one end of both paths
+  CellXY b;            ///< the other end
+  CellXY door;         ///< on the short path
+  std::int32_t short_path_cells = 0;  ///< moves from a to b through the door
+  std::int32_t long_path_cells = 0;   ///< moves from a to b along the detour
+};
+
+/// A run of a scenario: the world with its scheduled events, the scripted robot, the laser.
+class Simulation {
+ public:
+  /// `world_seed` draws the layout (which cells are dynamic, the walls of the parking lot),
+  /// `run_seed` everything that happens (state changes, parked cars, sensor noise): runs
+  /// with the same world seed and different run seeds are the same place on different days
+  /// (an offline training run and an evaluation run). Throws std::invalid_argument for a
+  /// bad configuration.
+  Simulation(const ScenarioConfig& config, std::uint64_t world_seed, std::uint64_t run_seed);
+
+  const ScenarioConfig& config() const { return config_; }
+  const World& world() const { return world_; }
+  /// The current step (0 at the start).
+  std::int64_t step() const { return step_; }
+
+  /// The scripted robot's pose at scan `scan_index` of the current step.
+  Pose2D robotPose(int scan_index = 0) const;
+  /// Scan `scan_index` (0 .. scans_per_step - 1) of the current step from the scripted
+  /// robot; stamped (step + (scan_index + 0.5) / scans_per_step) * time_step_s.
+  Scan scan(int scan_index = 0);
+  /// The same from any robot pose (a robot driven by a planner).
+  Scan scanFrom(const Pose2D& robot_pose, int scan_index = 0);
+  /// Ends the current step: the random changes of the dynamic cells, then the events
+  /// scheduled for the next step (re-drawing the dynamic cells, the parking lot's hour).
+  void advance();
+
+  /// The door scenario's places; throws std::logic_error for another scenario.
+  const DoorLayout& doorLayout() const;
+
+ private:
+  void buildRandomDynamic();
+  void drawDynamicCells(Rng& layout_rng);
+  void buildParkingLot();
+  void parkingHour();
+  void buildDoor();
+  void addBorderWalls();
+
+  ScenarioConfig config_;
+  World world_;
+  Rng layout_rng_;
+  Rng dynamics_rng_;
+  Rng sensor_rng_;
+  std::int64_t step_ = 0;
+  std::vector<std::array<double, 2>> route_;           ///< the scripted robot's loop
+  std::optional<LoopPath> path_;
+  std::vector<std::size_t> free_candidates_;           ///< cells that may become dynamic
+  std::vector<std::vector<std::size_t>> bays_;         ///< parking: the cells of each car
+  std::vector<std::uint8_t> bay_occupied_;
+  DoorLayout door_;
+};
+
+}  // namespace core
+}  // namespace dynamic_occupancy_grid

@@ -1,0 +1,557 @@
+#include "dynamic_occupancy_grid/core/simulator.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <stdexcept>
+#include <utility>
+
+namespace dynamic_occupancy_grid {
+namespace core {
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+// Chords through an occupied cell shorter than this (in cells) are corner grazes (castRay).
+constexpr double kMinChord = 0.1;
+
+std::uint64_t splitmix64(std::uint64_t& x) {
+  x += 0x9e3779b97f4a7c15ULL;
+  std::uint64_t z = x;
+  z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ULL;
+  z = (z ^ (z >> 27)) * 0x94d049bb133111ebULL;
+  return z ^ (z >> 31);
+}
+
+std::uint64_t rotl(std::uint64_t x, int k) { return (x << k) | (x >> (64 - k)); }
+
+void require(bool condition, const std::string& message) {
+  if (!condition) throw std::invalid_argument(message);
+}
+
+// Independent streams of one seed: the layout, the dynamics and the sensor noise of a run
+// never draw from each other's numbers, so e.g. the door's changes do not depend on how
+// many scans the robot took.
+std::uint64_t streamSeed(std::uint64_t seed, std::uint64_t stream) {
+  std::uint64_t x = seed ^ (0x5851f42d4c957f2dULL * (stream + 1));
+  return splitmix64(x);
+}
+
+double cellCentre(std::int32_t cell, double resolution) { return (cell + 0.5) * resolution; }
+
+}  // namespace
+
+// ---------------------------------------------------------------- Rng
+
+Rng::Rng(std::uint64_t seed) {
+  for (auto& word : state_) word = splitmix64(seed);
+}
+
+std::uint64_t Rng::next() {
+  const std::uint64_t result = rotl(state_[1] * 5, 7) * 9;
+  const std::uint64_t t = state_[1] << 17;
+  state_[2] ^= state_[0];
+  state_[3] ^= state_[1];
+  state_[1] ^= state_[2];
+  state_[0] ^= state_[3];
+  state_[2] ^= t;
+  state_[3] = rotl(state_[3], 45);
+  return result;
+}
+
+double Rng::uniform() { return static_cast<double>(next() >> 11) * 0x1.0p-53; }
+
+double Rng::normal() {
+  // 1 - uniform() is in (0, 1]: the logarithm is finite.
+  const double u1 = 1.0 - uniform();
+  const double u2 = uniform();
+  return std::sqrt(-2.0 * std::log(u1)) * std::cos(2.0 * kPi * u2);
+}
+
+std::uint64_t Rng::below(std::uint64_t n) {
+  if (n == 0) throw std::invalid_argument("Rng::below: n must be positive");
+  // Reject the top partial block of 2^64 so every residue is equally likely.
+  const std::uint64_t limit = std::numeric_limits<std::uint64_t>::max() - std::numeric_limits<std::uint64_t>::max() % n;
+  std::uint64_t x;
+  do {
+    x = next();
+  } while (x >= limit);
+  return x % n;
+}
+
+// ---------------------------------------------------------------- World
+
+World::World(std::int32_t width, std::int32_t height, double resolution_m)
+    : width_(width), height_(height), resolution_m_(resolution_m) {
+  require(width > 0 && height > 0, "World: width and height must be positive");
+  require(resolution_m > 0.0 && std::isfinite(resolution_m), "World: resolution must be positive");
+  const auto cells = static_cast<std::size_t>(width) * static_cast<std::size_t>(height);
+  occupancy_.assign(cells, 0);
+  random_.assign(cells, 0);
+  truth_.assign(cells, TransitionParams{0.0, 0.0});
+}
+
+void World::check(std::int32_t x, std::int32_t y) const {
+  if (!inside(x, y)) {
+    throw std::invalid_argument("World: cell (" + std::to_string(x) + ", " + std::to_string(y) + ") is outside");
+  }
+}
+
+void World::setStatic(std::int32_t x, std::int32_t y, bool occupied) {
+  check(x, y);
+  const std::size_t i = index(x, y);
+  occupancy_[i] = occupied ? 1 : 0;
+  random_[i] = 0;
+  truth_[i] = TransitionParams{0.0, 0.0};
+}
+
+void World::setDynamic(std::int32_t x, std::int32_t y, const TransitionParams& truth, bool occupied) {
+  check(x, y);
+  require(truth.isValid(), "World::setDynamic: transition probabilities must be in [0, 1]");
+  const std::size_t i = index(x, y);
+  occupancy_[i] = occupied ? 1 : 0;
+  random_[i] = 1;
+  truth_[i] = truth;
+}
+
+void World::setScheduled(std::int32_t x, std::int32_t y, const TransitionParams& truth, bool occupied) {
+  check(x, y);
+  require(truth.isValid(), "World::setScheduled: transition probabilities must be in [0, 1]");
+  const std::size_t i = index(x, y);
+  occupancy_[i] = occupied ? 1 : 0;
+  random_[i] = 0;
+  truth_[i] = truth;
+}
+
+void World::setState(std::int32_t x, std::int32_t y, bool occupied) {
+  check(x, y);
+  occupancy_[index(x, y)] = occupied ? 1 : 0;
+}
+
+void World::step(Rng& rng) {
+  for (std::size_t i = 0; i < occupancy_.size(); ++i) {
+    if (random_[i] == 0) continue;
+    const double p_change = occupancy_[i] != 0 ? truth_[i].p_free_given_occ : truth_[i].p_occ_given_free;
+    if (rng.bernoulli(p_change)) occupancy_[i] ^= 1;
+  }
+}
+
+std::vector<std::size_t> World::dynamicCells() const {
+  std::vector<std::size_t> cells;
+  for (std::size_t i = 0; i < random_.size(); ++i) {
+    if (random_[i] != 0) cells.push_back(i);
+  }
+  return cells;
+}
+
+// ---------------------------------------------------------------- laser
+
+RayHit castRay(const World& world, double x_m, double y_m, double angle_rad, double max_range_m) {
+  // Amanatides–Woo in cell units: t is the distance in metres along the ray to the next
+  // vertical / horizontal cell boundary.
+  const double r = world.resolution();
+  const double dx = std::cos(angle_rad);
+  const double dy = std::sin(angle_rad);
+  auto cx = static_cast<std::int32_t>(std::floor(x_m / r));
+  auto cy = static_cast<std::int32_t>(std::floor(y_m / r));
+  const std::int32_t step_x = dx > 0.0 ? 1 : -1;
+  const std::int32_t step_y = dy > 0.0 ? 1 : -1;
+  constexpr double kInf = std::numeric_limits<double>::infinity();
+  const double t_delta_x = dx != 0.0 ? r / std::abs(dx) : kInf;
+  const double t_delta_y = dy != 0.0 ? r / std::abs(dy) : kInf;
+  double t_x = dx > 0.0 ? ((cx + 1) * r - x_m) / dx : (dx < 0.0 ? (cx * r - x_m) / dx : kInf);
+  double t_y = dy > 0.0 ? ((cy + 1) * r - y_m) / dy : (dy < 0.0 ? (cy * r - y_m) / dy : kInf);
+  // Outside the world nothing is occupied: stop once the ray has left it for good.
+  const double leave = [&] {
+    const double w = world.width() * r;
+    const double h = world.height() * r;
+    const double tx = dx > 0.0 ? (w - x_m) / dx : (dx < 0.0 ? -x_m / dx : kInf);
+    const double ty = dy > 0.0 ? (h - y_m) / dy : (dy < 0.0 ? -y_m / dy : kInf);
+    return std::max(0.0, std::min(tx, ty));
+  }();
+  const double limit = std::min(max_range_m, leave);
+  if (world.occupied(cx, cy)) return RayHit{0.0, std::min(t_x, t_y)};
+  while (true) {
+    double t;
+    if (t_x < t_y) {
+      t = t_x;
+      cx += step_x;
+      t_x += t_delta_x;
+    } else {
+      t = t_y;
+      cy += step_y;
+      t_y += t_delta_y;
+    }
+    if (t >= limit) return RayHit{kInf, kInf};
+    // A ray that only grazes an occupied cell's corner (a chord shorter than a tenth of a
+    // cell) passes it: objects have slightly rounded corners. Without this a beam aimed
+    // exactly at a corner returns from the corner point itself, and its noisy end point lands
+    // in a free cell half of the time.
+    if (world.occupied(cx, cy) && std::min(t_x, t_y) - t >= kMinChord * r) return RayHit{t, std::min(t_x, t_y)};
+  }
+}
+
+void LaserConfig::validate() const {
+  require(beams > 0, "LaserConfig: beams must be positive");
+  require(std::isfinite(angle_min_rad) && std::isfinite(angle_increment_rad) &&
+              (beams == 1 || angle_increment_rad != 0.0),
+          "LaserConfig: angle_min and angle_increment must be finite, angle_increment non-zero");
+  require(range_min_m >= 0.0 && range_max_m > range_min_m && std::isfinite(range_max_m),
+          "LaserConfig: need 0 <= range_min < range_max < inf");
+  require(noise_sigma_m >= 0.0 && std::isfinite(noise_sigma_m), "LaserConfig: noise_sigma must be >= 0");
+  require(dropout_probability >= 0.0 && dropout_probability <= 1.0,
+          "LaserConfig: dropout_probability must be in [0, 1]");
+}
+
+Scan simulateScan(const World& world, const Pose2D& laser_pose, const LaserConfig& laser, double stamp_s, Rng& rng) {
+  Scan scan;
+  scan.stamp_s = stamp_s;
+  scan.laser_pose = laser_pose;
+  scan.angle_min_rad = laser.angle_min_rad;
+  scan.angle_increment_rad = laser.angle_increment_rad;
+  scan.range_min_m = laser.range_min_m;
+  scan.range_max_m = laser.range_max_m;
+  scan.ranges_m.resize(static_cast<std::size_t>(laser.beams));
+  for (int i = 0; i < laser.beams; ++i) {
+    const double angle = laser_pose.yaw_rad + laser.angle_min_rad + i * laser.angle_increment_rad;
+    // Draw the noise for every beam, used or not: the stream stays aligned whatever the world.
+    const bool dropout = rng.bernoulli(laser.dropout_probability);
+    const double noise = laser.noise_sigma_m * rng.normal();
+    const RayHit hit = castRay(world, laser_pose.x_m, laser_pose.y_m, angle, laser.range_max_m);
+    const double range = 0.5 * (hit.entry_m + hit.exit_m);
+    float reading;
+    if (dropout) {
+      reading = std::numeric_limits<float>::quiet_NaN();
+    } else if (!std::isfinite(range) || range + noise >= laser.range_max_m) {
+      reading = std::numeric_limits<float>::infinity();
+    } else {
+      reading = static_cast<float>(std::max(laser.range_min_m, range + noise));
+    }
+    scan.ranges_m[static_cast<std::size_t>(i)] = reading;
+  }
+  return scan;
+}
+
+Pose2D compose(const Pose2D& robot, const Pose2D& mount) {
+  const double c = std::cos(robot.yaw_rad);
+  const double s = std::sin(robot.yaw_rad);
+  return Pose2D{robot.x_m + c * mount.x_m - s * mount.y_m, robot.y_m + s * mount.x_m + c * mount.y_m,
+                robot.yaw_rad + mount.yaw_rad};
+}
+
+// ---------------------------------------------------------------- LoopPath
+
+LoopPath::LoopPath(std::vector<std::array<double, 2>> waypoints_m, double speed_m_per_step)
+    : waypoints_(std::move(waypoints_m)), speed_(speed_m_per_step) {
+  require(speed_ > 0.0 && std::isfinite(speed_), "LoopPath: speed must be positive");
+  require(waypoints_.size() >= 2, "LoopPath: need at least two waypoints");
+  cumulative_.push_back(0.0);
+  for (std::size_t i = 0; i < waypoints_.size(); ++i) {
+    const auto& a = waypoints_[i];
+    const auto& b = waypoints_[(i + 1) % waypoints_.size()];
+    cumulative_.push_back(cumulative_.back() + std::hypot(b[0] - a[0], b[1] - a[1]));
+  }
+  require(cumulative_.back() > 0.0, "LoopPath: the waypoints must not all be the same point");
+}
+
+Pose2D LoopPath::poseAt(double steps) const {
+  const double length = cumulative_.back();
+  double s = std::fmod(steps * speed_, length);
+  if (s < 0.0) s += length;
+  // The segment holding s (segments of zero length are skipped by upper_bound).
+  const auto it = std::upper_bound(cumulative_.begin(), cumulative_.end(), s);
+  const std::size_t segment = std::min<std::size_t>(static_cast<std::size_t>(it - cumulative_.begin()) - 1,
+                                                    waypoints_.size() - 1);
+  const auto& a = waypoints_[segment];
+  const auto& b = waypoints_[(segment + 1) % waypoints_.size()];
+  const double segment_length = cumulative_[segment + 1] - cumulative_[segment];
+  const double f = segment_length > 0.0 ? (s - cumulative_[segment]) / segment_length : 0.0;
+  return Pose2D{a[0] + f * (b[0] - a[0]), a[1] + f * (b[1] - a[1]), std::atan2(b[1] - a[1], b[0] - a[0])};
+}
+
+// ---------------------------------------------------------------- scenarios
+
+void ScenarioConfig::validate() const {
+  require(width_cells > 0 && height_cells > 0, "scenario " + name + ": width and height must be positive");
+  require(resolution_m > 0.0 && time_step_s > 0.0, "scenario " + name + ": resolution and time_step must be positive");
+  require(steps > 0, "scenario " + name + ": steps must be positive");
+  require(scans_per_step > 0, "scenario " + name + ": scans_per_step must be positive");
+  require(robot_speed_m_per_step > 0.0, "scenario " + name + ": robot_speed must be positive");
+  require(p_hit_given_occ > p_hit_given_free && p_hit_given_free > 0.0 && p_hit_given_occ < 1.0,
+          "scenario " + name + ": need 0 < p_hit_given_free < p_hit_given_occ < 1");
+  laser.validate();
+  require(dynamic_fraction >= 0.0 && dynamic_fraction <= 1.0, "scenario " + name + ": dynamic_fraction must be in [0, 1]");
+  require(change_probability >= 0.0 && change_probability <= 1.0,
+          "scenario " + name + ": change_probability must be in [0, 1]");
+  require(hours > 0 && steps_per_hour > 0, "scenario " + name + ": hours and steps_per_hour must be positive");
+  require(p_arrive_per_hour >= 0.0 && p_arrive_per_hour <= 1.0 && p_leave_per_hour >= 0.0 && p_leave_per_hour <= 1.0,
+          "scenario " + name + ": p_arrive_per_hour and p_leave_per_hour must be in [0, 1]");
+  require(door_change_probability >= 0.0 && door_change_probability <= 1.0,
+          "scenario " + name + ": door_change_probability must be in [0, 1]");
+}
+
+std::vector<std::string> scenarioNames() {
+  return {"dynamic_5_5", "dynamic_25_25", "redraw_100", "redraw_300", "parking_lot", "door"};
+}
+
+ScenarioConfig scenarioConfig(const std::string& name) {
+  ScenarioConfig config;
+  config.name = name;
+  if (name == "dynamic_5_5" || name == "dynamic_25_25" || name == "redraw_100" || name == "redraw_300") {
+    // The papers' 50 x 50 grid (Figs. 4 and 5): walls around, four pillars, a robot
+    // circling the middle with a 360° laser that sees the whole room.
+    config.kind = ScenarioKind::kRandomDynamic;
+    config.width_cells = 50;
+    config.height_cells = 50;
+    config.resolution_m = 0.1;
+    config.steps = 1000;
+    // A 270° laser of 3 m range: the robot sees about half of the room at a time, so cells
+    // go unobserved for a while and the model's predictions matter, as in the papers.
+    config.laser.beams = 271;
+    config.laser.angle_min_rad = -0.75 * kPi;
+    config.laser.angle_increment_rad = 1.5 * kPi / 270.0;
+    config.laser.range_max_m = 3.0;
+    config.laser.noise_sigma_m = 0.01;
+    config.laser.dropout_probability = 0.05;
+    config.robot_speed_m_per_step = 0.2;
+    const bool high = name == "dynamic_25_25";
+    config.dynamic_fraction = high ? 0.25 : 0.05;
+    config.change_probability = high ? 0.25 : 0.05;
+    if (name == "redraw_100") config.redraw_at_step = 100;
+    if (name == "redraw_300") config.redraw_at_step = 300;
+    config.description = high ? "50x50 grid, 25 % dynamic cells changing with probability 0.25 per step"
+                              : "50x50 grid, 5 % dynamic cells changing with probability 0.05 per step";
+    if (config.redraw_at_step >= 0) {
+      config.description += ", a new set of dynamic cells from step " + std::to_string(config.redraw_at_step);
+    }
+    return config;
+  }
+  if (name == "parking_lot") {
+    // Fig. 3: two rows of six bays (2.5 m x 5 m), cars of 2 m x 4.5 m, a robot driving up
+    // and down the aisle; the cars change every "hour" of 108 steps (two passes).
+    config.kind = ScenarioKind::kParkingLot;
+    config.width_cells = 62;
+    config.height_cells = 54;
+    config.resolution_m = 0.25;
+    config.hours = 12;
+    config.steps_per_hour = 108;
+    config.steps = config.hours * config.steps_per_hour;
+    config.laser.beams = 360;
+    config.laser.range_max_m = 12.0;
+    config.laser.noise_sigma_m = 0.02;
+    config.robot_speed_m_per_step = 0.5;
+    config.description = "parking lot, 12 bays whose cars come and go every hour (108 steps), 12 hours";
+    return config;
+  }
+  if (name == "door") {
+    // Fig. 6 / Table 1: a short corridor with a door between A and B, and a long detour.
+    config.kind = ScenarioKind::kDoor;
+    config.width_cells = 30;
+    config.height_cells = 15;
+    config.resolution_m = 0.5;
+    config.steps = 20000;
+    config.laser.beams = 72;
+    config.laser.angle_increment_rad = 2.0 * kPi / 72.0;
+    config.laser.range_max_m = 3.0;
+    config.laser.noise_sigma_m = 0.02;
+    config.laser_mount = Pose2D{0.0, 0.0, 0.0};
+    config.robot_speed_m_per_step = 0.5;
+    // Beams from the corridor's centre line graze the walls beside it: noisier per beam.
+    config.p_hit_given_occ = 0.8;
+    config.p_hit_given_free = 0.1;
+    config.description = "a door on the short path between A and B (p = 0.001 per step), and a long detour";
+    return config;
+  }
+  std::string names;
+  for (const std::string& known : scenarioNames()) names += (names.empty() ? "" : ", ") + known;
+  throw std::invalid_argument("unknown scenario '" + name + "' (known: " + names + ")");
+}
+
+// ---------------------------------------------------------------- Simulation
+
+Simulation::Simulation(const ScenarioConfig& config, std::uint64_t world_seed, std::uint64_t run_seed)
+    : config_(config),
+      world_((config.validate(), config.width_cells), config.height_cells, config.resolution_m),
+      layout_rng_(streamSeed(world_seed, 0)),
+      dynamics_rng_(streamSeed(run_seed, 1)),
+      sensor_rng_(streamSeed(run_seed, 2)) {
+  switch (config_.kind) {
+    case ScenarioKind::kRandomDynamic:
+      buildRandomDynamic();
+      break;
+    case ScenarioKind::kParkingLot:
+      buildParkingLot();
+      break;
+    case ScenarioKind::kDoor:
+      buildDoor();
+      break;
+  }
+  path_.emplace(route_, config_.robot_speed_m_per_step);
+}
+
+void Simulation::addBorderWalls() {
+  for (std::int32_t x = 0; x < world_.width(); ++x) {
+    world_.setStatic(x, 0, true);
+    world_.setStatic(x, world_.height() - 1, true);
+  }
+  for (std::int32_t y = 0; y < world_.height(); ++y) {
+    world_.setStatic(0, y, true);
+    world_.setStatic(world_.width() - 1, y, true);
+  }
+}
+
+void Simulation::buildRandomDynamic() {
+  addBorderWalls();
+  const std::int32_t w = world_.width();
+  const std::int32_t h = world_.height();
+  // Four 4 x 4 pillars at a fifth of the way in from each corner.
+  for (const std::int32_t px : {w / 5, w - w / 5 - 4}) {
+    for (const std::int32_t py : {h / 5, h - h / 5 - 4}) {
+      for (std::int32_t y = py; y < py + 4; ++y) {
+        for (std::int32_t x = px; x < px + 4; ++x) world_.setStatic(x, y, true);
+      }
+    }
+  }
+  // The robot circles a square around the middle (a third of the room's side).
+  const double r = world_.resolution();
+  const double x0 = w * r / 3.0;
+  const double x1 = w * r * 2.0 / 3.0;
+  const double y0 = h * r / 3.0;
+  const double y1 = h * r * 2.0 / 3.0;
+  route_ = {{x0, y0}, {x1, y0}, {x1, y1}, {x0, y1}};
+  // Its lane (within 0.3 m of the route) stays free: the robot drives there.
+  const auto in_lane = [&](double cx, double cy) {
+    const bool near_x_edge = cx > x0 - 0.3 && cx < x1 + 0.3 && (std::abs(cy - y0) < 0.3 || std::abs(cy - y1) < 0.3);
+    const bool near_y_edge = cy > y0 - 0.3 && cy < y1 + 0.3 && (std::abs(cx - x0) < 0.3 || std::abs(cx - x1) < 0.3);
+    return near_x_edge || near_y_edge;
+  };
+  for (std::int32_t y = 0; y < h; ++y) {
+    for (std::int32_t x = 0; x < w; ++x) {
+      if (world_.occupied(x, y) || in_lane(cellCentre(x, r), cellCentre(y, r))) continue;
+      free_candidates_.push_back(world_.index(x, y));
+    }
+  }
+  drawDynamicCells(layout_rng_);
+}
+
+void Simulation::drawDynamicCells(Rng& layout_rng) {
+  // Every candidate becomes static, keeping its current state; then a fresh random set of
+  // them becomes dynamic, starting from the stationary distribution (p = 0.5 for the
+  // papers' symmetric cells).
+  for (const std::size_t i : free_candidates_) {
+    const CellXY c = world_.cellOf(i);
+    world_.setStatic(c.x, c.y, world_.occupied(c.x, c.y));
+  }
+  const auto count = static_cast<std::size_t>(std::llround(config_.dynamic_fraction * free_candidates_.size()));
+  std::vector<std::size_t> pool = free_candidates_;
+  const double p = config_.change_probability;
+  const TransitionParams truth{p, p};
+  for (std::size_t k = 0; k < count; ++k) {
+    // Partial Fisher–Yates: pool[k] becomes a uniform pick from the rest.
+    const std::size_t pick = k + static_cast<std::size_t>(layout_rng.below(pool.size() - k));
+    std::swap(pool[k], pool[pick]);
+    const CellXY c = world_.cellOf(pool[k]);
+    world_.setDynamic(c.x, c.y, truth, layout_rng.bernoulli(0.5));
+  }
+}
+
+void Simulation::buildParkingLot() {
+  addBorderWalls();
+  // Bays 10 x 20 cells along the bottom (y 1..20) and the top (y 33..52) walls; a car
+  // fills its bay but one cell on every side.
+  const std::int32_t bay_w = 10;
+  const std::int32_t bay_d = 20;
+  const std::int32_t rows[2] = {1, world_.height() - 1 - bay_d};
+  const double hours = static_cast<double>(config_.steps_per_hour);
+  const TransitionParams truth{config_.p_arrive_per_hour / hours, config_.p_leave_per_hour / hours};
+  const double p_parked = config_.p_arrive_per_hour + config_.p_leave_per_hour > 0.0
+                              ? config_.p_arrive_per_hour / (config_.p_arrive_per_hour + config_.p_leave_per_hour)
+                              : 0.0;
+  for (const std::int32_t row : rows) {
+    for (std::int32_t bx = 1; bx + bay_w <= world_.width() - 1; bx += bay_w) {
+      std::vector<std::size_t> car;
+      for (std::int32_t y = row + 1; y < row + bay_d - 1; ++y) {
+        for (std::int32_t x = bx + 1; x < bx + bay_w - 1; ++x) car.push_back(world_.index(x, y));
+      }
+      const bool parked = dynamics_rng_.bernoulli(p_parked);
+      for (const std::size_t i : car) {
+        const CellXY c = world_.cellOf(i);
+        world_.setScheduled(c.x, c.y, truth, parked);
+      }
+      bays_.push_back(std::move(car));
+      bay_occupied_.push_back(parked ? 1 : 0);
+    }
+  }
+  // Up and down the middle of the aisle.
+  const double r = world_.resolution();
+  const double aisle_y = world_.height() * r / 2.0;
+  route_ = {{1.0, aisle_y}, {world_.width() * r - 1.0, aisle_y}};
+}
+
+void Simulation::parkingHour() {
+  for (std::size_t b = 0; b < bays_.size(); ++b) {
+    const bool parked = bay_occupied_[b] != 0;
+    const bool change = dynamics_rng_.bernoulli(parked ? config_.p_leave_per_hour : config_.p_arrive_per_hour);
+    if (!change) continue;
+    bay_occupied_[b] = parked ? 0 : 1;
+    for (const std::size_t i : bays_[b]) {
+      const CellXY c = world_.cellOf(i);
+      world_.setState(c.x, c.y, !parked);
+    }
+  }
+}
+
+void Simulation::buildDoor() {
+  addBorderWalls();
+  const std::int32_t w = world_.width();
+  const std::int32_t h = world_.height();
+  // The block between the two corridors: everything but the border ring's inner ring.
+  for (std::int32_t y = 2; y <= h - 3; ++y) {
+    for (std::int32_t x = 2; x <= w - 3; ++x) world_.setStatic(x, y, true);
+  }
+  const std::int32_t corridor = h - 2;
+  door_.a = CellXY{1, corridor};
+  door_.b = CellXY{w - 2, corridor};
+  door_.door = CellXY{w / 2 - 1, corridor};
+  door_.short_path_cells = door_.b.x - door_.a.x;
+  door_.long_path_cells = 2 * (corridor - 1) + (door_.b.x - door_.a.x);
+  const double p = config_.door_change_probability;
+  world_.setDynamic(door_.door.x, door_.door.y, TransitionParams{p, p}, dynamics_rng_.bernoulli(0.5));
+  // Exploration: look at the door from both sides without passing it, and drive the
+  // detour both ways.
+  const double r = world_.resolution();
+  const auto at = [r](std::int32_t x, std::int32_t y) { return std::array<double, 2>{cellCentre(x, r), cellCentre(y, r)}; };
+  route_ = {at(door_.a.x, corridor),      at(door_.door.x - 1, corridor), at(door_.a.x, corridor),
+            at(1, 1),                     at(w - 2, 1),                   at(door_.b.x, corridor),
+            at(door_.door.x + 1, corridor), at(door_.b.x, corridor),      at(w - 2, 1),
+            at(1, 1)};
+}
+
+Pose2D Simulation::robotPose(int scan_index) const {
+  return path_->poseAt(static_cast<double>(step_) + static_cast<double>(scan_index) / config_.scans_per_step);
+}
+
+Scan Simulation::scan(int scan_index) { return scanFrom(robotPose(scan_index), scan_index); }
+
+Scan Simulation::scanFrom(const Pose2D& robot_pose, int scan_index) {
+  if (scan_index < 0 || scan_index >= config_.scans_per_step) {
+    throw std::invalid_argument("Simulation::scan: scan_index must be in [0, scans_per_step)");
+  }
+  const double stamp =
+      (static_cast<double>(step_) + (scan_index + 0.5) / config_.scans_per_step) * config_.time_step_s;
+  return simulateScan(world_, compose(robot_pose, config_.laser_mount), config_.laser, stamp, sensor_rng_);
+}
+
+void Simulation::advance() {
+  world_.step(dynamics_rng_);
+  ++step_;
+  if (config_.kind == ScenarioKind::kRandomDynamic && step_ == config_.redraw_at_step) drawDynamicCells(layout_rng_);
+  if (config_.kind == ScenarioKind::kParkingLot && step_ % config_.steps_per_hour == 0) parkingHour();
+}
+
+const DoorLayout& Simulation::doorLayout() const {
+  if (config_.kind != ScenarioKind::kDoor) throw std::logic_error("doorLayout: not the door scenario");
+  return door_;
+}
+
+}  // namespace core
+}  // namespace dynamic_occupancy_grid

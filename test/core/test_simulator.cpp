@@ -1,0 +1,471 @@
+// The simulator's statistics: random numbers, change rates of dynamic cells, scheduled
+// events, the laser's geometry and noise, and the scenarios' layouts.
+#include "dynamic_occupancy_grid/core/simulator.h"
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <deque>
+#include <limits>
+#include <stdexcept>
+
+#include "dynamic_occupancy_grid/core/mapper.h"
+#include "dynamic_occupancy_grid/core/offline_em.h"
+
+namespace dynamic_occupancy_grid {
+namespace core {
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+
+// Tolerance for an empirical frequency of n Bernoulli(p) trials: 5 standard deviations
+// (a false alarm once in 1.7 million runs; the tests are deterministic anyway).
+double binomialTolerance(double p, double n) { return 5.0 * std::sqrt(p * (1.0 - p) / n); }
+
+TEST(Rng, SameSeedSameNumbersOtherSeedOthers) {
+  Rng a(42);
+  Rng b(42);
+  Rng c(43);
+  int differences = 0;
+  for (int i = 0; i < 100; ++i) {
+    const std::uint64_t x = a.next();
+    EXPECT_EQ(x, b.next());
+    differences += x != c.next();
+  }
+  EXPECT_EQ(differences, 100);
+}
+
+TEST(Rng, DistributionsHaveTheirMoments) {
+  Rng rng(7);
+  const int n = 200000;
+  double sum = 0.0;
+  double normal_sum = 0.0;
+  double normal_squares = 0.0;
+  std::array<int, 7> counts{};
+  for (int i = 0; i < n; ++i) {
+    const double u = rng.uniform();
+    ASSERT_GE(u, 0.0);
+    ASSERT_LT(u, 1.0);
+    sum += u;
+    const double z = rng.normal();
+    normal_sum += z;
+    normal_squares += z * z;
+    ++counts[rng.below(7)];
+  }
+  EXPECT_NEAR(sum / n, 0.5, 5.0 * std::sqrt(1.0 / 12.0 / n));
+  EXPECT_NEAR(normal_sum / n, 0.0, 5.0 / std::sqrt(n));
+  EXPECT_NEAR(normal_squares / n, 1.0, 5.0 * std::sqrt(2.0 / n));
+  for (const int count : counts) EXPECT_NEAR(count / static_cast<double>(n), 1.0 / 7.0, binomialTolerance(1.0 / 7.0, n));
+  EXPECT_THROW(rng.below(0), std::invalid_argument);
+}
+
+TEST(World, DynamicCellsChangeAtTheirConfiguredRates) {
+  World world(3, 1, 0.1);
+  world.setDynamic(0, 0, TransitionParams{0.05, 0.2}, false);
+  world.setStatic(1, 0, true);
+  world.setScheduled(2, 0, TransitionParams{0.3, 0.3}, true);
+  Rng rng(1);
+  double from_free = 0;
+  double free_to_occ = 0;
+  double from_occ = 0;
+  double occ_to_free = 0;
+  for (int t = 0; t < 200000; ++t) {
+    const bool before = world.occupied(0, 0);
+    world.step(rng);
+    const bool after = world.occupied(0, 0);
+    (before ? from_occ : from_free) += 1;
+    if (!before && after) ++free_to_occ;
+    if (before && !after) ++occ_to_free;
+    ASSERT_TRUE(world.occupied(1, 0));  // static
+    ASSERT_TRUE(world.occupied(2, 0));  // changed by events only
+  }
+  EXPECT_NEAR(free_to_occ / from_free, 0.05, binomialTolerance(0.05, from_free));
+  EXPECT_NEAR(occ_to_free / from_occ, 0.2, binomialTolerance(0.2, from_occ));
+  // The chain spends pi(occ) = 0.05 / 0.25 of the time occupied.
+  EXPECT_NEAR(from_occ / 200000.0, 0.2, 0.01);
+  EXPECT_EQ(world.dynamicCells(), std::vector<std::size_t>{0});
+  EXPECT_TRUE(world.truth(1, 0).isStatic());
+  EXPECT_DOUBLE_EQ(world.truth(2, 0).p_occ_given_free, 0.3);
+}
+
+TEST(World, RejectsBadInput) {
+  EXPECT_THROW(World(0, 5, 0.1), std::invalid_argument);
+  EXPECT_THROW(World(5, 5, 0.0), std::invalid_argument);
+  World world(5, 5, 0.1);
+  EXPECT_THROW(world.setStatic(5, 0, true), std::invalid_argument);
+  EXPECT_THROW(world.setDynamic(0, 0, TransitionParams{1.5, 0.1}, true), std::invalid_argument);
+  EXPECT_FALSE(world.occupied(-1, 0));  // outside is free
+}
+
+// Reference for castRay: walk the ray in tiny increments and report the first point inside
+// an occupied cell through which the ray runs for at least a tenth of a cell (shorter
+// chords are corner grazes, which pass).
+double marchedEntry(const World& world, double x, double y, double angle, double max_range) {
+  const double step = 1e-5;
+  const auto cell_at = [&](double t) {
+    return CellXY{static_cast<std::int32_t>(std::floor((x + t * std::cos(angle)) / world.resolution())),
+                  static_cast<std::int32_t>(std::floor((y + t * std::sin(angle)) / world.resolution()))};
+  };
+  for (double t = 0.0; t < max_range; t += step) {
+    const CellXY cell = cell_at(t);
+    if (!world.occupied(cell.x, cell.y)) continue;
+    double leave = t;
+    while (cell_at(leave) == cell) leave += step;
+    if (leave - t >= 0.1 * world.resolution()) return t;
+    t = leave - step;
+  }
+  return std::numeric_limits<double>::infinity();
+}
+
+TEST(CastRay, MatchesMarchingTheRay) {
+  World world(20, 20, 0.1);
+  Rng layout(3);
+  for (int i = 0; i < 40; ++i) {
+    world.setStatic(static_cast<std::int32_t>(layout.below(20)), static_cast<std::int32_t>(layout.below(20)), true);
+  }
+  world.setStatic(10, 10, false);
+  Rng rng(4);
+  for (int i = 0; i < 300; ++i) {
+    const double angle = 2.0 * kPi * rng.uniform();
+    const RayHit hit = castRay(world, 1.05, 1.05, angle, 1.5);
+    const double reference = marchedEntry(world, 1.05, 1.05, angle, 1.5);
+    if (std::isinf(reference)) {
+      EXPECT_TRUE(std::isinf(hit.entry_m)) << "angle " << angle;
+    } else {
+      ASSERT_NEAR(hit.entry_m, reference, 2e-5) << "angle " << angle;
+      // The exit is where the marching leaves that cell.
+      const double mid = 0.5 * (hit.entry_m + hit.exit_m);
+      EXPECT_GT(hit.exit_m, hit.entry_m);
+      EXPECT_TRUE(world.occupied(static_cast<std::int32_t>(std::floor((1.05 + mid * std::cos(angle)) / 0.1)),
+                                 static_cast<std::int32_t>(std::floor((1.05 + mid * std::sin(angle)) / 0.1))));
+    }
+  }
+}
+
+TEST(CastRay, ExactCasesAndEdges) {
+  World world(10, 10, 0.1);
+  world.setStatic(5, 2, true);
+  // Along +x from the middle of cell (1, 2): enters cell 5 at x = 0.5, leaves at 0.6.
+  RayHit hit = castRay(world, 0.15, 0.25, 0.0, 5.0);
+  EXPECT_NEAR(hit.entry_m, 0.35, 1e-12);
+  EXPECT_NEAR(hit.exit_m, 0.45, 1e-12);
+  // Along -x from the other side.
+  hit = castRay(world, 0.95, 0.25, kPi, 5.0);
+  EXPECT_NEAR(hit.entry_m, 0.35, 1e-12);
+  // Beyond max range, or leaving the world without meeting anything: +inf.
+  EXPECT_TRUE(std::isinf(castRay(world, 0.15, 0.25, 0.0, 0.3).entry_m));
+  EXPECT_TRUE(std::isinf(castRay(world, 0.15, 0.25, kPi / 2, 50.0).entry_m));
+  // Starting inside an occupied cell.
+  EXPECT_EQ(castRay(world, 0.55, 0.25, 1.0, 5.0).entry_m, 0.0);
+  // Exactly through a corner of an occupied cell: it passes, and returns from the next
+  // occupied cell along the diagonal.
+  World corners(5, 5, 1.0);
+  corners.setStatic(0, 1, true);
+  corners.setStatic(2, 2, true);
+  hit = castRay(corners, 0.5, 0.5, kPi / 4, 10.0);
+  EXPECT_NEAR(hit.entry_m, 1.5 * std::sqrt(2.0), 1e-9);
+  EXPECT_NEAR(hit.exit_m, 2.5 * std::sqrt(2.0), 1e-9);
+}
+
+TEST(SimulateScan, ReadsChordMiddlesWithNoiseDropoutsAndNoReturns) {
+  World world(40, 40, 0.1);
+  for (std::int32_t y = 0; y < 40; ++y) world.setStatic(30, y, true);  // a wall at x = 3.0 .. 3.1
+  LaserConfig laser;
+  laser.beams = 1;
+  laser.angle_min_rad = 0.0;
+  laser.range_max_m = 8.0;
+  laser.noise_sigma_m = 0.01;
+  laser.dropout_probability = 0.1;
+  Rng rng(5);
+  const Pose2D pose{1.0, 2.05, 0.0};
+  const int n = 20000;
+  double sum = 0.0;
+  double squares = 0.0;
+  int readings = 0;
+  int dropouts = 0;
+  for (int i = 0; i < n; ++i) {
+    const Scan scan = simulateScan(world, pose, laser, 1.0, rng);
+    ASSERT_EQ(scan.ranges_m.size(), 1U);
+    const float r = scan.ranges_m[0];
+    if (std::isnan(r)) {
+      ++dropouts;
+      continue;
+    }
+    ++readings;
+    sum += r;
+    squares += (r - 2.05) * (r - 2.05);
+  }
+  EXPECT_NEAR(dropouts / static_cast<double>(n), 0.1, binomialTolerance(0.1, n));
+  EXPECT_NEAR(sum / readings, 2.05, 5.0 * 0.01 / std::sqrt(readings));  // the middle of the wall cell
+  EXPECT_NEAR(std::sqrt(squares / readings), 0.01, 0.0005);
+
+  // Looking away from the wall: no return reads +inf; the scan carries the laser's geometry.
+  laser.dropout_probability = 0.0;
+  const Scan away = simulateScan(world, Pose2D{1.0, 2.05, kPi}, laser, 3.5, rng);
+  EXPECT_TRUE(std::isinf(away.ranges_m[0]));
+  EXPECT_EQ(away.stamp_s, 3.5);
+  EXPECT_EQ(away.range_max_m, 8.0);
+}
+
+TEST(LoopPath, DrivesTheLoopAtItsSpeed) {
+  const LoopPath path({{0.0, 0.0}, {2.0, 0.0}, {2.0, 1.0}}, 0.5);
+  EXPECT_NEAR(path.lengthM(), 3.0 + std::sqrt(5.0), 1e-12);
+  Pose2D p = path.poseAt(1.0);
+  EXPECT_NEAR(p.x_m, 0.5, 1e-12);
+  EXPECT_NEAR(p.y_m, 0.0, 1e-12);
+  EXPECT_NEAR(p.yaw_rad, 0.0, 1e-12);
+  p = path.poseAt(5.0);  // 2.5 m: half way up the second segment
+  EXPECT_NEAR(p.x_m, 2.0, 1e-12);
+  EXPECT_NEAR(p.y_m, 0.5, 1e-12);
+  EXPECT_NEAR(p.yaw_rad, kPi / 2, 1e-12);
+  const Pose2D wrapped = path.poseAt(1.0 + path.lengthM() / 0.5);
+  EXPECT_NEAR(wrapped.x_m, 0.5, 1e-9);
+  EXPECT_THROW(LoopPath({{0.0, 0.0}}, 1.0), std::invalid_argument);
+  EXPECT_THROW(LoopPath({{0.0, 0.0}, {1.0, 0.0}}, 0.0), std::invalid_argument);
+}
+
+TEST(Compose, MountsTheLaserOnTheRobot) {
+  const Pose2D laser = compose(Pose2D{1.0, 2.0, kPi / 2}, Pose2D{0.1, 0.0, 0.0});
+  EXPECT_NEAR(laser.x_m, 1.0, 1e-12);
+  EXPECT_NEAR(laser.y_m, 2.1, 1e-12);
+  EXPECT_NEAR(laser.yaw_rad, kPi / 2, 1e-12);
+}
+
+TEST(Scenarios, NamesAndValidation) {
+  for (const std::string& name : scenarioNames()) EXPECT_NO_THROW(scenarioConfig(name).validate()) << name;
+  try {
+    scenarioConfig("nope");
+    FAIL() << "no exception";
+  } catch (const std::invalid_argument& error) {
+    EXPECT_NE(std::string(error.what()).find("dynamic_5_5"), std::string::npos);
+  }
+  ScenarioConfig bad = scenarioConfig("dynamic_5_5");
+  bad.change_probability = 1.5;
+  EXPECT_THROW(Simulation(bad, 1, 1), std::invalid_argument);
+}
+
+// Cells whose truth says they are dynamic, and the empirical change rates over a run.
+TEST(Scenarios, RandomDynamicHasItsFractionAndRates) {
+  for (const std::string& name : {std::string("dynamic_5_5"), std::string("dynamic_25_25")}) {
+    const ScenarioConfig config = scenarioConfig(name);
+    Simulation simulation(config, 11, 12);
+    const World& world = simulation.world();
+    const std::vector<std::size_t> dynamic = world.dynamicCells();
+    std::size_t candidates = 0;  // neither a wall nor the robot's lane: free or dynamic
+    for (std::size_t i = 0; i < world.occupancy().size(); ++i) {
+      const CellXY c = world.cellOf(i);
+      const bool wall = !world.isDynamic(c.x, c.y) && world.occupied(c.x, c.y);
+      if (!wall) ++candidates;
+    }
+    // The lane cells are free candidates too: the fraction of all non-wall cells is a
+    // little below the configured fraction of the candidates.
+    const double fraction = static_cast<double>(dynamic.size()) / static_cast<double>(candidates);
+    EXPECT_GT(fraction, 0.75 * config.dynamic_fraction) << name;
+    EXPECT_LE(fraction, config.dynamic_fraction) << name;
+
+    // The robot drives its loop on free cells only (checked below, step by step).
+    std::vector<std::uint8_t> before = world.occupancy();
+    double changes = 0.0;
+    double trials = 0.0;
+    for (int t = 0; t < 400; ++t) {
+      const Pose2D robot = simulation.robotPose();
+      ASSERT_FALSE(world.occupied(static_cast<std::int32_t>(robot.x_m / config.resolution_m),
+                                  static_cast<std::int32_t>(robot.y_m / config.resolution_m)))
+          << name << " step " << t;
+      simulation.advance();
+      const std::vector<std::uint8_t>& after = world.occupancy();
+      for (std::size_t i = 0; i < after.size(); ++i) {
+        const CellXY c = world.cellOf(i);
+        if (world.isDynamic(c.x, c.y)) {
+          trials += 1.0;
+          changes += before[i] != after[i];
+        } else {
+          ASSERT_EQ(before[i], after[i]) << "a static cell changed";
+        }
+      }
+      before = after;
+    }
+    EXPECT_NEAR(changes / trials, config.change_probability, binomialTolerance(config.change_probability, trials))
+        << name;
+  }
+}
+
+TEST(Scenarios, RedrawReplacesTheDynamicCellsAtItsStep) {
+  const ScenarioConfig config = scenarioConfig("redraw_100");
+  Simulation simulation(config, 21, 22);
+  ScenarioConfig no_redraw = config;
+  no_redraw.redraw_at_step = -1;
+  Simulation training(no_redraw, 21, 99);  // same place, another day
+  const std::vector<std::size_t> first = simulation.world().dynamicCells();
+  EXPECT_EQ(training.world().dynamicCells(), first);
+  for (int t = 0; t < 99; ++t) simulation.advance();
+  EXPECT_EQ(simulation.world().dynamicCells(), first);
+  simulation.advance();  // step 100
+  const std::vector<std::size_t> second = simulation.world().dynamicCells();
+  EXPECT_EQ(second.size(), first.size());
+  std::size_t kept = 0;
+  for (const std::size_t i : second) kept += std::count(first.begin(), first.end(), i);
+  EXPECT_LT(kept, first.size() / 4);  // a fresh random set: few cells in common
+  for (int t = 0; t < 100; ++t) training.advance();
+  EXPECT_EQ(training.world().dynamicCells(), first);
+}
+
+TEST(Scenarios, ParkingLotChangesOnlyOnTheHourAtItsRates) {
+  ScenarioConfig config = scenarioConfig("parking_lot");
+  config.steps_per_hour = 2;  // many hours quickly
+  Simulation simulation(config, 31, 32);
+  const World& world = simulation.world();
+  const std::vector<std::uint8_t> start = world.occupancy();
+  double arrivals = 0, empty = 0, departures = 0, parked = 0;
+  std::vector<std::uint8_t> before = start;
+  for (int t = 1; t <= 4000; ++t) {
+    simulation.advance();
+    const std::vector<std::uint8_t>& after = world.occupancy();
+    if (t % config.steps_per_hour != 0) {
+      ASSERT_EQ(after, before) << "changed within an hour at step " << t;
+      continue;
+    }
+    // Bays by their first cell: bay columns start at x = 2, 12, ..., rows at y = 2 and 34.
+    for (const std::int32_t y : {2, 34}) {
+      for (std::int32_t x = 2; x < 60; x += 10) {
+        const bool was = before[world.index(x, y)] != 0;
+        const bool is = after[world.index(x, y)] != 0;
+        // A whole car comes or goes.
+        for (std::int32_t dy = 0; dy < 18; ++dy) {
+          for (std::int32_t dx = 0; dx < 8; ++dx) ASSERT_EQ(after[world.index(x + dx, y + dy)], is);
+        }
+        if (was) {
+          ++parked;
+          departures += !is;
+        } else {
+          ++empty;
+          arrivals += is;
+        }
+      }
+    }
+    before = after;
+  }
+  EXPECT_NEAR(arrivals / empty, config.p_arrive_per_hour, binomialTolerance(config.p_arrive_per_hour, empty));
+  EXPECT_NEAR(departures / parked, config.p_leave_per_hour, binomialTolerance(config.p_leave_per_hour, parked));
+  // The oracle's rates: the hourly probabilities spread over the hour's steps.
+  EXPECT_DOUBLE_EQ(world.truth(2, 2).p_occ_given_free, config.p_arrive_per_hour / config.steps_per_hour);
+}
+
+// Shortest 4-connected path length on the free cells, by breadth-first search.
+int shortestPath(const World& world, CellXY from, CellXY to, bool door_open, CellXY door) {
+  std::vector<int> distance(world.occupancy().size(), -1);
+  std::deque<CellXY> queue{from};
+  distance[world.index(from.x, from.y)] = 0;
+  while (!queue.empty()) {
+    const CellXY c = queue.front();
+    queue.pop_front();
+    if (c == to) return distance[world.index(c.x, c.y)];
+    for (const auto& [dx, dy] : {std::pair{1, 0}, std::pair{-1, 0}, std::pair{0, 1}, std::pair{0, -1}}) {
+      const CellXY n{c.x + dx, c.y + dy};
+      if (!world.inside(n.x, n.y) || distance[world.index(n.x, n.y)] >= 0) continue;
+      const bool blocked = n == door ? !door_open : world.occupied(n.x, n.y);
+      if (blocked) continue;
+      distance[world.index(n.x, n.y)] = distance[world.index(c.x, c.y)] + 1;
+      queue.push_back(n);
+    }
+  }
+  return -1;
+}
+
+TEST(Scenarios, DoorLayoutAndExplorationRoute) {
+  const ScenarioConfig config = scenarioConfig("door");
+  Simulation simulation(config, 41, 42);
+  const DoorLayout& layout = simulation.doorLayout();
+  const World& world = simulation.world();
+  EXPECT_EQ(shortestPath(world, layout.a, layout.b, true, layout.door), layout.short_path_cells);
+  EXPECT_EQ(shortestPath(world, layout.a, layout.b, false, layout.door), layout.long_path_cells);
+  EXPECT_LT(layout.short_path_cells, layout.long_path_cells);
+  EXPECT_TRUE(world.isDynamic(layout.door.x, layout.door.y));
+  EXPECT_DOUBLE_EQ(world.truth(layout.door.x, layout.door.y).p_occ_given_free, config.door_change_probability);
+  EXPECT_EQ(world.dynamicCells().size(), 1U);
+  // From A the door is out of the laser's range.
+  const double gap = (layout.door.x - layout.a.x - 0.5) * config.resolution_m;
+  EXPECT_GT(gap, config.laser.range_max_m);
+  // The exploration loop never enters the door cell, and sees it from both sides.
+  bool near_west = false;
+  bool near_east = false;
+  for (int t = 0; t < 400; ++t) {
+    const Pose2D p = simulation.robotPose();
+    const CellXY c{static_cast<std::int32_t>(std::floor(p.x_m / config.resolution_m)),
+                   static_cast<std::int32_t>(std::floor(p.y_m / config.resolution_m))};
+    ASSERT_NE(c, layout.door);
+    ASSERT_FALSE(world.occupied(c.x, c.y) && c != layout.door);
+    near_west = near_west || (c.y == layout.door.y && c.x == layout.door.x - 1);
+    near_east = near_east || (c.y == layout.door.y && c.x == layout.door.x + 1);
+    simulation.advance();
+  }
+  EXPECT_TRUE(near_west);
+  EXPECT_TRUE(near_east);
+  EXPECT_THROW(Simulation(scenarioConfig("dynamic_5_5"), 1, 1).doorLayout(), std::logic_error);
+}
+
+// The sensor model each scenario maps with is no more certain than its laser: measured
+// per-beam hit rates on occupied cells at least p_hit_given_occ, on free cells at most
+// p_hit_given_free.
+TEST(Scenarios, SensorModelIsNoMoreCertainThanTheLaser) {
+  for (const std::string& name : scenarioNames()) {
+    const ScenarioConfig config = scenarioConfig(name);
+    Simulation simulation(config, 51, 52);
+    MapperConfig mapper_config;
+    mapper_config.resolution_m = config.resolution_m;
+    mapper_config.fixed_bounds = true;
+    mapper_config.width_m = config.width_cells * config.resolution_m;
+    mapper_config.height_m = config.height_cells * config.resolution_m;
+    Mapper mapper(mapper_config);
+    SequenceBuilder recorder;
+    mapper.recordObservations(&recorder);
+    std::vector<std::vector<std::uint8_t>> truth;
+    for (int t = 0; t < 200; ++t) {
+      for (int k = 0; k < config.scans_per_step; ++k) mapper.integrate(simulation.scan(k));
+      truth.push_back(simulation.world().occupancy());
+      simulation.advance();
+    }
+    mapper.finishStep();
+    const ObservationSequences sequences = recorder.build();
+    double hits[2] = {0, 0};
+    double readings[2] = {0, 0};
+    for (std::size_t i = 0; i < sequences.cellCount(); ++i) {
+      const CellXY c = sequences.cell(i);
+      for (const StepObservation* o = sequences.begin(i); o != sequences.end(i); ++o) {
+        const int occupied = truth[static_cast<std::size_t>(o->step)][simulation.world().index(c.x, c.y)];
+        hits[occupied] += o->hits;
+        readings[occupied] += o->hits + o->misses;
+      }
+    }
+    EXPECT_GE(hits[1] / readings[1], config.p_hit_given_occ) << name;
+    EXPECT_LE(hits[0] / readings[0], config.p_hit_given_free) << name;
+  }
+}
+
+TEST(Simulation, ScanStampsFallInTheirStepAndRunsReproduce) {
+  ScenarioConfig config = scenarioConfig("dynamic_5_5");
+  config.scans_per_step = 4;
+  Simulation a(config, 61, 62);
+  Simulation b(config, 61, 62);
+  for (int t = 0; t < 5; ++t) {
+    for (int k = 0; k < 4; ++k) {
+      const Scan sa = a.scan(k);
+      const Scan sb = b.scan(k);
+      EXPECT_GT(sa.stamp_s, t * config.time_step_s);
+      EXPECT_LT(sa.stamp_s, (t + 1) * config.time_step_s);
+      ASSERT_EQ(sa.ranges_m.size(), sb.ranges_m.size());
+      for (std::size_t i = 0; i < sa.ranges_m.size(); ++i) {
+        EXPECT_TRUE(sa.ranges_m[i] == sb.ranges_m[i] || (std::isnan(sa.ranges_m[i]) && std::isnan(sb.ranges_m[i])));
+      }
+    }
+    a.advance();
+    b.advance();
+  }
+  EXPECT_EQ(a.world().occupancy(), b.world().occupancy());
+  EXPECT_THROW(a.scan(4), std::invalid_argument);
+}
+
+}  // namespace
+}  // namespace core
+}  // namespace dynamic_occupancy_grid
