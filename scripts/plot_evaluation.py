@@ -1,0 +1,428 @@
+#!/usr/bin/env python3
+"""Plots the results of the evaluation (the CSV files `evaluate` writes) and the map layers
+`process_bag` writes, as PNG files next to them.
+
+    plot_evaluation.py OUT_DIR                  the evaluation's figures in OUT_DIR
+    plot_evaluation.py --layers DIR             the map layers in DIR
+    plot_evaluation.py OUT_DIR --layers DIR     both
+
+From OUT_DIR:
+    accuracy_<scenario>.csv  -> accuracy_<scenario>.png (Figs. 3-5 of Meyer-Delius et al.,
+                                AAAI 2012), fig4.png and fig5.png (their two panels side by side)
+    parameter_error.csv      -> parameter_error.png (error of the learned transitions)
+    path_planning.csv        -> path_planning.png (Table 1, with the paper's values)
+From --layers DIR: <layer>.pgm + <layer>.yaml (map_server files) -> <layer>.png and
+layers.png (all of them, in metres).
+
+A missing file is skipped with a note on stdout; a malformed one is an error naming the
+file (exit status 1, nothing written). Needs numpy and matplotlib (Debian's python3-numpy,
+python3-matplotlib) and, for --layers, PyYAML; no display (matplotlib's Agg backend).
+"""
+
+import argparse
+import csv
+import math
+import os
+import re
+import sys
+
+import numpy as np
+import matplotlib
+
+matplotlib.use("Agg")  # files only: no display needed
+import matplotlib.pyplot as plt  # noqa: E402 (after the backend is chosen)
+
+# The evaluation's methods (core/evaluation.h) and baselines, each with one colour in every plot.
+ACCURACY_METHODS = (("static", "static"), ("static_unclamped", "static (unclamped)"), ("online", "online"),
+                    ("offline", "offline"), ("oracle", "oracle"))
+PLANNING_METHODS = (("static", "static"), ("online", "online"), ("offline", "offline"), ("random", "random"),
+                    ("optimal", "optimal"))
+COLOURS = {"static": "#7f7f7f", "static_unclamped": "#8c564b", "online": "#1f77b4", "offline": "#d62728",
+           "oracle": "#2ca02c", "random": "#9467bd", "optimal": "#ff7f0e"}
+
+# accuracy_<scenario>.csv: the scenarios and the figure of the paper each one reproduces.
+ACCURACY_TITLES = {
+    "dynamic_5_5": "Fig. 4 (left): 5 % dynamic cells, 5 % change probability",
+    "dynamic_25_25": "Fig. 4 (right): 25 % dynamic cells, 25 % change probability",
+    "redraw_100": "Fig. 5 (left): new dynamic cells after 100 steps",
+    "redraw_300": "Fig. 5 (right): new dynamic cells after 300 steps",
+    "parking_lot": "Fig. 3: parking lot",
+}
+# The side-by-side figures: file, title, (left, right) scenario.
+PANEL_FIGURES = (
+    ("fig4", "Fig. 4: accuracy for different configurations of dynamic cells", ("dynamic_5_5", "dynamic_25_25")),
+    ("fig5", "Fig. 5: accuracy when the dynamics of the environment change", ("redraw_100", "redraw_300")),
+)
+PARKING_STEPS_PER_HOUR = 108  # the parking lot's cars change every 108 steps (core/simulator.cpp)
+
+ACCURACY_COLUMNS = ("step",) + tuple(f"{name}_{stat}" for name, _ in ACCURACY_METHODS for stat in ("mean", "std"))
+PARAMETER_ERROR_TEXT = ("scenario", "method")
+PARAMETER_ERROR_NUMBERS = ("dynamic_cells", "dynamic_p_occ_given_free_mae", "dynamic_p_free_given_occ_mae",
+                           "static_cells", "static_p_occ_given_free_mae", "static_p_free_given_occ_mae")
+PLANNING_PAPER = tuple(f"paper_{name}" for name, _ in PLANNING_METHODS)
+PLANNING_NUMBERS = tuple(f"{name}_{stat}" for name, _ in PLANNING_METHODS for stat in ("mean", "std")) + PLANNING_PAPER
+
+# The layers process_bag writes (core/layers.cpp, layerName), in its order.
+LAYERS = (("belief", "belief: p(occ) now"), ("predicted", "predicted p(occ)"),
+          ("stationary", "stationary p(occ)"), ("p_occ_given_free", "p(occ | free) per step"),
+          ("p_free_given_occ", "p(free | occ) per step"), ("static_map", "static map"))
+
+DPI = 120
+
+
+class InputError(Exception):
+    """A malformed or unusable input; the message names the file."""
+
+
+# ------------------------------------------------------------------------- reading
+
+def read_table(path, text_columns=(), number_columns=(), may_be_empty=()):
+    """The CSV file at `path` as {column: values}: a list of str for each text column, a
+    float array for each number column (an empty cell is NaN where the column is in
+    `may_be_empty`). Other columns are ignored. Raises InputError naming the file, line and
+    column for a missing column, a short or long row, a value that is not a number, no rows."""
+    try:
+        with open(path, newline="") as file:
+            rows = list(csv.reader(file))
+    except (OSError, UnicodeDecodeError, csv.Error) as error:
+        raise InputError(f"{path}: cannot read: {error}") from None
+    if not rows:
+        raise InputError(f"{path}: empty file (expected a header line)")
+    header = [name.strip() for name in rows[0]]
+    missing = [name for name in text_columns + number_columns if name not in header]
+    if missing:
+        raise InputError(f"{path}: header lacks the column(s) {', '.join(missing)} (header: {','.join(header)})")
+    body = [(number, row) for number, row in enumerate(rows[1:], start=2) if any(field.strip() for field in row)]
+    if not body:
+        raise InputError(f"{path}: no data rows after the header")
+    table = {name: [] for name in text_columns + number_columns}
+    for line, row in body:
+        if len(row) != len(header):
+            raise InputError(f"{path}: line {line} has {len(row)} fields, the header {len(header)}")
+        fields = dict(zip(header, (field.strip() for field in row)))
+        for name in text_columns:
+            if not fields[name]:
+                raise InputError(f"{path}: line {line}: empty {name}")
+            table[name].append(fields[name])
+        for name in number_columns:
+            text = fields[name]
+            if not text and name in may_be_empty:
+                table[name].append(math.nan)
+                continue
+            try:
+                table[name].append(float(text))
+            except ValueError:
+                raise InputError(f"{path}: line {line}: {name} is '{text}', not a number") from None
+    for name in number_columns:
+        table[name] = np.array(table[name])
+    return table
+
+
+def read_accuracy(path):
+    table = read_table(path, number_columns=ACCURACY_COLUMNS)
+    steps = table["step"]
+    if not (np.all(steps == np.round(steps)) and np.all(np.diff(steps) > 0)):
+        raise InputError(f"{path}: the steps must be whole numbers in increasing order")
+    return table
+
+
+def read_pgm(path):
+    """A binary PGM (P5) as a 2D array (row 0 at the top) and its maxval."""
+    try:
+        with open(path, "rb") as file:
+            data = file.read()
+    except OSError as error:
+        raise InputError(f"{path}: cannot read: {error}") from None
+    # Header: magic, width, height, maxval, separated by whitespace; '#' starts a comment
+    # that runs to the end of its line; one whitespace character before the pixels.
+    tokens, pos = [], 0
+    while len(tokens) < 4:
+        while pos < len(data) and data[pos:pos + 1].isspace():
+            pos += 1
+        if data[pos:pos + 1] == b"#":
+            end = data.find(b"\n", pos)
+            pos = len(data) if end < 0 else end + 1
+            continue
+        start = pos
+        while pos < len(data) and not data[pos:pos + 1].isspace():
+            pos += 1
+        if start == pos:
+            raise InputError(f"{path}: truncated PGM header")
+        tokens.append(data[start:pos])
+    if tokens[0] != b"P5":
+        raise InputError(f"{path}: not a binary PGM (magic {tokens[0][:8]!r}, expected P5)")
+    try:
+        width, height, maxval = (int(token) for token in tokens[1:])
+    except ValueError:
+        raise InputError(f"{path}: bad PGM header {b' '.join(tokens[1:])[:40]!r}") from None
+    if width <= 0 or height <= 0 or not 0 < maxval < 65536:
+        raise InputError(f"{path}: bad PGM size {width} x {height} or maxval {maxval}")
+    dtype = np.dtype(">u2") if maxval > 255 else np.dtype("u1")
+    pixels = data[pos + 1:pos + 1 + width * height * dtype.itemsize]
+    if len(pixels) < width * height * dtype.itemsize:
+        raise InputError(f"{path}: truncated PGM: {len(pixels)} bytes of pixels, {width} x {height} expected")
+    return np.frombuffer(pixels, dtype=dtype).reshape(height, width), maxval
+
+
+def read_map(directory, layer):
+    """The map_server layer `layer` in `directory`: (image, maxval, resolution, origin x, y)."""
+    import yaml  # only --layers needs it
+    path = os.path.join(directory, f"{layer}.yaml")
+    try:
+        with open(path) as file:
+            info = yaml.safe_load(file)
+    except (OSError, yaml.YAMLError) as error:
+        raise InputError(f"{path}: cannot read: {error}") from None
+    try:
+        image_path = os.path.join(directory, str(info["image"]))
+        resolution = float(info["resolution"])
+        origin_x, origin_y = float(info["origin"][0]), float(info["origin"][1])
+        negate = int(info.get("negate", 0))
+    except (TypeError, KeyError, IndexError, ValueError) as error:
+        raise InputError(f"{path}: not a map_server map file (image, resolution, origin): {error!r}") from None
+    if not resolution > 0.0:
+        raise InputError(f"{path}: resolution must be > 0, got {resolution}")
+    image, maxval = read_pgm(image_path)
+    if negate:
+        image = maxval - image
+    return image, maxval, resolution, origin_x, origin_y
+
+
+# ------------------------------------------------------------------------- plotting
+
+def save(figure, path):
+    figure.savefig(path, dpi=DPI)
+    plt.close(figure)
+    print(f"wrote {path}")
+
+
+def mark_events(axes, scenario, last_step):
+    """The scenario's scripted changes: the re-draw of the dynamic cells (its step is in the
+    name), the parking lot's hours."""
+    redraw = re.fullmatch(r"redraw_(\d+)", scenario)
+    if redraw:
+        axes.axvline(int(redraw.group(1)), color="black", linestyle="--", linewidth=1.0, label="new dynamic cells")
+    if scenario == "parking_lot":
+        for index, step in enumerate(range(PARKING_STEPS_PER_HOUR, int(last_step) + 1, PARKING_STEPS_PER_HOUR)):
+            axes.axvline(step, color="black", linestyle=":", linewidth=0.8, label=None if index else "new hour")
+
+
+def plot_accuracy_panel(axes, scenario, table):
+    steps = table["step"]
+    lowest = 100.0
+    for name, label in ACCURACY_METHODS:
+        mean, std = table[f"{name}_mean"], table[f"{name}_std"]
+        axes.fill_between(steps, mean - std, mean + std, color=COLOURS[name], alpha=0.2, linewidth=0)
+        axes.plot(steps, mean, color=COLOURS[name], linewidth=1.2, label=label)
+        if np.isfinite(mean - std).any():
+            lowest = min(lowest, float(np.nanmin(mean - std)))
+    mark_events(axes, scenario, steps[-1])
+    if steps.size > 1:  # one step has no extent
+        axes.set_xlim(steps[0], steps[-1])
+    axes.set_ylim(max(0.0, math.floor(lowest / 5.0) * 5.0), 100.0)
+    axes.set_xlabel("time step")
+    axes.set_ylabel("accuracy [%]")
+    axes.set_title(ACCURACY_TITLES[scenario], fontsize=10)
+    axes.grid(True, alpha=0.3)
+    axes.legend(loc="lower right", fontsize=8)
+
+
+def plot_accuracy(out_dir, accuracy):
+    for scenario, table in accuracy.items():
+        figure, axes = plt.subplots(figsize=(7.0, 4.5), layout="constrained")
+        plot_accuracy_panel(axes, scenario, table)
+        save(figure, os.path.join(out_dir, f"accuracy_{scenario}.png"))
+    for name, title, scenarios in PANEL_FIGURES:
+        absent = [scenario for scenario in scenarios if scenario not in accuracy]
+        if absent:
+            print(f"note: {name}.png skipped: no {', '.join(f'accuracy_{scenario}.csv' for scenario in absent)}")
+            continue
+        figure, panels = plt.subplots(1, 2, figsize=(13.0, 4.5), layout="constrained", sharey=True)
+        for axes, scenario in zip(panels, scenarios):
+            plot_accuracy_panel(axes, scenario, accuracy[scenario])
+        figure.suptitle(title)
+        save(figure, os.path.join(out_dir, f"{name}.png"))
+
+
+def grouped_bars(axes, groups, series, values, errors):
+    """Bars of `values[s][g]` with error bars `errors[s][g]` for each series s (in `series`:
+    name, label) side by side over each group g; returns the bars' x by series."""
+    width = 0.8 / len(series)
+    centres = {}
+    for index, (name, label) in enumerate(series):
+        x = np.arange(len(groups)) + (index - (len(series) - 1) / 2.0) * width
+        axes.bar(x, values[name], width, color=COLOURS.get(name), label=label,
+                 yerr=errors[name], capsize=3, error_kw={"linewidth": 0.8})
+        centres[name] = x
+    axes.set_xticks(np.arange(len(groups)))
+    return centres
+
+
+def use_log_scale_if_spread(axes, values):
+    """A log axis when the positive values span more than a factor of 10: the small errors
+    would be invisible next to the large ones otherwise."""
+    positive = np.concatenate([np.asarray(v, dtype=float).ravel() for v in values])
+    positive = positive[np.isfinite(positive) & (positive > 0)]
+    if positive.size and positive.max() / positive.min() > 10.0:
+        axes.set_yscale("log")
+
+
+def plot_parameter_error(out_dir, table):
+    scenarios = list(dict.fromkeys(table["scenario"]))
+    methods = [(name, name) for name in dict.fromkeys(table["method"])]
+    row_scenarios, row_methods = np.array(table["scenario"]), np.array(table["method"])
+    # Several rows of one scenario and method (repetitions) give a mean and a spread.
+    figure, panels = plt.subplots(2, 2, figsize=(12.0, 7.5), layout="constrained", sharex=True)
+    for row, cells in enumerate(("dynamic", "static")):
+        for column, parameter in enumerate(("p_occ_given_free", "p_free_given_occ")):
+            axes = panels[row][column]
+            values = table[f"{cells}_{parameter}_mae"]
+            means = {name: [] for name, _ in methods}
+            spreads = {name: [] for name, _ in methods}
+            for name, _ in methods:
+                for scenario in scenarios:
+                    chosen = values[(row_scenarios == scenario) & (row_methods == name)]
+                    means[name].append(chosen.mean() if chosen.size else math.nan)
+                    spreads[name].append(chosen.std() if chosen.size > 1 else 0.0)
+            grouped_bars(axes, scenarios, methods, means, spreads)
+            use_log_scale_if_spread(axes, means.values())
+            axes.set_xticklabels(scenarios, rotation=20, ha="right")
+            axes.set_ylabel("mean absolute error per step")
+            axes.set_title(f"{cells} cells: {parameter}", fontsize=10)
+            axes.grid(True, axis="y", alpha=0.3)
+            axes.legend(fontsize=8)
+    figure.suptitle("Error of the learned transition probabilities against the truth")
+    save(figure, os.path.join(out_dir, "parameter_error.png"))
+
+
+def plot_path_planning(out_dir, table):
+    classes = table["class"]
+    figure, axes = plt.subplots(figsize=(12.0, 5.0), layout="constrained")
+    means = {name: table[f"{name}_mean"] for name, _ in PLANNING_METHODS}
+    errors = {name: table[f"{name}_std"] for name, _ in PLANNING_METHODS}
+    centres = grouped_bars(axes, classes, PLANNING_METHODS, means, errors)
+    paper_label = "paper (Table 1)"
+    for name, _ in PLANNING_METHODS:
+        paper = table[f"paper_{name}"]
+        shown = np.isfinite(paper)  # the paper leaves some cells empty
+        axes.plot(centres[name][shown], paper[shown], linestyle="none", marker="D", markersize=5,
+                  markerfacecolor="white", markeredgecolor="black", label=paper_label)
+        paper_label = None
+    axes.set_xticklabels([name.replace("_", " ") for name in classes], rotation=15, ha="right")
+    axes.set_ylabel("runs [%]")
+    axes.set_title("Table 1: planned paths in the door scenario (mean ± std over repetitions)")
+    axes.grid(True, axis="y", alpha=0.3)
+    axes.legend(fontsize=8, ncol=2)
+    save(figure, os.path.join(out_dir, "path_planning.png"))
+
+
+def read_evaluation(out_dir):
+    """The CSV files of `out_dir` that exist: (accuracy by scenario, parameter error table or
+    None, path planning table or None); a note for each missing one."""
+    if not os.path.isdir(out_dir):
+        raise InputError(f"{out_dir}: no such directory")
+    accuracy = {}
+    for scenario in ACCURACY_TITLES:
+        path = os.path.join(out_dir, f"accuracy_{scenario}.csv")
+        if os.path.exists(path):
+            accuracy[scenario] = read_accuracy(path)
+        else:
+            print(f"note: accuracy_{scenario}.png skipped: no {path}")
+    parameter_error = path_planning = None
+    path = os.path.join(out_dir, "parameter_error.csv")
+    if os.path.exists(path):
+        parameter_error = read_table(path, PARAMETER_ERROR_TEXT, PARAMETER_ERROR_NUMBERS)
+    else:
+        print(f"note: parameter_error.png skipped: no {path}")
+    path = os.path.join(out_dir, "path_planning.csv")
+    if os.path.exists(path):
+        path_planning = read_table(path, ("class",), PLANNING_NUMBERS, may_be_empty=PLANNING_PAPER)
+    else:
+        print(f"note: path_planning.png skipped: no {path}")
+    if not accuracy and parameter_error is None and path_planning is None:
+        raise InputError(f"{out_dir}: none of the evaluation's CSV files (accuracy_<scenario>.csv, "
+                         "parameter_error.csv, path_planning.csv)")
+    return accuracy, parameter_error, path_planning
+
+
+def plot_evaluation(out_dir, evaluation):
+    accuracy, parameter_error, path_planning = evaluation
+    plot_accuracy(out_dir, accuracy)
+    if parameter_error is not None:
+        plot_parameter_error(out_dir, parameter_error)
+    if path_planning is not None:
+        plot_path_planning(out_dir, path_planning)
+
+
+def show_map(axes, layer, title):
+    image, maxval, resolution, origin_x, origin_y = layer
+    height, width = image.shape
+    # Row 0 of the image is the top (north): 'upper' puts it at the top of the extent.
+    axes.imshow(image, cmap="gray", vmin=0, vmax=maxval, interpolation="nearest", origin="upper",
+                extent=(origin_x, origin_x + width * resolution, origin_y, origin_y + height * resolution))
+    axes.set_xlabel("x [m]")
+    axes.set_ylabel("y [m]")
+    axes.set_title(title, fontsize=10)
+
+
+def read_layers(directory):
+    """The layers of `directory` that exist, by name; a note for each missing one."""
+    if not os.path.isdir(directory):
+        raise InputError(f"{directory}: no such directory")
+    layers = {}
+    for name, _ in LAYERS:
+        if os.path.exists(os.path.join(directory, f"{name}.yaml")):
+            layers[name] = read_map(directory, name)
+        else:
+            print(f"note: {name}.png skipped: no {os.path.join(directory, name + '.yaml')}")
+    if not layers:
+        raise InputError(f"{directory}: none of the layers ({', '.join(name for name, _ in LAYERS)}) as .yaml + .pgm")
+    return layers
+
+
+def plot_layers(directory, layers):
+    """<layer>.png of every layer and the overview layers.png."""
+    legend = "black: occupied, white: free, grey: unknown or in between (map_server's image)"
+    titles = dict(LAYERS)
+    for name, layer in layers.items():
+        figure, axes = plt.subplots(figsize=(6.5, 6.0), layout="constrained")
+        show_map(axes, layer, f"{titles[name]}\n{legend}")
+        save(figure, os.path.join(directory, f"{name}.png"))
+    columns = min(3, len(layers))
+    rows = math.ceil(len(layers) / columns)
+    figure, panels = plt.subplots(rows, columns, figsize=(4.8 * columns, 4.6 * rows), layout="constrained",
+                                  squeeze=False)
+    for axes, (name, layer) in zip(panels.ravel(), layers.items()):
+        show_map(axes, layer, titles[name])
+    for axes in panels.ravel()[len(layers):]:
+        axes.set_visible(False)
+    figure.suptitle(f"{os.path.abspath(directory)}\n{legend}", fontsize=10)
+    save(figure, os.path.join(directory, "layers.png"))
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(
+        description="Plots the evaluation's CSV files and process_bag's map layers as PNG files next to them.")
+    parser.add_argument("out_dir", nargs="?", metavar="OUT_DIR",
+                        help="directory with the CSV files of the evaluation (accuracy_<scenario>.csv, "
+                             "parameter_error.csv, path_planning.csv)")
+    parser.add_argument("--layers", metavar="DIR", help="directory with map_server layers (process_bag --out)")
+    args = parser.parse_args(argv)
+    if args.out_dir is None and args.layers is None:
+        parser.error("give OUT_DIR, --layers DIR, or both")
+    # Everything is read (and checked) before anything is written.
+    try:
+        evaluation = read_evaluation(args.out_dir) if args.out_dir is not None else None
+        layers = read_layers(args.layers) if args.layers is not None else None
+    except InputError as error:
+        print(f"plot_evaluation.py: {error}", file=sys.stderr)
+        return 1
+    if evaluation is not None:
+        plot_evaluation(args.out_dir, evaluation)
+    if layers is not None:
+        plot_layers(args.layers, layers)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,273 @@
+// check_bag: a self-supervised check of the map on a bag without ground truth. For each
+// horizon h, how well the map after each time step predicts the hits and misses of the scans
+// h later: the dynamic model (beliefs predicted in closed form) against the static
+// occupancy grid of the same mapper. Reads the bag twice (labels, then maps and scores;
+// core/prediction_check.h). See docs/self_check.md.
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdint>
+#include <cstdio>
+#include <exception>
+#include <fstream>
+#include <set>
+#include <sstream>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "bag_tools.h"
+#include "dynamic_occupancy_grid/core/mapper.h"
+#include "dynamic_occupancy_grid/core/prediction_check.h"
+#include "dynamic_occupancy_grid/ros/bag_offline_em.h"
+#include "dynamic_occupancy_grid/ros/bag_scan_source.h"
+
+namespace dog = dynamic_occupancy_grid;
+
+namespace {
+
+// Options of the shared set that do not apply: check_bag runs no offline EM, which would
+// learn the transitions from the very scans the map is scored on.
+const std::set<std::string> kEmOptions{"--em-iterations", "--em-tolerance", "--em-prior-weight", "--threads"};
+
+// kSharedUsage without the entries of kEmOptions (an entry: its "  --name" line and the
+// more deeply indented lines continuing it).
+std::string sharedUsageWithoutEm() {
+  std::istringstream lines(dog::bag_tools::kSharedUsage);
+  std::string line;
+  std::string usage;
+  bool skipping = false;
+  while (std::getline(lines, line)) {
+    if (line.rfind("  --", 0) == 0) skipping = kEmOptions.count(line.substr(2, line.find(' ', 2) - 2)) > 0;
+    if (!skipping) usage += line + "\n";
+  }
+  return usage;
+}
+
+const std::vector<double> kDefaultHorizons_s{1.0, 5.0, 30.0, 60.0};
+
+const std::string kUsage = std::string(
+    "usage: check_bag BAG [options]\n"
+    "How well the map after each time step predicts the scans of the bag h seconds later\n"
+    "(dynamic model and static map; accuracy and Brier score). See docs/self_check.md.\n"
+    "  --horizon S           prediction horizon in seconds, rounded to whole time steps;\n"
+    "                        repeat for several (default 1, 5, 30, 60); 0 scores the map on\n"
+    "                        the scans it has just integrated\n"
+    "  --csv FILE            also write the results as CSV\n"
+    "  --no-learning         no online learning: cells keep the prior transitions\n") +
+    sharedUsageWithoutEm();
+
+struct Options {
+  dog::bag_tools::SharedOptions shared;
+  std::vector<double> horizons_s;
+  std::vector<std::int64_t> horizons_steps;  ///< horizons_s in whole steps
+  std::string csv_path;                      ///< empty: no CSV
+};
+
+Options parseArguments(int argc, char** argv) {
+  Options options;
+  dog::bag_tools::Arguments args(argc, argv, "check_bag", kUsage);
+  std::string arg;
+  while (args.next(&arg)) {
+    if (arg == "-h" || arg == "--help") {
+      args.help();
+    } else if (kEmOptions.count(arg) > 0) {
+      args.fail(arg + " does not apply: check_bag runs no offline EM (it would learn from the scans it is "
+                      "scored on)");
+    } else if (dog::bag_tools::parseSharedOption(arg, args, &options.shared)) {
+      continue;
+    } else if (arg == "--horizon") {
+      options.horizons_s.push_back(args.number(0.0, 1.0e9));
+    } else if (arg == "--csv") {
+      options.csv_path = args.value();
+      if (options.csv_path.empty()) args.fail("--csv needs a file name");
+    } else if (arg == "--no-learning") {
+      options.shared.mapper.learn_transitions = false;
+    } else if (!arg.empty() && arg[0] == '-') {
+      args.fail("unknown option " + arg);
+    } else if (options.shared.source.bag_path.empty()) {
+      options.shared.source.bag_path = arg;
+    } else {
+      args.fail("more than one bag given");
+    }
+  }
+  if (options.shared.source.bag_path.empty()) args.fail("no bag given");
+  dog::bag_tools::validateSharedOptions(args, &options.shared);
+  if (options.horizons_s.empty()) options.horizons_s = kDefaultHorizons_s;
+  const double time_step_s = options.shared.mapper.time_step_s;
+  for (const double horizon_s : options.horizons_s) {
+    const double steps = std::round(horizon_s / time_step_s);
+    // Far beyond any recording (the mapper counts steps in 32 bits), and safe to convert.
+    if (steps > 1.0e15) {
+      std::ostringstream message;
+      message << "--horizon " << horizon_s << " s is too many time steps of " << time_step_s << " s";
+      args.fail(message.str());
+    }
+    options.horizons_steps.push_back(static_cast<std::int64_t>(steps));
+  }
+  return options;
+}
+
+// A ratio for the table: fixed decimals, "-" when undefined (nothing to score).
+std::string tableNumber(double value, int decimals) {
+  if (std::isnan(value)) return "-";
+  char text[32];
+  std::snprintf(text, sizeof(text), "%.*f", decimals, value);
+  return text;
+}
+
+// A ratio for the CSV: full precision, "nan" when undefined.
+std::string csvNumber(double value) {
+  if (std::isnan(value)) return "nan";
+  char text[32];
+  std::snprintf(text, sizeof(text), "%.10g", value);
+  return text;
+}
+
+double fraction(std::size_t part, std::size_t whole) {
+  return whole == 0 ? std::nan("") : static_cast<double>(part) / static_cast<double>(whole);
+}
+
+void printTable(const dog::core::PredictionCheckResult& result, const Options& options) {
+  std::printf("\nprediction check: the map after each step against the labels of the step h later\n"
+              "  label: one cell in one step, occupied if hits > misses, free if misses > hits (tie: none)\n"
+              "  unseen: labels on cells the map had not observed yet (not scored); occupied: share of the\n"
+              "  scored labels; accuracy: p > 0.5 says occupied, p < 0.5 free; occ.acc: accuracy on the\n"
+              "  occupied labels only; Brier: mean of (p - label)^2, label 1 occupied, 0 free\n");
+  std::printf("%9s %7s %10s %9s %8s | %-26s | %s\n", "", "", "", "", "", "dynamic", "static");
+  std::printf("%9s %7s %10s %9s %8s | %8s %8s %8s | %8s %8s %8s\n", "horizon", "steps", "labels", "unseen",
+              "occupied", "accuracy", "occ.acc", "Brier", "accuracy", "occ.acc", "Brier");
+  const double time_step_s = options.shared.mapper.time_step_s;
+  for (const dog::core::HorizonScore& score : result.horizons) {
+    const dog::core::PredictionScore& dynamic = score.dynamic_model;
+    const dog::core::PredictionScore& fixed = score.static_model;
+    const double occupied = fraction(score.occupied_labels, score.scored());
+    const std::string occupied_text = std::isnan(occupied) ? "-" : tableNumber(100.0 * occupied, 1) + "%";
+    std::printf("%9s %7lld %10zu %9zu %8s | %8s %8s %8s | %8s %8s %8s\n",
+                dog::bag_tools::secondsName(static_cast<double>(score.horizon_steps) * time_step_s).c_str(),
+                static_cast<long long>(score.horizon_steps), score.labels, score.unseen,
+                occupied_text.c_str(),
+                tableNumber(dynamic.accuracy(), 4).c_str(), tableNumber(dynamic.occupiedAccuracy(), 4).c_str(),
+                tableNumber(dynamic.brier(), 4).c_str(), tableNumber(fixed.accuracy(), 4).c_str(),
+                tableNumber(fixed.occupiedAccuracy(), 4).c_str(), tableNumber(fixed.brier(), 4).c_str());
+  }
+}
+
+void writeCsv(std::ofstream& file, const dog::core::PredictionCheckResult& result, const Options& options) {
+  file << "horizon_s,horizon_steps,labels,unseen,occupied_labels";
+  for (const char* model : {"dynamic", "static"}) {
+    file << ',' << model << "_accuracy," << model << "_occupied_accuracy," << model << "_free_accuracy," << model
+         << "_brier," << model << "_unclassified";
+  }
+  file << '\n';
+  for (const dog::core::HorizonScore& score : result.horizons) {
+    file << csvNumber(static_cast<double>(score.horizon_steps) * options.shared.mapper.time_step_s) << ','
+         << score.horizon_steps << ',' << score.labels << ',' << score.unseen << ',' << score.occupied_labels;
+    for (const dog::core::PredictionScore* model : {&score.dynamic_model, &score.static_model}) {
+      file << ',' << csvNumber(model->accuracy()) << ',' << csvNumber(model->occupiedAccuracy()) << ','
+           << csvNumber(model->freeAccuracy()) << ',' << csvNumber(model->brier()) << ',' << model->unclassified;
+    }
+    file << '\n';
+  }
+}
+
+// Maps, scores and reports; `csv` is open when a CSV is asked for.
+void checkAndReport(dog::ros_layer::BagScanSource& source, const Options& options, std::ofstream& csv) {
+  const dog::core::MapperConfig& mapper = options.shared.mapper;
+  std::printf("mapper: resolution %g m, time step %g s, p_hit_given_occ %g, p_hit_given_free %g, "
+              "prior p_occ_given_free %g, p_free_given_occ %g per step, online learning %s\n",
+              mapper.resolution_m, mapper.time_step_s, mapper.p_hit_given_occ, mapper.p_hit_given_free,
+              mapper.prior_transitions.p_occ_given_free, mapper.prior_transitions.p_free_given_occ,
+              mapper.learn_transitions ? "on" : "off");
+  std::fflush(stdout);
+
+  dog::bag_tools::ProgressBar bar;
+  int pass = 0;
+  dog::ros_layer::BagScanStats first_pass;
+  const dog::core::ScanReplay replay = [&](const dog::core::ScanConsumer& consumer) {
+    ++pass;
+    const std::string phase = "pass " + std::to_string(pass);
+    const dog::ros_layer::BagScanStats stats = source.forEachScan(consumer, [&bar, &phase](double done) {
+      bar.show(phase, done);
+      return true;
+    });
+    if (pass > 1) return;
+    first_pass = stats;
+    // Said here, with what the bag reader knows (tf errors, time range), rather than as the
+    // core's "no scan handed out".
+    if (!stats.first_stamp_s) {
+      dog::ros_layer::BagMappingStats mapping;
+      mapping.source = stats;
+      throw std::runtime_error(dog::ros_layer::describeUnusableBag(options.shared.source.bag_path, mapping));
+    }
+  };
+  const auto start = std::chrono::steady_clock::now();
+  const dog::core::PredictionCheckResult result = dog::core::checkPredictions(mapper, replay, options.horizons_steps);
+  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+
+  std::printf("scans read: %zu, integrated: %zu, rejected: %zu", first_pass.scans_read, result.scans_integrated,
+              result.scans_rejected);
+  if (options.shared.source.static_laser_pose) {
+    std::printf(" (static laser pose given, tf not read)\n");
+  } else {
+    std::printf(", without a pose in '%s': %zu\n", source.options().fixed_frame.c_str(),
+                first_pass.scans_without_pose);
+  }
+  if (first_pass.scans_outside_time_range > 0) {
+    std::printf("  outside the time range: %zu\n", first_pass.scans_outside_time_range);
+  }
+  if (result.scans_rejected > 0) std::printf("  last rejection: %s\n", result.last_rejection.c_str());
+  if (first_pass.scans_without_pose > 0) std::printf("  last tf error: %s\n", first_pass.last_pose_error.c_str());
+  std::printf("time steps: %lld of %g s; %zu cells observed in %zu cell-steps, %zu of them tied (no label); "
+              "bag %.1f s read twice in %.2f s\n",
+              static_cast<long long>(result.steps), mapper.time_step_s, result.observed_cells,
+              result.observed_cell_steps, result.tied_cell_steps, first_pass.bag_duration_s, seconds);
+  for (std::size_t k = 0; k < options.horizons_s.size(); ++k) {
+    const double effective_s = static_cast<double>(options.horizons_steps[k]) * mapper.time_step_s;
+    if (std::abs(effective_s - options.horizons_s[k]) > 1e-9 * std::max(1.0, options.horizons_s[k])) {
+      std::printf("note: horizon %g s is not a whole number of %g s steps: %s used\n", options.horizons_s[k],
+                  mapper.time_step_s, dog::bag_tools::secondsName(effective_s).c_str());
+    }
+  }
+  printTable(result, options);
+  if (csv.is_open()) {
+    writeCsv(csv, result, options);
+    csv.close();
+    if (!csv) throw std::runtime_error("failed writing " + options.csv_path);
+    std::printf("csv -> %s\n", options.csv_path.c_str());
+  }
+}
+
+int run(const Options& options) {
+  dog::ros_layer::BagScanSource source(options.shared.source);
+  // Opened before the bag is read, so that a bad path fails at once; removed again if the
+  // check fails, so that no empty or partial file is left behind.
+  std::ofstream csv;
+  if (!options.csv_path.empty()) {
+    csv.open(options.csv_path);
+    if (!csv) throw std::runtime_error("cannot write " + options.csv_path);
+  }
+  try {
+    checkAndReport(source, options, csv);
+  } catch (...) {
+    if (!options.csv_path.empty()) {
+      csv.close();
+      std::remove(options.csv_path.c_str());
+    }
+    throw;
+  }
+  return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  const Options options = parseArguments(argc, argv);
+  try {
+    return run(options);
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "check_bag: %s\n", e.what());
+    return 1;
+  }
+}

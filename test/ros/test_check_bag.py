@@ -1,0 +1,271 @@
+#!/usr/bin/env python3
+"""check_bag (the self-supervised prediction check) on the two real recordings of the package.
+
+* data/example/stationary_laser_people.bag: a stationary laser (no tf: --laser-pose 0,0,0)
+  in a static room while people walk through it;
+* test/data/neato_person_follower.bag: a Neato robot driving in its odom frame.
+
+Checks that the table and the CSV agree and hold values in range, facts that follow from the
+definitions (docs/self_check.md) and that a broken implementation gets wrong: at horizon 0
+every label is scored and none is unseen, labels only get fewer with the horizon, a moving
+robot meets cells it has not seen, the static map's Brier score is at least what its clamp
+costs on free labels, labels and the static map do not depend on online learning; measured
+facts with margins (tolerances are test parameters, test/ros/check_bag.test): both models
+are accurate 1 s ahead, the dynamic model's Brier score is the lower one 1 s ahead on both
+bags; and the error paths (missing bag, bag without tf, no usable scan, bad options,
+unwritable CSV).
+"""
+
+import csv
+import math
+import os
+import re
+import shutil
+import subprocess
+import tempfile
+import unittest
+
+import rospkg
+import rospy
+import rostest
+from catkin.find_in_workspaces import find_in_workspaces
+
+PKG = "dynamic_occupancy_grid"
+PACKAGE_DIR = rospkg.RosPack().get_path(PKG)
+STATIONARY_BAG = os.path.join(PACKAGE_DIR, "data", "example", "stationary_laser_people.bag")
+NEATO_BAG = os.path.join(PACKAGE_DIR, "test", "data", "neato_person_follower.bag")
+STATIONARY_ARGS = ["--laser-pose", "0,0,0"]
+NEATO_ARGS = ["--fixed-frame", "odom"]
+# p(occ) of the static map's lowest log-odds (core::LogOddsClamp default, -2).
+STATIC_FREE_FLOOR = 1.0 / (1.0 + math.exp(2.0))
+
+# Test parameters (private, from check_bag.test) and their defaults.
+PARAMS = {
+    "min_accuracy_stationary": 0.99,
+    "max_brier_ratio_stationary": 0.5,
+    "min_accuracy_neato": 0.9,
+    "max_brier_ratio_neato": 0.95,
+    "timeout_s": 60.0,
+}
+
+TABLE_ROW = re.compile(r"^\s*(\S+)s\s+(\d+)\s+(\d+)\s+(\d+)\s+(\S+)\s+\|\s+(\S+)\s+(\S+)\s+(\S+)\s+\|"
+                       r"\s+(\S+)\s+(\S+)\s+(\S+)\s*$")
+
+
+def executable(name):
+    found = find_in_workspaces(["libexec"], project=PKG, path=name, first_match_only=True)
+    if not found:
+        raise RuntimeError(f"{name} not found in the catkin workspaces (built?)")
+    return found[0]
+
+
+def check_bag(args):
+    """(return code, stdout, stderr) of a check_bag run."""
+    result = subprocess.run([executable("check_bag")] + [str(a) for a in args], capture_output=True, text=True,
+                            errors="replace", timeout=PARAMS["timeout_s"])
+    return result.returncode, result.stdout, result.stderr
+
+
+def parse_table(stdout):
+    """Rows of the table as dicts (None for '-')."""
+    rows = []
+    for line in stdout.splitlines():
+        match = TABLE_ROW.match(line)
+        if not match:
+            continue
+        values = match.groups()
+        number = (lambda text: None if text == "-" else float(text.rstrip("%")))
+        rows.append({"horizon_s": float(values[0]), "horizon_steps": int(values[1]), "labels": int(values[2]),
+                     "unseen": int(values[3]), "occupied_percent": number(values[4]),
+                     "dynamic_accuracy": number(values[5]), "dynamic_occupied_accuracy": number(values[6]),
+                     "dynamic_brier": number(values[7]), "static_accuracy": number(values[8]),
+                     "static_occupied_accuracy": number(values[9]), "static_brier": number(values[10])})
+    return rows
+
+
+def read_csv(path):
+    with open(path, newline="") as file:
+        rows = list(csv.DictReader(file))
+    for row in rows:
+        for key, value in row.items():
+            row[key] = int(value) if key in ("horizon_steps", "labels", "unseen", "occupied_labels",
+                                             "dynamic_unclassified", "static_unclassified") else float(value)
+    return rows
+
+
+def parse_summary(stdout):
+    """(scans read, integrated, rejected), (observed cell-steps, tied)."""
+    scans = re.search(r"scans read: (\d+), integrated: (\d+), rejected: (\d+)", stdout)
+    cells = re.search(r"(\d+) cells observed in (\d+) cell-steps, (\d+) of them tied", stdout)
+    return (tuple(int(v) for v in scans.groups()) if scans else None,
+            (int(cells.group(2)), int(cells.group(3))) if cells else None)
+
+
+class TestCheckBag(unittest.TestCase):
+    tmp = None
+    runs = {}
+
+    @classmethod
+    def setUpClass(cls):
+        cls.tmp = tempfile.mkdtemp(prefix="test_check_bag_")
+
+    @classmethod
+    def tearDownClass(cls):
+        shutil.rmtree(cls.tmp, ignore_errors=True)
+
+    def run_once(self, name, bag, args):
+        """check_bag with --csv tmp/name.csv (once per name): (stdout, table rows, csv rows)."""
+        if name not in self.runs:
+            path = os.path.join(self.tmp, name + ".csv")
+            rc, stdout, stderr = check_bag([bag, "--csv", path] + args)
+            self.assertEqual(rc, 0, f"exit {rc}\nstdout:\n{stdout}\nstderr:\n{stderr}")
+            self.runs[name] = (stdout, parse_table(stdout), read_csv(path))
+        return self.runs[name]
+
+    def stationary(self):
+        return self.run_once("stationary", STATIONARY_BAG,
+                             STATIONARY_ARGS + ["--horizon", "0", "--horizon", "1", "--horizon", "5", "--horizon", "60"])
+
+    def neato(self, learning=True):
+        return self.run_once("neato" if learning else "neato_no_learning", NEATO_BAG,
+                             NEATO_ARGS + ([] if learning else ["--no-learning"]))
+
+    def assert_consistent(self, run, horizons_s):
+        """Table and CSV: one row per horizon, the same numbers, values in range."""
+        stdout, table, rows = run
+        self.assertEqual([row["horizon_s"] for row in rows], horizons_s, stdout)
+        self.assertEqual([row["horizon_s"] for row in table], horizons_s, stdout)
+        for shown, row in zip(table, rows):
+            for key in ("horizon_steps", "labels", "unseen"):
+                self.assertEqual(shown[key], row[key], key)
+            self.assertLessEqual(row["unseen"], row["labels"])
+            self.assertLessEqual(row["occupied_labels"], row["labels"] - row["unseen"])
+            for model in ("dynamic", "static"):
+                for measure in ("accuracy", "occupied_accuracy", "free_accuracy", "brier"):
+                    value = row[f"{model}_{measure}"]
+                    if row["labels"] == row["unseen"]:
+                        self.assertTrue(math.isnan(value), f"{model}_{measure} without labels")
+                        continue
+                    self.assertGreaterEqual(value, 0.0, f"{model}_{measure}")
+                    self.assertLessEqual(value, 1.0, f"{model}_{measure}")
+                for measure in ("accuracy", "occupied_accuracy", "brier"):
+                    value = row[f"{model}_{measure}"]
+                    if math.isnan(value):
+                        self.assertIsNone(shown[f"{model}_{measure}"])
+                    else:
+                        self.assertAlmostEqual(shown[f"{model}_{measure}"], value, delta=0.5e-4 + 1e-9)
+        return rows
+
+    # --- output and definitions -------------------------------------------------------
+
+    def test_stationary_table_and_csv(self):
+        rows = self.assert_consistent(self.stationary(), [0.0, 1.0, 5.0, 60.0])
+        stdout = self.stationary()[0]
+        scans, (cell_steps, tied) = parse_summary(stdout)
+        self.assertEqual(scans, (1265, 1265, 0))
+        # Horizon 0: every label (observed cell-step without a tie), none unseen.
+        self.assertEqual(rows[0]["labels"], cell_steps - tied)
+        self.assertEqual(rows[0]["unseen"], 0)
+        # Later horizons lose the labels of the first h steps, and the first sight of cells.
+        labels = [row["labels"] for row in rows]
+        self.assertEqual(labels, sorted(labels, reverse=True))
+        self.assertGreater(rows[1]["unseen"], 0)
+        self.assertEqual([row["horizon_steps"] for row in rows], [0, 1, 5, 60])
+
+    def test_static_brier_is_at_least_its_clamp_cost(self):
+        # A free cell's static p(occ) never goes below the clamp's 0.12: each free label costs
+        # at least 0.12^2 (a model that scored the beliefs as "static" would go far below).
+        for rows in (self.stationary()[2], self.neato()[2]):
+            for row in rows:
+                scored = row["labels"] - row["unseen"]
+                if scored == 0:
+                    continue
+                free_share = (scored - row["occupied_labels"]) / scored
+                self.assertGreaterEqual(row["static_brier"], 0.999 * free_share * STATIC_FREE_FLOOR ** 2, row)
+
+    def test_stationary_both_models_accurate_dynamic_brier_lower(self):
+        one_second = self.stationary()[2][1]
+        for model in ("dynamic", "static"):
+            self.assertGreaterEqual(one_second[f"{model}_accuracy"], PARAMS["min_accuracy_stationary"], model)
+        self.assertLess(one_second["dynamic_brier"],
+                        PARAMS["max_brier_ratio_stationary"] * one_second["static_brier"], one_second)
+
+    def test_neato_default_horizons(self):
+        rows = self.assert_consistent(self.neato(), [1.0, 5.0, 30.0, 60.0])
+        stdout = self.neato()[0]
+        scans, _ = parse_summary(stdout)
+        self.assertGreater(scans[1], 150)
+        # The robot drives into space it has not seen: unseen labels from 1 s on.
+        self.assertGreater(rows[0]["unseen"], 0.01 * rows[0]["labels"])
+        # The bag lasts 42 s: nothing to score 60 s ahead, shown as '-' / nan.
+        self.assertEqual(rows[3]["labels"], 0)
+        self.assertTrue(math.isnan(rows[3]["dynamic_brier"]))
+        one_second = rows[0]
+        for model in ("dynamic", "static"):
+            self.assertGreaterEqual(one_second[f"{model}_accuracy"], PARAMS["min_accuracy_neato"], model)
+        self.assertLess(one_second["dynamic_brier"], PARAMS["max_brier_ratio_neato"] * one_second["static_brier"],
+                        one_second)
+
+    def test_learning_changes_dynamic_model_only(self):
+        # Labels come from the geometry, and the static map ignores transitions: with online
+        # learning off only the dynamic columns change.
+        learning = self.neato()[2]
+        fixed = self.neato(learning=False)[2]
+        for with_learning, without in zip(learning, fixed):
+            for key, value in with_learning.items():
+                if key.startswith("dynamic_"):
+                    continue
+                if isinstance(value, float) and math.isnan(value):
+                    self.assertTrue(math.isnan(without[key]), key)
+                else:
+                    self.assertEqual(without[key], value, key)
+        self.assertNotEqual(learning[0]["dynamic_brier"], fixed[0]["dynamic_brier"])
+
+    def test_horizon_rounded_to_steps(self):
+        path = os.path.join(self.tmp, "half.csv")
+        rc, stdout, stderr = check_bag([NEATO_BAG, "--time-step", "0.5", "--horizon", "1.2", "--horizon", "2",
+                                        "--csv", path] + NEATO_ARGS)
+        self.assertEqual(rc, 0, stderr)
+        self.assertIn("note: horizon 1.2 s is not a whole number of 0.5 s steps: 1s used", stdout)
+        rows = read_csv(path)
+        self.assertEqual([(row["horizon_s"], row["horizon_steps"]) for row in rows], [(1.0, 2), (2.0, 4)])
+
+    # --- errors ---------------------------------------------------------------------------
+
+    def assert_fails(self, args, rc_expected, *words):
+        rc, stdout, stderr = check_bag(args)
+        self.assertEqual(rc, rc_expected, f"{args}: exit {rc}\nstdout:\n{stdout}\nstderr:\n{stderr}")
+        for word in words:
+            self.assertIn(word, stderr)
+        return stderr
+
+    def test_missing_bag(self):
+        missing = os.path.join(self.tmp, "no_such.bag")
+        self.assert_fails([missing], 1, missing, "does not exist")
+
+    def test_bag_without_tf_needs_laser_pose(self):
+        self.assert_fails([STATIONARY_BAG], 1, "--laser-pose")
+
+    def test_unwritable_csv(self):
+        path = os.path.join(self.tmp, "no_such_dir", "out.csv")
+        self.assert_fails([NEATO_BAG, "--csv", path], 1, path)
+
+    def test_failed_run_leaves_no_csv(self):
+        path = os.path.join(self.tmp, "failed.csv")
+        self.assert_fails([NEATO_BAG, "--fixed-frame", "no_such_frame", "--csv", path], 1, "without a pose",
+                          "no_such_frame")
+        self.assertFalse(os.path.exists(path))
+
+    def test_bad_options(self):
+        for args in ([NEATO_BAG, "--horizon", "-1"], [NEATO_BAG, "--horizon", "abc"], [NEATO_BAG, "--horizon"],
+                     [NEATO_BAG, "--resolution", "0"], [NEATO_BAG, "--no-such-option"], [NEATO_BAG, NEATO_BAG],
+                     [NEATO_BAG, "--csv", ""], []):
+            self.assert_fails(args, 2, "usage: check_bag")
+        self.assert_fails([NEATO_BAG, "--em-iterations", "5"], 2, "no offline EM", "usage: check_bag")
+
+
+if __name__ == "__main__":
+    rospy.init_node("test_check_bag", anonymous=True)
+    for name, default in PARAMS.items():
+        PARAMS[name] = rospy.get_param("~" + name, default)
+    rostest.rosrun(PKG, "test_check_bag", TestCheckBag)
