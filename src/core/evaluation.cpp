@@ -1,13 +1,12 @@
 #include "dynamic_occupancy_grid/core/evaluation.h"
 
+#include "repetitions.h"
+
 #include <algorithm>
-#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <limits>
-#include <mutex>
 #include <stdexcept>
-#include <thread>
 
 namespace dynamic_occupancy_grid {
 namespace core {
@@ -286,31 +285,9 @@ AccuracyExperimentResult runAccuracyExperiment(const ScenarioConfig& scenario, c
   const auto start = std::chrono::steady_clock::now();
   const auto repetitions = static_cast<std::size_t>(config.repetitions);
   std::vector<Repetition> runs(repetitions);
-  std::atomic<std::size_t> next{0};
-  std::mutex mutex;  // guards done, first_error and the progress callback
-  int done = 0;
-  std::exception_ptr first_error;
-  const auto worker = [&] {
-    for (std::size_t r = next++; r < repetitions; r = next++) {
-      try {
-        runs[r] = runRepetition(scenario, config.seed, static_cast<int>(r));
-      } catch (...) {
-        const std::lock_guard<std::mutex> lock(mutex);
-        if (!first_error) first_error = std::current_exception();
-        continue;
-      }
-      const std::lock_guard<std::mutex> lock(mutex);
-      ++done;
-      if (progress) progress(done);
-    }
-  };
-  unsigned threads = config.threads != 0 ? config.threads : std::max(1U, std::thread::hardware_concurrency());
-  threads = std::min<unsigned>(threads, static_cast<unsigned>(repetitions));
-  std::vector<std::thread> pool;
-  for (unsigned i = 1; i < threads; ++i) pool.emplace_back(worker);
-  worker();
-  for (std::thread& thread : pool) thread.join();
-  if (first_error) std::rethrow_exception(first_error);
+  runRepetitions(
+      repetitions, config.threads,
+      [&](std::size_t r) { runs[r] = runRepetition(scenario, config.seed, static_cast<int>(r)); }, progress);
 
   AccuracyExperimentResult result;
   result.scenario = scenario.name;

@@ -1,15 +1,14 @@
 #include "dynamic_occupancy_grid/core/path_planning.h"
 
+#include "repetitions.h"
+
 #include <algorithm>
-#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <exception>
 #include <memory>
-#include <mutex>
 #include <stdexcept>
-#include <thread>
 
 #include "dynamic_occupancy_grid/core/evaluation.h"
 #include "dynamic_occupancy_grid/core/planner.h"
@@ -74,11 +73,13 @@ constexpr int kOfflineEmIterations = 30;
 
 bool committingPolicy(Policy policy) { return policy == Policy::kRandom || policy == Policy::kOptimal; }
 
-// Cells along the short path at which a closed door first comes into view: the laser at a
-// cell centre n cells before the door returns a hit on its near face, (n - 1/2) cells away,
-// only while that is below range_max.
+// Cells along the short path from which a closed door is surely seen: the laser at a cell
+// centre n cells before the door reads the middle of the door cell's chord (simulateScan),
+// n cells away, a return only while that is below range_max. Exactly at range_max (n = 6
+// here) only readings with negative noise return, about half of them: the door may be seen
+// a cell earlier.
 std::int32_t doorVisibleCells(const ScenarioConfig& door) {
-  return static_cast<std::int32_t>(std::ceil(door.laser.range_max_m / door.resolution_m + 0.5)) - 1;
+  return static_cast<std::int32_t>(std::ceil(door.laser.range_max_m / door.resolution_m)) - 1;
 }
 
 // One policy's robot: its own simulation (a copy of the explored one), maps and planner.
@@ -350,20 +351,28 @@ RunClass classifyRun(const RunTrace& trace, const RunGeometry& geometry, const s
     }
     return door_open[static_cast<std::size_t>(step)] != 0;
   };
+  // The alternative to the long path, judged the same way for direct and indirect runs:
+  // walk to the door from where the robot was, enter at the first open step (waiting if
+  // needed); it was better iff it arrives strictly before the long path does.
+  const std::int64_t after_door = geometry.short_path_cells - geometry.door_progress;
+  const auto waiting_wins = [&](std::int64_t at_door_from, std::int64_t long_arrival) {
+    // Entering at step s arrives at s + 1 + after_door.
+    for (std::int64_t s = at_door_from; s + 1 + after_door < long_arrival; ++s) {
+      if (open_at(s)) return true;
+    }
+    return false;
+  };
   if (!trace.turn) {
-    return open_at(trace.departure_step + geometry.door_progress - 1) ? RunClass::kUnnecessaryDirectLong
-                                                                      : RunClass::kLong;
+    return waiting_wins(trace.departure_step + geometry.door_progress - 1,
+                        trace.departure_step + geometry.long_path_cells)
+               ? RunClass::kUnnecessaryDirectLong
+               : RunClass::kLong;
   }
   const ShortPathTurn& turn = *trace.turn;
-  const std::int64_t detour_arrival = turn.step + turn.progress + geometry.long_path_cells;
-  const std::int64_t after_door = geometry.short_path_cells - geometry.door_progress;
-  // Entering at step s arrives at s + 1 + after_door; only s < detour_arrival - 1 - after_door
-  // would beat the detour.
-  for (std::int64_t s = turn.step + geometry.door_progress - 1 - turn.progress; s + 1 + after_door < detour_arrival;
-       ++s) {
-    if (open_at(s)) return RunClass::kUnnecessaryIndirectLong;
-  }
-  return RunClass::kIndirectLong;
+  return waiting_wins(turn.step + geometry.door_progress - 1 - turn.progress,
+                      turn.step + turn.progress + geometry.long_path_cells)
+             ? RunClass::kUnnecessaryIndirectLong
+             : RunClass::kIndirectLong;
 }
 
 void PathPlanningConfig::validate() const {
@@ -410,31 +419,12 @@ PathPlanningResult runPathPlanningExperiment(const ScenarioConfig& door, const P
   const auto repetitions = static_cast<std::size_t>(config.repetitions);
   std::vector<std::vector<std::vector<RunRecord>>> by_repetition(repetitions);
   std::vector<ExplorationSummary> exploration(repetitions);
-  std::atomic<std::size_t> next{0};
-  std::mutex mutex;  // guards done, first_error and the progress callback
-  int done = 0;
-  std::exception_ptr first_error;
-  const auto worker = [&] {
-    for (std::size_t r = next++; r < repetitions; r = next++) {
-      try {
+  runRepetitions(
+      repetitions, config.threads,
+      [&](std::size_t r) {
         RepetitionRunner(door, config, static_cast<int>(r)).run(&by_repetition[r], &exploration[r]);
-      } catch (...) {
-        const std::lock_guard<std::mutex> lock(mutex);
-        if (!first_error) first_error = std::current_exception();
-        continue;
-      }
-      const std::lock_guard<std::mutex> lock(mutex);
-      ++done;
-      if (progress) progress(done);
-    }
-  };
-  unsigned threads = config.threads != 0 ? config.threads : std::max(1U, std::thread::hardware_concurrency());
-  threads = std::min<unsigned>(threads, static_cast<unsigned>(repetitions));
-  std::vector<std::thread> pool;
-  for (unsigned i = 1; i < threads; ++i) pool.emplace_back(worker);
-  worker();
-  for (std::thread& thread : pool) thread.join();
-  if (first_error) std::rethrow_exception(first_error);
+      },
+      progress);
 
   PathPlanningResult result;
   result.policies = config.policies;

@@ -272,7 +272,8 @@ Pose2D LoopPath::poseAt(double steps) const {
 
 void ScenarioConfig::validate() const {
   require(width_cells > 0 && height_cells > 0, "scenario " + name + ": width and height must be positive");
-  require(resolution_m > 0.0 && time_step_s > 0.0, "scenario " + name + ": resolution and time_step must be positive");
+  require(resolution_m > 0.0 && time_step_s > 0.0 && std::isfinite(resolution_m) && std::isfinite(time_step_s),
+          "scenario " + name + ": resolution and time_step must be positive and finite");
   require(steps > 0, "scenario " + name + ": steps must be positive");
   require(scans_per_step > 0, "scenario " + name + ": scans_per_step must be positive");
   require(robot_speed_m_per_step > 0.0, "scenario " + name + ": robot_speed must be positive");
@@ -282,6 +283,8 @@ void ScenarioConfig::validate() const {
   require(dynamic_fraction >= 0.0 && dynamic_fraction <= 1.0, "scenario " + name + ": dynamic_fraction must be in [0, 1]");
   require(change_probability >= 0.0 && change_probability <= 1.0,
           "scenario " + name + ": change_probability must be in [0, 1]");
+  require(redraw_at_step == -1 || (redraw_at_step > 0 && redraw_at_step < steps),
+          "scenario " + name + ": redraw_at_step must be -1 (never) or a step in [1, steps)");
   require(hours > 0 && steps_per_hour > 0, "scenario " + name + ": hours and steps_per_hour must be positive");
   require(p_arrive_per_hour >= 0.0 && p_arrive_per_hour <= 1.0 && p_leave_per_hour >= 0.0 && p_leave_per_hour <= 1.0,
           "scenario " + name + ": p_arrive_per_hour and p_leave_per_hour must be in [0, 1]");

@@ -4,13 +4,16 @@
 // occupancy grid of the same mapper. Reads the bag twice (labels, then maps and scores;
 // core/prediction_check.h). See docs/self_check.md.
 
+#include <unistd.h>
+
 #include <algorithm>
+#include <cerrno>
 #include <chrono>
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
+#include <cstring>
 #include <exception>
-#include <fstream>
 #include <set>
 #include <sstream>
 #include <stdexcept>
@@ -18,6 +21,7 @@
 #include <vector>
 
 #include "bag_tools.h"
+#include "dynamic_occupancy_grid/core/map_export.h"
 #include "dynamic_occupancy_grid/core/mapper.h"
 #include "dynamic_occupancy_grid/core/prediction_check.h"
 #include "dynamic_occupancy_grid/ros/bag_offline_em.h"
@@ -104,6 +108,12 @@ Options parseArguments(int argc, char** argv) {
       message << "--horizon " << horizon_s << " s is too many time steps of " << time_step_s << " s";
       args.fail(message.str());
     }
+    if (horizon_s > 0.0 && steps == 0.0) {
+      std::ostringstream message;
+      message << "--horizon " << horizon_s << " s rounds to 0 steps of " << time_step_s
+              << " s: that would score the map on its own scans (use 0 for that on purpose)";
+      args.fail(message.str());
+    }
     options.horizons_steps.push_back(static_cast<std::int64_t>(steps));
   }
   return options;
@@ -154,7 +164,7 @@ void printTable(const dog::core::PredictionCheckResult& result, const Options& o
   }
 }
 
-void writeCsv(std::ofstream& file, const dog::core::PredictionCheckResult& result, const Options& options) {
+void writeCsv(std::ostream& file, const dog::core::PredictionCheckResult& result, const Options& options) {
   file << "horizon_s,horizon_steps,labels,unseen,occupied_labels";
   for (const char* model : {"dynamic", "static"}) {
     file << ',' << model << "_accuracy," << model << "_occupied_accuracy," << model << "_free_accuracy," << model
@@ -173,7 +183,7 @@ void writeCsv(std::ofstream& file, const dog::core::PredictionCheckResult& resul
 }
 
 // Maps, scores and reports; `csv` is open when a CSV is asked for.
-void checkAndReport(dog::ros_layer::BagScanSource& source, const Options& options, std::ofstream& csv) {
+void checkAndReport(dog::ros_layer::BagScanSource& source, const Options& options) {
   const dog::core::MapperConfig& mapper = options.shared.mapper;
   std::printf("mapper: resolution %g m, time step %g s, p_hit_given_occ %g, p_hit_given_free %g, "
               "prior p_occ_given_free %g, p_free_given_occ %g per step, online learning %s\n",
@@ -231,32 +241,27 @@ void checkAndReport(dog::ros_layer::BagScanSource& source, const Options& option
     }
   }
   printTable(result, options);
-  if (csv.is_open()) {
+  if (!options.csv_path.empty()) {
+    std::ostringstream csv;
     writeCsv(csv, result, options);
-    csv.close();
-    if (!csv) throw std::runtime_error("failed writing " + options.csv_path);
+    // Through a temporary file and a rename: a failure never leaves a partial file, nor
+    // truncates one that was there.
+    dog::core::writeFileAtomically(options.csv_path, csv.str());
     std::printf("csv -> %s\n", options.csv_path.c_str());
   }
 }
 
 int run(const Options& options) {
-  dog::ros_layer::BagScanSource source(options.shared.source);
-  // Opened before the bag is read, so that a bad path fails at once; removed again if the
-  // check fails, so that no empty or partial file is left behind.
-  std::ofstream csv;
+  // A CSV that could not be written is refused before the bag is read, not after.
   if (!options.csv_path.empty()) {
-    csv.open(options.csv_path);
-    if (!csv) throw std::runtime_error("cannot write " + options.csv_path);
-  }
-  try {
-    checkAndReport(source, options, csv);
-  } catch (...) {
-    if (!options.csv_path.empty()) {
-      csv.close();
-      std::remove(options.csv_path.c_str());
+    const std::string::size_type slash = options.csv_path.rfind('/');
+    const std::string directory = slash == std::string::npos ? "." : options.csv_path.substr(0, std::max<std::size_t>(slash, 1));
+    if (::access(directory.c_str(), W_OK) != 0) {
+      throw std::runtime_error("cannot write " + options.csv_path + ": " + std::strerror(errno));
     }
-    throw;
   }
+  dog::ros_layer::BagScanSource source(options.shared.source);
+  checkAndReport(source, options);
   return 0;
 }
 

@@ -10,9 +10,11 @@
 #include <exception>
 #include <iomanip>
 #include <iostream>
+#include <limits>
 #include <sstream>
 #include <string>
 #include <sys/stat.h>
+#include <unistd.h>
 #include <vector>
 
 #include "dynamic_occupancy_grid/core/evaluation.h"
@@ -52,7 +54,7 @@ struct Options {
   std::exit(2);
 }
 
-long long parseInteger(const std::string& option, const std::string& text, long long min) {
+long long parseInteger(const std::string& option, const std::string& text, long long min, long long max) {
   std::size_t used = 0;
   long long value = 0;
   try {
@@ -60,8 +62,9 @@ long long parseInteger(const std::string& option, const std::string& text, long 
   } catch (const std::exception&) {
     used = 0;
   }
-  if (used != text.size() || text.empty() || value < min) {
-    usageError(option + " needs an integer >= " + std::to_string(min) + ", got '" + text + "'");
+  if (used != text.size() || text.empty() || value < min || value > max) {
+    usageError(option + " needs an integer in [" + std::to_string(min) + ", " + std::to_string(max) + "], got '" +
+               text + "'");
   }
   return value;
 }
@@ -90,22 +93,28 @@ Options parseOptions(int argc, char** argv) {
             usageError(error.what());
           }
           if (name == "door") usageError("the door scenario is the path planning experiment (--path-repetitions)");
+          if (std::find(options.scenarios.begin(), options.scenarios.end(), name) != options.scenarios.end()) {
+            usageError("scenario " + name + " is listed twice");
+          }
           options.scenarios.push_back(name);
         }
       }
     } else if (arg == "--repetitions") {
-      options.repetitions = static_cast<int>(parseInteger(arg, value, 1));
+      options.repetitions = static_cast<int>(parseInteger(arg, value, 1, 100000));
     } else if (arg == "--path-repetitions") {
-      options.path_repetitions = static_cast<int>(parseInteger(arg, value, 0));
+      options.path_repetitions = static_cast<int>(parseInteger(arg, value, 0, 100000));
     } else if (arg == "--path-runs") {
-      options.path_runs = static_cast<int>(parseInteger(arg, value, 1));
+      options.path_runs = static_cast<int>(parseInteger(arg, value, 1, 100000));
     } else if (arg == "--seed") {
-      options.seed = static_cast<std::uint64_t>(parseInteger(arg, value, 0));
+      options.seed = static_cast<std::uint64_t>(parseInteger(arg, value, 0, std::numeric_limits<long long>::max()));
     } else if (arg == "--threads") {
-      options.threads = static_cast<unsigned>(parseInteger(arg, value, 0));
+      options.threads = static_cast<unsigned>(parseInteger(arg, value, 0, 256));
     } else {
       usageError("unknown option " + arg);
     }
+  }
+  if (options.scenarios.empty() && options.path_repetitions == 0) {
+    usageError("nothing to run: no scenarios (--scenarios none) and no path planning (--path-repetitions 0)");
   }
   return options;
 }
@@ -218,8 +227,16 @@ struct Check {
 int main(int argc, char** argv) {
   const Options options = parseOptions(argc, argv);
   try {
+    // Refuse an unusable output directory before minutes of work, not after.
     if (::mkdir(options.out.c_str(), 0777) != 0 && errno != EEXIST) {
       throw std::runtime_error("cannot create the output directory " + options.out + ": " + std::strerror(errno));
+    }
+    struct stat out_stat {};
+    if (::stat(options.out.c_str(), &out_stat) != 0 || !S_ISDIR(out_stat.st_mode)) {
+      throw std::runtime_error("the output path " + options.out + " is not a directory");
+    }
+    if (::access(options.out.c_str(), W_OK) != 0) {
+      throw std::runtime_error("cannot write into the output directory " + options.out + ": " + std::strerror(errno));
     }
     std::ostringstream summary;
     std::vector<Check> checks;
@@ -234,7 +251,7 @@ int main(int argc, char** argv) {
 
     std::ostringstream errors_csv;
     errors_csv << "scenario,method,dynamic_cells,dynamic_p_occ_given_free_mae,dynamic_p_free_given_occ_mae,"
-                  "static_cells,static_p_occ_given_free_mae,static_p_free_given_occ_mae\n";
+                  "static_cells,static_p_occ_given_free_mae,static_p_free_given_occ_mae,repetition\n";
     std::ostringstream recovery;
     for (const std::string& name : options.scenarios) {
       const core::ScenarioConfig scenario = core::scenarioConfig(name);
@@ -304,26 +321,21 @@ int main(int argc, char** argv) {
         const double online_growth = gap_after[0] - gap_before[0];
         const double offline_growth = gap_after[1] - gap_before[1];
         checks.push_back({name + ": online recovers after the re-draw (its gap to the oracle grows by ≤ 0.25 "
-                                 "points), offline does not (its gap grows more)",
+                                 "points), offline does not (its gap grows by more)",
                           "gap growth: online " + fixed(online_growth, 2) + ", offline " + fixed(offline_growth, 2) +
                               " points",
-                          online_growth <= 0.25 && offline_growth > online_growth});
+                          online_growth <= 0.25 && offline_growth > 0.25});
       }
+      // One row per repetition: the plot shows their mean and spread.
       for (const auto& [method, errors] :
            {std::make_pair("online", &result.online_error), std::make_pair("offline", &result.offline_error)}) {
-        core::ParameterError mean;
-        for (const core::ParameterError& e : *errors) {
-          mean.dynamic_cells += e.dynamic_cells;
-          mean.static_cells += e.static_cells;
-          mean.dynamic_p_occ_given_free += e.dynamic_p_occ_given_free / static_cast<double>(errors->size());
-          mean.dynamic_p_free_given_occ += e.dynamic_p_free_given_occ / static_cast<double>(errors->size());
-          mean.static_p_occ_given_free += e.static_p_occ_given_free / static_cast<double>(errors->size());
-          mean.static_p_free_given_occ += e.static_p_free_given_occ / static_cast<double>(errors->size());
+        for (std::size_t r = 0; r < errors->size(); ++r) {
+          const core::ParameterError& e = (*errors)[r];
+          errors_csv << name << ',' << method << ',' << e.dynamic_cells << ',' << fixed(e.dynamic_p_occ_given_free, 6)
+                     << ',' << fixed(e.dynamic_p_free_given_occ, 6) << ',' << e.static_cells << ','
+                     << fixed(e.static_p_occ_given_free, 6) << ',' << fixed(e.static_p_free_given_occ, 6) << ','
+                     << r << '\n';
         }
-        errors_csv << name << ',' << method << ',' << mean.dynamic_cells / errors->size() << ','
-                   << fixed(mean.dynamic_p_occ_given_free, 6) << ',' << fixed(mean.dynamic_p_free_given_occ, 6) << ','
-                   << mean.static_cells / errors->size() << ',' << fixed(mean.static_p_occ_given_free, 6) << ','
-                   << fixed(mean.static_p_free_given_occ, 6) << '\n';
       }
     }
     if (!options.scenarios.empty()) {

@@ -43,8 +43,14 @@ TEST(MethodMappers, OracleOfAStaticWorldIsTheTextbookGrid) {
     }
   }
   EXPECT_GT(compared, 1000U);
-  // The clamped static layer is a different grid: it forgets.
-  EXPECT_NE(mappers.belief(Method::kStatic, 0, 0), mappers.belief(Method::kStaticUnclamped, 0, 0));
+  // The clamped static layer is a different grid: it forgets. A wall cell in front of the
+  // robot, seen every step, is far past the clamp in the textbook grid.
+  const double clamped = mappers.belief(Method::kStatic, 25, 0);
+  const double textbook = mappers.belief(Method::kStaticUnclamped, 25, 0);
+  ASSERT_FALSE(std::isnan(clamped));
+  ASSERT_FALSE(std::isnan(textbook));
+  EXPECT_NEAR(clamped, logOddsToProbability(evaluationMapperConfig(config).static_clamp.max_log_odds), 1e-6);
+  EXPECT_GT(textbook, clamped);
 }
 
 TEST(MethodMappers, OracleAndOfflineUseTheTransitionsTheyAreGiven) {

@@ -102,16 +102,19 @@ TEST(ClassifyRun, TimeoutAndShortWhateverTheDoor) {
   EXPECT_EQ(dog::classifyRun(trace, fromA(), closed), dog::RunClass::kShort);
 }
 
-TEST(ClassifyRun, DirectLongJudgedAtTheStepAStraightRobotWouldEnterTheDoor) {
-  // Departure at 100, door 13 cells on: a robot going straight decides to enter at step 112.
+TEST(ClassifyRun, DirectLongAgainstWaitingAtTheDoor) {
+  // Departure at 100, door 13 cells on: a robot going straight is at the door from step 112
+  // and arrives at s + 1 + 14 if it enters at s; the long path arrives at 151. Waiting wins
+  // iff the door opens at some s in [112, 135].
   dog::RunTrace trace;
   trace.departure_step = 100;
-  std::vector<std::uint8_t> open(200, 1);
-  open[112] = 0;
-  EXPECT_EQ(dog::classifyRun(trace, fromA(), open), dog::RunClass::kLong);
-  std::vector<std::uint8_t> closed(200, 0);
-  closed[112] = 1;
-  EXPECT_EQ(dog::classifyRun(trace, fromA(), closed), dog::RunClass::kUnnecessaryDirectLong);
+  EXPECT_EQ(dog::classifyRun(trace, fromA(), doorOpenBetween(200, 112, 199)), dog::RunClass::kUnnecessaryDirectLong);
+  EXPECT_EQ(dog::classifyRun(trace, fromA(), doorOpenBetween(200, 135, 199)), dog::RunClass::kUnnecessaryDirectLong);
+  // Opening at 136 only ties with the long path: not faster.
+  EXPECT_EQ(dog::classifyRun(trace, fromA(), doorOpenBetween(200, 136, 199)), dog::RunClass::kLong);
+  // Open only before the robot could get there: the long path was right.
+  EXPECT_EQ(dog::classifyRun(trace, fromA(), doorOpenBetween(200, 0, 111)), dog::RunClass::kLong);
+  EXPECT_THROW(dog::classifyRun(trace, fromA(), std::vector<std::uint8_t>(130, 0)), std::out_of_range);
 }
 
 TEST(ClassifyRun, IndirectLongAgainstWaitingAtTheDoor) {

@@ -243,6 +243,11 @@ TEST(Scenarios, NamesAndValidation) {
   ScenarioConfig bad = scenarioConfig("dynamic_5_5");
   bad.change_probability = 1.5;
   EXPECT_THROW(Simulation(bad, 1, 1), std::invalid_argument);
+  for (const std::int64_t redraw : {std::int64_t{0}, std::int64_t{-2}, std::int64_t{1000}}) {
+    ScenarioConfig never = scenarioConfig("redraw_100");
+    never.redraw_at_step = redraw;  // would silently never re-draw
+    EXPECT_THROW(never.validate(), std::invalid_argument) << redraw;
+  }
 }
 
 // Cells whose truth says they are dynamic, and the empirical change rates over a run.

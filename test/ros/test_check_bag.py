@@ -250,16 +250,21 @@ class TestCheckBag(unittest.TestCase):
         path = os.path.join(self.tmp, "no_such_dir", "out.csv")
         self.assert_fails([NEATO_BAG, "--csv", path], 1, path)
 
-    def test_failed_run_leaves_no_csv(self):
+    def test_failed_run_leaves_no_csv_and_keeps_an_old_one(self):
         path = os.path.join(self.tmp, "failed.csv")
         self.assert_fails([NEATO_BAG, "--fixed-frame", "no_such_frame", "--csv", path], 1, "without a pose",
                           "no_such_frame")
         self.assertFalse(os.path.exists(path))
+        with open(path, "w") as file:
+            file.write("earlier results\n")
+        self.assert_fails([NEATO_BAG, "--fixed-frame", "no_such_frame", "--csv", path], 1, "no_such_frame")
+        with open(path) as file:
+            self.assertEqual(file.read(), "earlier results\n")
 
     def test_bad_options(self):
         for args in ([NEATO_BAG, "--horizon", "-1"], [NEATO_BAG, "--horizon", "abc"], [NEATO_BAG, "--horizon"],
                      [NEATO_BAG, "--resolution", "0"], [NEATO_BAG, "--no-such-option"], [NEATO_BAG, NEATO_BAG],
-                     [NEATO_BAG, "--csv", ""], []):
+                     [NEATO_BAG, "--csv", ""], [NEATO_BAG, "--horizon", "0.4"], []):
             self.assert_fails(args, 2, "usage: check_bag")
         self.assert_fails([NEATO_BAG, "--em-iterations", "5"], 2, "no offline EM", "usage: check_bag")
 

@@ -127,8 +127,8 @@ struct AccuracyExperimentResult {
   double seconds = 0.0;  ///< wall time
 };
 /// Runs `repetitions` pairs of (training run, evaluation run) of `scenario`. The training
-/// run has the world of the evaluation run's start (no re-draw) and the same length; the
-/// offline method learns on it. Accuracy is taken after every step over all cells, except
+/// run has the evaluation run's layout (the same dynamic cells, the same bays; no re-draw),
+/// its own changes and noise, and the same length; the offline method learns on it. Accuracy is taken after every step over all cells, except
 /// in the parking lot: there, as in the paper (whose ground truth for hour i was the grid
 /// of run i alone), only over the cells observed since the hour began — the inside of a
 /// parked car is never seen, so no map can know it. `progress` (optional) is called after

@@ -83,11 +83,13 @@ std::string policyName(Policy policy);
 /// Table 1's rows, plus timeouts (a run that never arrived; not in the paper).
 enum class RunClass {
   kShort,                    ///< went through the door
-  kLong,                     ///< took the long path directly; the door would have been closed
+  kLong,                     ///< took the long path directly; going through the door (waiting
+                             ///< for it if closed) would not have been faster
   kIndirectLong,             ///< tried the short path, turned back, took the long path; waiting
                              ///< at the door would not have been faster
   kUnnecessaryIndirectLong,  ///< the same, but waiting at the door would have been faster
-  kUnnecessaryDirectLong,    ///< took the long path directly; the door would have been open
+  kUnnecessaryDirectLong,    ///< took the long path directly; going through the door (waiting
+                             ///< for it if closed) would have been faster
   kTimeout,
 };
 constexpr std::array<RunClass, 6> kAllRunClasses{RunClass::kShort,
@@ -127,15 +129,18 @@ struct RunTrace {
 /// The class of a run in hindsight. `door_open[t]` = the door is open at step t; a robot in
 /// the cell before the door can move into it at step t iff door_open[t].
 ///   - timed out: kTimeout; through the door: kShort;
-///   - long path without a turn: kLong if a robot going straight from the start would have
-///     found the door closed (door_open[departure + door_progress - 1] false), otherwise
-///     kUnnecessaryDirectLong;
-///   - turned back at (k, t): the detour reaches the goal at t + k + long_path_cells; waiting
-///     at the door (walk on to it, enter at the first open step s >= t + door_progress - 1 - k)
-///     reaches it at s + 1 + short_path_cells - door_progress. kUnnecessaryIndirectLong if
-///     that is strictly earlier, else kIndirectLong.
+///   - otherwise the long path is compared with going through the door, waiting at it if
+///     needed (walk to the cell before it, enter at the first open step s, arrive at
+///     s + 1 + short_path_cells - door_progress); waiting was better iff that is strictly
+///     earlier than the long path's arrival. Both kinds of long run are judged by this rule:
+///   - long path without a turn: the long path arrives at departure + long_path_cells, the
+///     door can be entered from s >= departure + door_progress - 1: kUnnecessaryDirectLong
+///     if waiting was better, else kLong;
+///   - turned back at (k, t): the detour arrives at t + k + long_path_cells, the door can be
+///     entered from s >= t + door_progress - 1 - k: kUnnecessaryIndirectLong if waiting was
+///     better, else kIndirectLong.
 /// Throws std::out_of_range if door_open does not reach the steps the decision needs
-/// (for a turn: up to t + k + long_path_cells).
+/// (up to the long path's arrival).
 RunClass classifyRun(const RunTrace& trace, const RunGeometry& geometry, const std::vector<std::uint8_t>& door_open);
 
 struct PathPlanningConfig {

@@ -181,7 +181,7 @@ struct ScenarioConfig {
   // kRandomDynamic
   double dynamic_fraction = 0.05;     ///< of the cells that may be dynamic (not walls, not the robot's lane)
   double change_probability = 0.05;   ///< p_occ_given_free = p_free_given_occ of every dynamic cell
-  std::int64_t redraw_at_step = -1;   ///< from this step on, a new set of dynamic cells (-1: never)
+  std::int64_t redraw_at_step = -1;   ///< from this step (in [1, steps)) on, a new set of dynamic cells (-1: never)
 
   // kParkingLot
   int hours = 12;                     ///< configurations, one run each
