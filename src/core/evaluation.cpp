@@ -21,13 +21,6 @@ MapperConfig fixedTransitions(MapperConfig config) {
   return config;
 }
 
-std::uint64_t mix(std::uint64_t x) {
-  x += 0x9e3779b97f4a7c15ULL;
-  x = (x ^ (x >> 30)) * 0xbf58476d1ce4e5b9ULL;
-  x = (x ^ (x >> 27)) * 0x94d049bb133111ebULL;
-  return x ^ (x >> 31);
-}
-
 }  // namespace
 
 std::string methodName(Method method) {
@@ -231,18 +224,18 @@ struct Repetition {
 };
 
 Repetition runRepetition(const ScenarioConfig& scenario, std::uint64_t seed, int repetition) {
-  const std::uint64_t world_seed = mix(seed * 1000003ULL + static_cast<std::uint64_t>(repetition));
+  const std::uint64_t world_seed = mixSeed(seed * 1000003ULL + static_cast<std::uint64_t>(repetition));
   const MapperConfig mapper_config = evaluationMapperConfig(scenario);
 
   // The offline method's a-priori training run: the same place (world seed) on another
   // day (run seed), as it was at the start (no re-draw), as long as the evaluation run.
   ScenarioConfig training_scenario = scenario;
   training_scenario.redraw_at_step = -1;
-  Simulation training(training_scenario, world_seed, mix(world_seed ^ 0x7261696eULL));
+  Simulation training(training_scenario, world_seed, mixSeed(world_seed ^ 0x7261696eULL));
   const OfflineTraining offline =
       trainOffline(training, mapper_config, scenario.steps, evaluationOfflineEmConfig(mapper_config));
 
-  Simulation simulation(scenario, world_seed, mix(world_seed ^ 0x6576616cULL));
+  Simulation simulation(scenario, world_seed, mixSeed(world_seed ^ 0x6576616cULL));
   MethodMappers mappers(mapper_config, simulation.world());
   mappers.setOffline(offline);
   mappers.setOracle(simulation.world());

@@ -21,13 +21,6 @@ void require(bool ok, const std::string& message) {
   if (!ok) throw std::invalid_argument(message);
 }
 
-std::uint64_t mix(std::uint64_t x) {
-  x += 0x9e3779b97f4a7c15ULL;
-  x = (x ^ (x >> 30)) * 0xbf58476d1ce4e5b9ULL;
-  x = (x ^ (x >> 27)) * 0x94d049bb133111ebULL;
-  return x ^ (x >> 31);
-}
-
 std::size_t policyIndex(const std::vector<Policy>& policies, Policy policy) {
   const auto it = std::find(policies.begin(), policies.end(), policy);
   if (it == policies.end()) throw std::invalid_argument("path planning: policy " + policyName(policy) + " was not run");
@@ -106,8 +99,8 @@ class RepetitionRunner {
 
   // Fills runs[p] (in config.policies order) and the exploration summary.
   void run(std::vector<std::vector<RunRecord>>* runs, ExplorationSummary* summary) {
-    const std::uint64_t world_seed = mix(config_.seed * 1000003ULL + static_cast<std::uint64_t>(repetition_));
-    const std::uint64_t run_seed = mix(world_seed ^ 0x646f6f72ULL);
+    const std::uint64_t world_seed = mixSeed(config_.seed * 1000003ULL + static_cast<std::uint64_t>(repetition_));
+    const std::uint64_t run_seed = mixSeed(world_seed ^ 0x646f6f72ULL);
     Simulation exploration(scenario_, world_seed, run_seed);
     layout_ = exploration.doorLayout();
     // Same seeds, nothing drawn yet: trainOffline will see exactly the exploration's scans.
@@ -116,7 +109,7 @@ class RepetitionRunner {
     std::vector<std::unique_ptr<Robot>> robots;
     for (const Policy policy : config_.policies) {
       robots.push_back(
-          std::make_unique<Robot>(policy, mapper_config_, exploration.world(), mix(run_seed ^ 0x72616e64ULL)));
+          std::make_unique<Robot>(policy, mapper_config_, exploration.world(), mixSeed(run_seed ^ 0x72616e64ULL)));
       // The oracle knows the true transitions from the start: with the prior's instead, its
       // a-priori map would forget the static walls it saw long ago.
       robots.back()->mappers.setOracle(exploration.world());

@@ -42,6 +42,8 @@ double cellCentre(std::int32_t cell, double resolution) { return (cell + 0.5) * 
 
 // ---------------------------------------------------------------- Rng
 
+std::uint64_t mixSeed(std::uint64_t x) { return splitmix64(x); }
+
 Rng::Rng(std::uint64_t seed) {
   for (auto& word : state_) word = splitmix64(seed);
 }

@@ -43,6 +43,10 @@ class Rng {
   std::array<std::uint64_t, 4> state_;
 };
 
+/// Scrambles a seed (splitmix64's output function), so that seeds derived from nearby
+/// inputs (seed, repetition) are unrelated.
+std::uint64_t mixSeed(std::uint64_t x);
+
 /// The true world: every cell's state now, and its true per-step transition probabilities.
 class World {
  public:
