@@ -13,6 +13,8 @@ add_library(dynamic_occupancy_grid_core
   ${DOG_ROOT}/src/core/map_export.cpp
   ${DOG_ROOT}/src/core/mapper.cpp
   ${DOG_ROOT}/src/core/model_io.cpp
+  ${DOG_ROOT}/src/core/mrf.cpp
+  ${DOG_ROOT}/src/core/mrf_experiment.cpp
   ${DOG_ROOT}/src/core/offline_em.cpp
   ${DOG_ROOT}/src/core/online_em.cpp
   ${DOG_ROOT}/src/core/path_planning.cpp

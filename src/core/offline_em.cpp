@@ -1,5 +1,7 @@
 #include "dynamic_occupancy_grid/core/offline_em.h"
 
+#include "dynamic_occupancy_grid/core/mrf.h"
+
 #include <algorithm>
 #include <atomic>
 #include <cmath>
@@ -302,6 +304,11 @@ void OfflineEmConfig::validate() const {
           "offline_em max_iterations must be in [0, 65535], got " + std::to_string(max_iterations));
   require(std::isfinite(tolerance) && tolerance >= 0.0,
           "offline_em tolerance must be >= 0, got " + std::to_string(tolerance));
+  require(std::isfinite(mrf_temperature) && mrf_temperature >= 0.0,
+          "offline_em mrf_temperature must be >= 0 (0 = off), got " + std::to_string(mrf_temperature));
+  require(!(symmetric && mrf_temperature > 0.0),
+          "offline_em mrf_temperature > 0 does not combine with symmetric: the MRF smooths p(occ -> occ) and "
+          "p(free -> free) separately");
 }
 
 TransitionParams offlineMStep(const TransitionCounts& counts, const OfflineEmConfig& config,
@@ -328,9 +335,162 @@ TransitionParams offlineMStep(const TransitionCounts& counts, const OfflineEmCon
   return params;
 }
 
+namespace {
+
+// The logit of p, finite even for p = 0 or 1 (bounds of 0 or 1 allowed by the config).
+double finiteLogit(double p) {
+  const double q = std::clamp(p, 1e-13, 1.0 - 1e-13);
+  return std::log(q / (1.0 - q));
+}
+
+double sigmoid(double x) { return x >= 0.0 ? 1.0 / (1.0 + std::exp(-x)) : std::exp(x) / (1.0 + std::exp(x)); }
+
+// EM whose M-step is the joint MRF problem of mrf.h, one for p(occ -> occ) and one for
+// p(free -> free). The E-step is the plain one, cell by cell in parallel.
+OfflineEmResult runOfflineEmMrf(const ObservationSequences& sequences, const ObservationModel& sensor,
+                                const OfflineEmConfig& config, const OfflineEmProgress& progress) {
+  const std::size_t cells = sequences.cellCount();
+  OfflineEmResult result;
+  result.params.assign(cells, config.initial_params);
+  result.final_p_occ.assign(cells, std::numeric_limits<double>::quiet_NaN());
+  result.final_step.assign(cells, 0);
+  result.iterations.assign(cells, 0);
+  if (cells == 0) return result;
+
+  std::vector<CellXY> coordinates(cells);
+  for (std::size_t c = 0; c < cells; ++c) coordinates[c] = sequences.cell(c);
+  const CellNeighbours graph = eightNeighbours(coordinates);
+  const double lambda = 1.0 / config.mrf_temperature;
+  // a_occ = p(occ -> occ) = 1 - p_free_given_occ, a_free = 1 - p_occ_given_free: the bounds
+  // [p_min, p_max] of the change probabilities become [1 - p_max, 1 - p_min] of the a's.
+  const double lo = finiteLogit(1.0 - config.p_max);
+  const double hi = finiteLogit(1.0 - config.p_min);
+  std::vector<double> logit_occ(cells, finiteLogit(1.0 - config.initial_params.p_free_given_occ));
+  std::vector<double> logit_free(cells, finiteLogit(1.0 - config.initial_params.p_occ_given_free));
+
+  std::vector<TransitionCounts> counts(cells);
+  std::vector<double> log_likelihood(cells);
+  const std::size_t chunk_cells = chunkCells(cells);
+  const std::size_t chunks = (cells + chunk_cells - 1) / chunk_cells;
+  const unsigned hardware = std::max(1U, std::thread::hardware_concurrency());
+  const std::size_t thread_count = std::min<std::size_t>(config.threads == 0 ? hardware : config.threads, chunks);
+  const auto e_step = [&]() {
+    std::atomic<std::size_t> next_chunk{0};
+    std::mutex failure_mutex;
+    std::exception_ptr failure;
+    const auto worker = [&]() {
+      Scratch scratch;
+      try {
+        for (std::size_t chunk = next_chunk++; chunk < chunks; chunk = next_chunk++) {
+          const std::size_t last = std::min(cells, (chunk + 1) * chunk_cells);
+          for (std::size_t c = chunk * chunk_cells; c < last; ++c) {
+            prepare(sequences.begin(c), sequences.end(c), sensor, scratch.observations);
+            const ForwardBackwardResult pass = forwardBackwardPrepared(scratch, result.params[c], config.initial_p_occ);
+            counts[c] = pass.counts;
+            log_likelihood[c] = pass.log_likelihood;
+            result.final_p_occ[c] = pass.final_p_occ;
+          }
+        }
+      } catch (...) {
+        const std::lock_guard<std::mutex> lock(failure_mutex);
+        if (!failure) failure = std::current_exception();
+        next_chunk = chunks;
+      }
+    };
+    std::vector<std::thread> threads;
+    for (std::size_t t = 1; t < thread_count; ++t) threads.emplace_back(worker);
+    worker();
+    for (std::thread& thread : threads) thread.join();
+    if (failure) std::rethrow_exception(failure);
+    // Summed in cell order: the same objective for any number of threads.
+    double objective = 0.0;
+    for (std::size_t c = 0; c < cells; ++c) objective += log_likelihood[c] + logPrior(result.params[c], config);
+    return objective + mrfPrior(graph, lambda, logit_occ) + mrfPrior(graph, lambda, logit_free);
+  };
+
+  double objective = e_step();
+  result.objective.push_back(objective);
+  const auto report = [&](std::size_t iterations_done) {
+    if (!progress) return true;
+    const auto total = static_cast<std::size_t>(config.max_iterations);
+    return progress(total == 0 ? cells : cells * iterations_done / total, cells);
+  };
+  std::size_t iteration = 0;
+  bool converged = false;
+  const double w = config.prior_weight;
+  while (iteration < static_cast<std::size_t>(config.max_iterations)) {
+    MrfMapProblem occ;
+    MrfMapProblem free;
+    for (MrfMapProblem* problem : {&occ, &free}) {
+      problem->graph = &graph;
+      problem->inverse_temperature = lambda;
+      problem->lo = lo;
+      problem->hi = hi;
+      problem->stay.resize(cells);
+      problem->leave.resize(cells);
+    }
+    for (std::size_t c = 0; c < cells; ++c) {
+      // Expected counts plus the MAP prior's pseudo-counts, as offlineMStep adds them.
+      occ.stay[c] = counts[c][0][0] + w * (1.0 - config.prior.p_free_given_occ);
+      occ.leave[c] = counts[c][0][1] + w * config.prior.p_free_given_occ;
+      free.stay[c] = counts[c][1][1] + w * (1.0 - config.prior.p_occ_given_free);
+      free.leave[c] = counts[c][1][0] + w * config.prior.p_occ_given_free;
+    }
+    std::array<int, 2> newton{0, 0};
+    // The two maps are independent problems: one per core.
+    if (thread_count > 1) {
+      std::exception_ptr failure;
+      std::thread other([&]() {
+        try {
+          newton[1] = maximizeMrfMap(free, logit_free);
+        } catch (...) {
+          failure = std::current_exception();
+        }
+      });
+      try {
+        newton[0] = maximizeMrfMap(occ, logit_occ);
+      } catch (...) {
+        other.join();
+        throw;
+      }
+      other.join();
+      if (failure) std::rethrow_exception(failure);
+    } else {
+      newton[0] = maximizeMrfMap(occ, logit_occ);
+      newton[1] = maximizeMrfMap(free, logit_free);
+    }
+    result.mrf_newton_iterations.push_back(newton);
+    for (std::size_t c = 0; c < cells; ++c) {
+      result.params[c] = TransitionParams{sigmoid(-logit_free[c]), sigmoid(-logit_occ[c])};
+    }
+    const double next_objective = e_step();
+    const double gain = next_objective - objective;
+    objective = next_objective;
+    result.objective.push_back(objective);
+    ++iteration;
+    if (!report(iteration)) {
+      result.cancelled = true;
+      break;
+    }
+    if (config.tolerance > 0.0 && gain < config.tolerance * static_cast<double>(cells)) {
+      converged = true;
+      break;
+    }
+  }
+  for (std::size_t c = 0; c < cells; ++c) {
+    result.final_step[c] = (sequences.end(c) - 1)->step;
+    result.iterations[c] = static_cast<std::uint16_t>(iteration);
+  }
+  if (converged) result.cells_converged = cells;
+  return result;
+}
+
+}  // namespace
+
 OfflineEmResult runOfflineEm(const ObservationSequences& sequences, const ObservationModel& sensor,
                              const OfflineEmConfig& config, const OfflineEmProgress& progress) {
   config.validate();
+  if (config.mrf_temperature > 0.0) return runOfflineEmMrf(sequences, sensor, config, progress);
   const std::size_t cells = sequences.cellCount();
   const auto iterations_max = static_cast<std::size_t>(config.max_iterations);
   OfflineEmResult result;

@@ -116,6 +116,14 @@ struct OfflineEmConfig {
   double tolerance = 1e-4;
   /// Worker threads; 0 = one per core. Results do not depend on it.
   unsigned threads = 0;
+  /// MRF-smoothed transition maps (Li, Barão & Rato; THEORY.md §7), the temperature T; 0 =
+  /// off (plain per-cell EM, the limit T -> infinity). On: the M-step maximises, jointly over
+  /// all cells, the expected log-likelihood (with the MAP prior's pseudo-counts) minus
+  /// (1 / T) * sum over 8-neighbour pairs of cells (l_c - l_c')^2, for l the logit of
+  /// p(occ -> occ) and, separately, of p(free -> free); cells borrow strength from their
+  /// neighbours. All cells then iterate together: EM stops when an iteration gains less than
+  /// tolerance * cells (nats), or after max_iterations. Not with `symmetric`.
+  double mrf_temperature = 0.0;
 
   /// Throws std::invalid_argument naming the first bad field.
   void validate() const;
@@ -132,6 +140,9 @@ struct OfflineEmResult {
   /// cell used; a cell that stopped earlier contributes its last value to later entries.
   std::vector<double> objective;
   std::size_t cells_converged = 0;          ///< stopped by the tolerance, not by max_iterations
+  /// With the MRF: per M-step, the Newton iterations spent on p(occ -> occ) and on
+  /// p(free -> free) (entry k - 1 for M-step k). Empty without.
+  std::vector<std::array<int, 2>> mrf_newton_iterations;
   bool cancelled = false;
 };
 
