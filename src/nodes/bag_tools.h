@@ -6,13 +6,13 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <exception>
 #include <iostream>
-#include <limits>
 #include <sstream>
 #include <string>
 #include <thread>
@@ -48,6 +48,11 @@ inline const char* const kSharedUsage =
     "                        nats (default 1e-4; 0 always runs N iterations)\n"
     "  --em-prior-weight W   offline EM: W pseudo-transitions per state drawn from the\n"
     "                        prior transitions (MAP; default 2; 0 = maximum likelihood)\n"
+    "  --mrf-temperature T   offline EM: smooth the two transition maps with a pairwise MRF\n"
+    "                        prior over 8-neighbour cells at temperature T (THEORY.md §7;\n"
+    "                        the lower T, the smoother; default 0 = off, per-cell EM); all\n"
+    "                        cells then iterate together and stop when an iteration gains\n"
+    "                        less than X (--em-tolerance) times the number of cells\n"
     "  --threads N           offline EM worker threads (default 0 = one per core)\n";
 
 /// The options both tools understand.
@@ -96,6 +101,16 @@ class Arguments {
     if (!(result > 0.0)) {
       std::ostringstream message;
       message << current_ << " must be > 0, got " << result;
+      fail(message.str());
+    }
+    return result;
+  }
+  /// A number >= 0.
+  double nonNegativeNumber() {
+    const double result = number();
+    if (result < 0.0) {
+      std::ostringstream message;
+      message << current_ << " must be >= 0, got " << result;
       fail(message.str());
     }
     return result;
@@ -161,15 +176,15 @@ inline bool parseSharedOption(const std::string& arg, Arguments& args, SharedOpt
     if (numbers.size() != 3) args.fail("--laser-pose expects X,Y,YAW");
     options->source.static_laser_pose = core::Pose2D{numbers[0], numbers[1], numbers[2]};
   } else if (arg == "--start-time") {
-    options->source.start_time_s = args.number(0.0, std::numeric_limits<double>::max());
+    options->source.start_time_s = args.nonNegativeNumber();
   } else if (arg == "--end-time") {
-    options->source.end_time_s = args.number(0.0, std::numeric_limits<double>::max());
+    options->source.end_time_s = args.nonNegativeNumber();
   } else if (arg == "--resolution") {
     options->mapper.resolution_m = args.positiveNumber();
   } else if (arg == "--time-step") {
     options->mapper.time_step_s = args.positiveNumber();
   } else if (arg == "--max-free-range") {
-    options->mapper.max_free_range_m = args.number(0.0, std::numeric_limits<double>::max());
+    options->mapper.max_free_range_m = args.nonNegativeNumber();
   } else if (arg == "--p-hit-given-occ") {
     options->mapper.p_hit_given_occ = args.number(0.0, 1.0);
   } else if (arg == "--p-hit-given-free") {
@@ -181,9 +196,11 @@ inline bool parseSharedOption(const std::string& arg, Arguments& args, SharedOpt
   } else if (arg == "--em-iterations") {
     options->em.max_iterations = static_cast<int>(args.integer(1, 65535));
   } else if (arg == "--em-tolerance") {
-    options->em.tolerance = args.number(0.0, std::numeric_limits<double>::max());
+    options->em.tolerance = args.nonNegativeNumber();
   } else if (arg == "--em-prior-weight") {
-    options->em.prior_weight = args.number(0.0, std::numeric_limits<double>::max());
+    options->em.prior_weight = args.nonNegativeNumber();
+  } else if (arg == "--mrf-temperature") {
+    options->em.mrf_temperature = args.nonNegativeNumber();
   } else if (arg == "--threads") {
     options->em.threads = static_cast<unsigned>(args.integer(0, 1024));
   } else {
@@ -256,8 +273,10 @@ inline core::OfflineEmResult runOfflineEmAndApply(core::Mapper& mapper, core::Se
   mapper.recordObservations(nullptr);
   const core::ObservationSequences sequences = recorder.build();
   const unsigned threads = config.threads > 0 ? config.threads : std::max(1U, std::thread::hardware_concurrency());
-  std::printf("offline EM: %zu cells, %zu observed cell steps (%.1f MB), %u threads\n", sequences.cellCount(),
+  std::printf("offline EM: %zu cells, %zu observed cell steps (%.1f MB), %u threads", sequences.cellCount(),
               sequences.observationCount(), static_cast<double>(sequences.bytes()) / 1.0e6, threads);
+  if (config.mrf_temperature > 0.0) std::printf(", MRF temperature %g", config.mrf_temperature);
+  std::printf("\n");
   std::fflush(stdout);
   const auto start = std::chrono::steady_clock::now();
   const core::OfflineEmResult result =
@@ -268,14 +287,23 @@ inline core::OfflineEmResult runOfflineEmAndApply(core::Mapper& mapper, core::Se
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   bar.show("EM", 1.0);
   const std::size_t iterations = result.objective.empty() ? 0 : result.objective.size() - 1;
-  std::printf("offline EM: %zu iterations (the most any cell used), %zu of %zu cells converged, "
-              "objective %.6f -> %.6f, %.3f s\n",
-              iterations, result.cells_converged, sequences.cellCount(),
+  // With the MRF all cells iterate together; without it each cell stops on its own.
+  std::printf("offline EM: %zu iterations (%s), %zu of %zu cells converged, objective %.6f -> %.6f, %.3f s\n",
+              iterations, config.mrf_temperature > 0.0 ? "all cells together" : "the most any cell used",
+              result.cells_converged, sequences.cellCount(),
               result.objective.empty() ? 0.0 : result.objective.front(),
               result.objective.empty() ? 0.0 : result.objective.back(), seconds);
   std::printf("offline EM objective per iteration:");
   for (const double value : result.objective) std::printf(" %.6f", value);
   std::printf("\n");
+  // The MRF's M-step is a Newton solve per map (THEORY.md §7): its iterations are what T costs.
+  if (!result.mrf_newton_iterations.empty()) {
+    std::printf("offline EM MRF Newton iterations per M-step (p(occ->occ)/p(free->free)):");
+    for (const std::array<int, 2>& newton : result.mrf_newton_iterations) {
+      std::printf(" %d/%d", newton[0], newton[1]);
+    }
+    std::printf("\n");
+  }
   const core::OfflineEmApplied applied = mapper.applyOfflineEm(sequences, result, true);
   std::printf("offline EM applied to %zu cells (%zu not in the map)\n", applied.cells_applied,
               applied.cells_not_in_map);

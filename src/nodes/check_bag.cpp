@@ -33,7 +33,8 @@ namespace {
 
 // Options of the shared set that do not apply: check_bag runs no offline EM, which would
 // learn the transitions from the very scans the map is scored on.
-const std::set<std::string> kEmOptions{"--em-iterations", "--em-tolerance", "--em-prior-weight", "--threads"};
+const std::set<std::string> kEmOptions{"--em-iterations", "--em-tolerance", "--em-prior-weight", "--mrf-temperature",
+                                       "--threads"};
 
 // kSharedUsage without the entries of kEmOptions (an entry: its "  --name" line and the
 // more deeply indented lines continuing it).

@@ -5,10 +5,13 @@
 
 #include <boost/bind/bind.hpp>
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
+#include <cstdint>
 #include <exception>
 #include <filesystem>
+#include <iomanip>
 #include <limits>
 #include <sstream>
 #include <utility>
@@ -304,6 +307,11 @@ bool MappingNode::runOfflineEm(RunOfflineEm::Request& request, RunOfflineEm::Res
   };
   if (request.bag_path.empty()) return refuse("bag_path is empty");
   if (!std::isfinite(request.tolerance)) return refuse("tolerance must be a finite number");
+  // 0 is the field's value when a caller leaves it out, so it means the node's parameter.
+  if (!std::isfinite(request.mrf_temperature) || request.mrf_temperature < 0.0) {
+    return refuse("mrf_temperature must be a finite number >= 0 (0 = ~offline_em/mrf_temperature)");
+  }
+  if (request.mrf_temperature > 0.0) options.em.mrf_temperature = request.mrf_temperature;
   if (options.source.end_time_s > 0.0 && options.source.end_time_s < options.source.start_time_s) {
     return refuse("end_time is before start_time");
   }
@@ -363,12 +371,30 @@ bool MappingNode::runOfflineEm(RunOfflineEm::Request& request, RunOfflineEm::Res
           report("failed", 1.0, message);
         } else {
           const core::OfflineEmApplied applied = mapper_->applyOfflineEm(run.sequences, run.result, false);
+          progress.cells_applied = static_cast<std::uint32_t>(applied.cells_applied);
+          progress.cells_not_in_map = static_cast<std::uint32_t>(applied.cells_not_in_map);
+          progress.objective = run.result.objective;
+          progress.mrf_temperature = options.em.mrf_temperature;
+          for (const std::array<int, 2>& newton : run.result.mrf_newton_iterations) {
+            progress.mrf_newton_iterations_occ.push_back(static_cast<std::uint32_t>(newton[0]));
+            progress.mrf_newton_iterations_free.push_back(static_cast<std::uint32_t>(newton[1]));
+          }
           std::ostringstream message;
           message << "transitions of " << applied.cells_applied << " cells replaced (" << applied.cells_not_in_map
                   << " cells of the bag not in this map were skipped); " << run.scans_integrated << " scans, "
                   << run.result.cells_converged << " of " << run.sequences.cellCount() << " cells converged";
-          progress.cells_applied = static_cast<std::uint32_t>(applied.cells_applied);
-          progress.cells_not_in_map = static_cast<std::uint32_t>(applied.cells_not_in_map);
+          if (!run.result.objective.empty()) {
+            message << "; " << run.result.objective.size() - 1 << " EM iterations, objective " << std::setprecision(10)
+                    << run.result.objective.front() << " -> " << run.result.objective.back();
+          }
+          if (!run.result.mrf_newton_iterations.empty()) {
+            const auto most = [](const std::vector<std::uint32_t>& values) {
+              return *std::max_element(values.begin(), values.end());
+            };
+            message << "; MRF temperature " << options.em.mrf_temperature << ", at most "
+                    << most(progress.mrf_newton_iterations_occ) << "/" << most(progress.mrf_newton_iterations_free)
+                    << " Newton iterations per M-step (p(occ->occ)/p(free->free))";
+          }
           ROS_INFO("offline EM done: %s", message.str().c_str());
           report("done", 1.0, message.str());
         }

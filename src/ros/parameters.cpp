@@ -169,6 +169,7 @@ bool readParameters(const ros::NodeHandle& private_nh, NodeParameters* parameter
   em.threads = static_cast<unsigned>(threads);
   read.number("offline_em/prior_weight", &em.prior_weight);
   read.boolean("offline_em/symmetric", &em.symmetric);
+  read.number("offline_em/mrf_temperature", &em.mrf_temperature);
   // Offline EM learns within the same bounds as online EM and starts from the prior.
   em.p_min = m.online_em.p_min;
   em.p_max = m.online_em.p_max;

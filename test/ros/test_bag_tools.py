@@ -8,9 +8,10 @@
 Checks that every output is written (six layers as map_server files, the model file), that
 the maps are plausible (the static room shows as a few thin walls; the robot's scans are
 used), that offline EM changes the learned transitions and its objective never decreases,
-snapshots, time ranges, offline_em over two bags, and the error paths (missing, truncated
-or damaged bag, wrong topic, bad options). Tolerances are test parameters
-(test/ros/bag_tools.test).
+that its MRF option (--mrf-temperature) reports its Newton iterations and gives other,
+smoother transition maps, snapshots, time ranges, offline_em over two bags, and the error
+paths (missing, truncated or damaged bag, wrong topic, bad options and temperatures).
+Tolerances are test parameters (test/ros/bag_tools.test).
 """
 
 import os
@@ -33,10 +34,11 @@ PACKAGE_DIR = rospkg.RosPack().get_path(PKG)
 STATIONARY_BAG = os.path.join(PACKAGE_DIR, "data", "example", "stationary_laser_people.bag")
 NEATO_BAG = os.path.join(PACKAGE_DIR, "test", "data", "neato_person_follower.bag")
 STATIONARY_ARGS = ["--laser-pose", "0,0,0"]
+MRF_TEMPERATURE = "50"  # the paper's T
 NEATO_ARGS = ["--fixed-frame", "odom"]
 
 sys.path.insert(0, os.path.join(PACKAGE_DIR, "scripts"))
-from read_model import load_model  # noqa: E402 (scripts/ is on the path only now)
+from read_model import dense_field, load_model  # noqa: E402 (scripts/ is on the path only now)
 
 # Test parameters (private, from bag_tools.test) and their defaults.
 PARAMS = {
@@ -45,6 +47,8 @@ PARAMS = {
     "min_line_fraction": 0.5,       # occupied cells in elongated clusters (walls)
     "min_integrated_fraction": 0.9,  # of the Neato's scans
     "min_changed_fraction": 0.3,    # cells whose transitions offline EM changed
+    "min_mrf_changed_fraction": 0.1,  # cells whose transitions the MRF changed (against plain EM)
+    "max_mrf_roughness_ratio": 0.5,   # neighbours' logit differences, MRF against plain EM
     "timeout_s": 60.0,              # per tool run
 }
 
@@ -113,6 +117,31 @@ def parse_objective(stdout):
     return [float(v) for v in match.group(1).split()] if match else None
 
 
+def parse_newton(stdout):
+    """Newton iterations of each MRF M-step as (p(occ->occ), p(free->free)) pairs; None
+    without the line (no MRF)."""
+    match = re.search(r"^offline EM MRF Newton iterations per M-step \(p\(occ->occ\)/p\(free->free\)\):(.*)$",
+                      stdout, re.M)
+    return [tuple(int(n) for n in pair.split("/")) for pair in match.group(1).split()] if match else None
+
+
+def logit_roughness(model):
+    """Mean squared difference of the logits of p(occ -> occ) and of p(free -> free) between
+    observed 8-neighbour cells: what the MRF prior penalises (THEORY.md §7)."""
+    squares = []
+    for field in ("p_free_given_occ", "p_occ_given_free"):
+        stay, _ = dense_field(model, field)
+        stay = 1.0 - stay
+        logit = np.log(stay / (1.0 - stay))
+        # Each pair once: right, up, up-right and down-right neighbours.
+        for dy, dx in ((0, 1), (1, 0), (1, 1), (-1, 1)):
+            a = logit[max(dy, 0):logit.shape[0] + min(dy, 0), dx:]
+            b = logit[max(-dy, 0):logit.shape[0] + min(-dy, 0), :logit.shape[1] - dx]
+            difference = (a - b)[~np.isnan(a) & ~np.isnan(b)]
+            squares.append(difference ** 2)
+    return np.concatenate(squares).mean()
+
+
 def parse_scans(stdout):
     match = re.search(r"scans read: (\d+), integrated: (\d+), rejected: (\d+)", stdout)
     return tuple(int(v) for v in match.groups()) if match else None
@@ -144,6 +173,10 @@ class TestBagTools(unittest.TestCase):
     def neato(self, offline_em=False):
         return self.process("neato_em" if offline_em else "neato", NEATO_BAG,
                             NEATO_ARGS + (["--offline-em"] if offline_em else ["--snapshot-every", "10"]))
+
+    def with_mrf(self, name, bag, args):
+        """process_bag --offline-em with the MRF at the paper's temperature."""
+        return self.process(name, bag, args + ["--offline-em", "--mrf-temperature", MRF_TEMPERATURE])
 
     def load(self, path):
         return load_model(path)
@@ -254,6 +287,46 @@ class TestBagTools(unittest.TestCase):
         prior = 0.01
         for field in ("p_occ_given_free", "p_free_given_occ"):
             self.assertLess(np.abs(map_estimate[field] - prior).mean(), np.abs(ml[field] - prior).mean(), field)
+
+    def check_mrf(self, plain_stdout, plain_model, mrf_stdout, mrf_model):
+        """Offline EM with the MRF against plain EM on the same bag: the Newton iterations are
+        reported (one pair per M-step, only with the MRF) and the transition maps differ and
+        are smoother."""
+        self.assertIsNone(parse_newton(plain_stdout), plain_stdout)
+        self.assertIn(f"MRF temperature {MRF_TEMPERATURE}", mrf_stdout)
+        self.assertRegex(mrf_stdout, r"offline EM: \d+ iterations \(all cells together\)")
+        newton = parse_newton(mrf_stdout)
+        self.assertIsNotNone(newton, mrf_stdout)
+        self.assertEqual(len(newton), len(parse_objective(mrf_stdout)) - 1, mrf_stdout)
+        self.assertTrue(all(occ >= 0 and free >= 0 for occ, free in newton), newton)
+        self.assertTrue(newton[0][0] > 0 and newton[0][1] > 0, "the first M-step made no Newton step")
+        np.testing.assert_array_equal(plain_model.x, mrf_model.x)
+        np.testing.assert_array_equal(plain_model.y, mrf_model.y)
+        changed = ((np.abs(plain_model.p_occ_given_free - mrf_model.p_occ_given_free) > 1e-3) |
+                   (np.abs(plain_model.p_free_given_occ - mrf_model.p_free_given_occ) > 1e-3))
+        self.assertGreater(changed.mean(), PARAMS["min_mrf_changed_fraction"])
+        self.assertLess(logit_roughness(mrf_model), PARAMS["max_mrf_roughness_ratio"] * logit_roughness(plain_model))
+
+    def test_offline_em_mrf_stationary(self):
+        mrf = self.with_mrf("stationary_mrf", STATIONARY_BAG, STATIONARY_ARGS)
+        plain = self.stationary(offline_em=True)
+        self.check_offline_em(self.stationary(), mrf)
+        self.check_mrf(plain[1], self.assert_outputs(plain), mrf[1], self.assert_outputs(mrf))
+
+    def test_offline_em_mrf_neato(self):
+        mrf = self.with_mrf("neato_mrf", NEATO_BAG, NEATO_ARGS)
+        plain = self.neato(offline_em=True)
+        self.check_offline_em(self.neato(), mrf)
+        self.check_mrf(plain[1], self.assert_outputs(plain), mrf[1], self.assert_outputs(mrf))
+
+    def test_offline_em_tool_mrf(self):
+        runs = []
+        for name, extra in (("plain", []), ("mrf", ["--mrf-temperature", MRF_TEMPERATURE])):
+            model_path = os.path.join(self.tmp, f"tool_{name}.dogm")
+            rc, stdout, stderr = run_tool("offline_em", [NEATO_BAG, "--out", model_path] + NEATO_ARGS + extra)
+            self.assertEqual(rc, 0, stderr)
+            runs += [stdout, self.load(model_path)]
+        self.check_mrf(*runs)
 
     def test_offline_em_tool_on_two_bags(self):
         model_path = os.path.join(self.tmp, "two_bags.dogm")
@@ -386,6 +459,20 @@ class TestBagTools(unittest.TestCase):
         self.assert_fails("offline_em", [NEATO_BAG], 2, "--out", "usage: offline_em")
         self.assert_fails("offline_em", ["--out", os.path.join(self.tmp, "x.dogm")], 2, "no bag")
         self.assert_fails("offline_em", [NEATO_BAG, "--em-tolerance", "-1", "--out", "x.dogm"], 2, "usage: offline_em")
+
+    def test_bad_mrf_temperature(self):
+        out_dir = os.path.join(self.tmp, "refused_mrf")
+        model_path = os.path.join(self.tmp, "refused_mrf.dogm")
+        for value in ("-1", "-1e-9", "nan", "inf", "abc", ""):
+            for tool, args in (("process_bag", [NEATO_BAG, "--offline-em", "--out", out_dir]),
+                               ("offline_em", [NEATO_BAG, "--out", model_path])):
+                self.assert_fails(tool, args + ["--mrf-temperature", value], 2, f"{tool}: --mrf-temperature",
+                                  f"usage: {tool}", "--mrf-temperature T")
+        self.assert_fails("offline_em", [NEATO_BAG, "--out", model_path, "--mrf-temperature"], 2,
+                          "--mrf-temperature needs a value")
+        # Refused before any work: nothing written.
+        self.assertFalse(os.path.exists(out_dir))
+        self.assertFalse(os.path.exists(model_path))
 
 
 if __name__ == "__main__":

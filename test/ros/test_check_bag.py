@@ -266,7 +266,18 @@ class TestCheckBag(unittest.TestCase):
                      [NEATO_BAG, "--resolution", "0"], [NEATO_BAG, "--no-such-option"], [NEATO_BAG, NEATO_BAG],
                      [NEATO_BAG, "--csv", ""], [NEATO_BAG, "--horizon", "0.4"], []):
             self.assert_fails(args, 2, "usage: check_bag")
-        self.assert_fails([NEATO_BAG, "--em-iterations", "5"], 2, "no offline EM", "usage: check_bag")
+
+    def test_refuses_offline_em_options(self):
+        """The options of the bag tools that only tune offline EM are refused and not in the usage."""
+        for option, value in (("--em-iterations", "5"), ("--em-tolerance", "0.1"), ("--em-prior-weight", "1"),
+                              ("--mrf-temperature", "50"), ("--threads", "1")):
+            self.assert_fails([NEATO_BAG, option, value], 2, option + " does not apply", "no offline EM",
+                              "usage: check_bag")
+        rc, stdout, _ = check_bag(["--help"])
+        self.assertEqual(rc, 0)
+        self.assertIn("--max-free-range", stdout)  # the shared options are listed ...
+        for option in ("--em-", "--mrf-temperature", "--threads"):
+            self.assertNotIn(option, stdout)  # ... but not these
 
 
 if __name__ == "__main__":

@@ -77,12 +77,16 @@ class TestRobustness(unittest.TestCase):
             ('initial_p_occ', '_initial_p_occ:=1.0'),
             ('p_min', '_online_em/p_min:=0.9'),
             ('max_iterations', '_offline_em/max_iterations:=0'),
+            ('mrf_temperature', '_offline_em/mrf_temperature:=-1'),
+            ('mrf_temperature', '_offline_em/mrf_temperature:=abc'),
+            # The MRF smooths the two transition maps separately: no single change probability.
+            ('symmetric', '_offline_em/mrf_temperature:=50 _offline_em/symmetric:=true'),
             ('time_jump_threshold', '_time_jump_threshold:=-1'),
             ('model_file', '_model_file:=/nonexistent/model.dogm'),
         ]
         processes = []
         for i, (name, argument) in enumerate(cases):
-            command = ['rosrun', wall_scene.PKG, 'mapping_node', '__name:=bad_parameter_%d' % i, argument]
+            command = ['rosrun', wall_scene.PKG, 'mapping_node', '__name:=bad_parameter_%d' % i] + argument.split()
             processes.append((name, command, subprocess.Popen(
                 command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, universal_newlines=True)))
         for name, command, process in processes:
@@ -92,7 +96,8 @@ class TestRobustness(unittest.TestCase):
                 process.kill()
                 output, _ = process.communicate()
                 self.fail('%s did not exit: %s' % (' '.join(command), output))
-            self.assertNotEqual(process.returncode, 0, '%s exited with 0:\n%s' % (' '.join(command), output))
+            self.assertEqual(process.returncode, 1, '%s exited with %d:\n%s' % (' '.join(command), process.returncode,
+                                                                               output))
             self.assertIn(name, output, '%s: the error does not name %s:\n%s' % (' '.join(command), name, output))
         # The node under test is not disturbed.
         self.alive()

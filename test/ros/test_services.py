@@ -34,6 +34,9 @@ P_MAX = 0.5
 BAG_SCANS = 800
 OFFLINE_EM_ITERATIONS = 3000
 OFFLINE_EM_TIMEOUT = 40.0
+# The bag and EM iterations of the runs with and without the MRF.
+MRF_BAG_SCANS = 200
+MRF_ITERATIONS = 20
 
 
 def cell_fields(response):
@@ -417,6 +420,59 @@ class TestServices(unittest.TestCase):
                 self.assertTrue(response.message)
                 self.assertEqual(self.progress_of(path, after=seen), [])
             self.assertEqual(cell_fields(self.wall_cell()), before, 'offline EM on %s changed the map' % path)
+
+    def offline_em_to_the_end(self, bag, **request):
+        """Runs offline EM on `bag` and waits for its end: the run's last progress message."""
+        earlier = set(id(m) for m in self.progress.snapshot())
+        response = self.call('run_offline_em', bag_path=bag, **request)
+        self.assertTrue(response.success, response.message)
+        end = self.progress.wait_for(lambda m: m.bag_path == bag and m.phase in ('done', 'failed') and
+                                     id(m) not in earlier, timeout=OFFLINE_EM_TIMEOUT)
+        self.assertIsNotNone(end, 'no end of the offline EM run on %s in %.0f s' % (bag, OFFLINE_EM_TIMEOUT))
+        self.assertEqual(end.phase, 'done', end.message)
+        return end
+
+    def transitions(self):
+        """(p_occ_given_free, p_free_given_occ) of the wall and swept cells."""
+        return [(cell.p_occ_given_free, cell.p_free_given_occ)
+                for cell in (self.scene.get_cell(x, y) for x, y in WALL_POINTS + FREE_POINTS)]
+
+    def test_12_offline_em_mrf(self):
+        bag = os.path.join(self.tmp, 'wall_mrf.bag')
+        write_wall_bag(bag, 9000.0, MRF_BAG_SCANS)
+        plain = self.offline_em_to_the_end(bag, max_iterations=MRF_ITERATIONS, tolerance=0.0)
+        self.assertEqual(len(plain.objective), MRF_ITERATIONS + 1)  # tolerance 0: every iteration
+        self.assertEqual(plain.mrf_temperature, 0.0)  # services.test leaves ~offline_em/mrf_temperature at 0
+        self.assertEqual((len(plain.mrf_newton_iterations_occ), len(plain.mrf_newton_iterations_free)), (0, 0))
+        self.assertNotIn('Newton', plain.message)
+        plain_transitions = self.transitions()
+
+        mrf = self.offline_em_to_the_end(bag, max_iterations=MRF_ITERATIONS, tolerance=0.0, mrf_temperature=50.0)
+        self.assertEqual(mrf.mrf_temperature, 50.0)
+        self.assertEqual(len(mrf.objective), MRF_ITERATIONS + 1)
+        self.assertEqual(len(mrf.mrf_newton_iterations_occ), MRF_ITERATIONS)
+        self.assertEqual(len(mrf.mrf_newton_iterations_free), MRF_ITERATIONS)
+        self.assertGreater(mrf.mrf_newton_iterations_occ[0], 0)
+        self.assertGreater(mrf.mrf_newton_iterations_free[0], 0)
+        self.assertIn('MRF temperature 50', mrf.message)
+        self.assertIn('Newton iterations', mrf.message)
+        self.assertGreater(mrf.objective[-1], mrf.objective[0])
+        mrf_transitions = self.transitions()
+        self.assertTrue(any(abs(a - b) > 1e-6 for before, after in zip(plain_transitions, mrf_transitions)
+                            for a, b in zip(before, after)),
+                        'the MRF left the transitions as plain EM learned them: %s' % mrf_transitions)
+
+    def test_13_offline_em_mrf_refused(self):
+        bag = os.path.join(self.tmp, 'wall_mrf_refused.bag')
+        write_wall_bag(bag, 9000.0, 20)
+        before = cell_fields(self.wall_cell())
+        seen = len(self.progress.snapshot())
+        for temperature in (-1.0, -1e-9, float('nan'), float('inf'), -float('inf')):
+            response = self.call('run_offline_em', bag_path=bag, mrf_temperature=temperature)
+            self.assertFalse(response.success, 'mrf_temperature %r accepted' % temperature)
+            self.assertIn('mrf_temperature', response.message)
+        self.assertEqual(self.progress_of(bag, after=seen), [])
+        self.assertEqual(cell_fields(self.wall_cell()), before)
 
 
 if __name__ == '__main__':
