@@ -11,6 +11,10 @@ From OUT_DIR:
                                 AAAI 2012), fig4.png and fig5.png (their two panels side by side)
     parameter_error.csv      -> parameter_error.png (error of the learned transitions)
     path_planning.csv        -> path_planning.png (Table 1, with the paper's values)
+    mrf_maps.csv             -> mrf_maps.png (the learned transition maps without and with
+                                the MRF next to the truth, as Fig. 5 of Li, Barão & Rato)
+    mrf_rmse.csv             -> mrf_rmse.png (their error on sparsely and well observed
+                                cells, and the EM's time)
 From --layers DIR: <layer>.pgm + <layer>.yaml (map_server files) -> <layer>.png and
 layers.png (all of them, in metres).
 
@@ -31,14 +35,17 @@ import matplotlib
 
 matplotlib.use("Agg")  # files only: no display needed
 import matplotlib.pyplot as plt  # noqa: E402 (after the backend is chosen)
+from matplotlib.colors import LogNorm  # noqa: E402
 
 # The evaluation's methods (core/evaluation.h) and baselines, each with one colour in every plot.
 ACCURACY_METHODS = (("static", "static"), ("static_unclamped", "static (unclamped)"), ("online", "online"),
                     ("offline", "offline"), ("oracle", "oracle"))
 PLANNING_METHODS = (("static", "static"), ("online", "online"), ("offline", "offline"), ("random", "random"),
                     ("optimal", "optimal"))
+# The MRF experiment's two offline EMs: plain EM is the offline method (its colour).
+MRF_METHODS = (("plain", "plain EM"), ("mrf", "EM with the MRF"))
 COLOURS = {"static": "#7f7f7f", "static_unclamped": "#8c564b", "online": "#1f77b4", "offline": "#d62728",
-           "oracle": "#2ca02c", "random": "#9467bd", "optimal": "#ff7f0e"}
+           "oracle": "#2ca02c", "random": "#9467bd", "optimal": "#ff7f0e", "plain": "#d62728", "mrf": "#17becf"}
 
 # accuracy_<scenario>.csv: the scenarios and the figure of the paper each one reproduces.
 ACCURACY_TITLES = {
@@ -61,6 +68,17 @@ PARAMETER_ERROR_NUMBERS = ("dynamic_cells", "dynamic_p_occ_given_free_mae", "dyn
                            "static_cells", "static_p_occ_given_free_mae", "static_p_free_given_occ_mae")
 PLANNING_PAPER = tuple(f"paper_{name}" for name, _ in PLANNING_METHODS)
 PLANNING_NUMBERS = tuple(f"{name}_{stat}" for name, _ in PLANNING_METHODS for stat in ("mean", "std")) + PLANNING_PAPER
+MRF_PARAMETERS = (("p_occ_given_free", "p(occ | free)"), ("p_free_given_occ", "p(free | occ)"))
+MRF_CELLS = (("sparse", "sparse"), ("well_observed", "well observed"))
+MRF_RMSE_NUMBERS = tuple(f"{cells}_{parameter}_rmse" for cells, _ in MRF_CELLS for parameter, _ in MRF_PARAMETERS) + (
+    "repetition", "sparse_cells", "well_observed_cells", "em_seconds")
+MRF_MAP_SOURCES = (("truth", "truth"), ("plain", "plain EM"), ("mrf", "EM with the MRF"))
+MRF_MAP_LEARNED = tuple(f"{source}_{parameter}" for source in ("plain", "mrf") for parameter, _ in MRF_PARAMETERS)
+MRF_MAP_NUMBERS = ("x", "y", "observed_steps") + tuple(f"truth_{parameter}" for parameter, _ in MRF_PARAMETERS) + \
+    MRF_MAP_LEARNED
+# The maps' colour scale: the EM's bounds on the learned probabilities (evaluationOfflineEmConfig:
+# p_min, p_max); a true 0 (a static cell) is drawn at the lower bound.
+MRF_MAP_RANGE = (1e-4, 0.5)
 
 # The layers process_bag writes (core/layers.cpp, layerName), in its order.
 LAYERS = (("belief", "belief: p(occ) now"), ("predicted", "predicted p(occ)"),
@@ -124,6 +142,33 @@ def read_accuracy(path):
     if not (np.all(steps == np.round(steps)) and np.all(np.diff(steps) > 0)):
         raise InputError(f"{path}: the steps must be whole numbers in increasing order")
     return table
+
+
+def read_mrf_rmse(path):
+    table = read_table(path, ("method",), MRF_RMSE_NUMBERS)
+    methods = set(table["method"])
+    if methods != {name for name, _ in MRF_METHODS}:
+        raise InputError(f"{path}: the methods must be {' and '.join(name for name, _ in MRF_METHODS)}, "
+                         f"got {', '.join(sorted(methods))}")
+    return table
+
+
+def read_mrf_maps(path):
+    """mrf_maps.csv as {column: 2D array indexed [y, x]}; learned values NaN where empty."""
+    table = read_table(path, number_columns=MRF_MAP_NUMBERS, may_be_empty=MRF_MAP_LEARNED)
+    x, y = table["x"], table["y"]
+    if not (np.all(x == np.round(x)) and np.all(y == np.round(y)) and x.min() >= 0 and y.min() >= 0):
+        raise InputError(f"{path}: x and y must be cell indices (whole numbers >= 0)")
+    width, height = int(x.max()) + 1, int(y.max()) + 1
+    index = y.astype(int) * width + x.astype(int)
+    if index.size != width * height or np.unique(index).size != index.size:
+        raise InputError(f"{path}: expected one row per cell of a {width} x {height} grid, got {index.size} rows")
+    grids = {}
+    for name in MRF_MAP_NUMBERS[2:]:
+        grid = np.full(width * height, math.nan)
+        grid[index] = table[name]
+        grids[name] = grid.reshape(height, width)
+    return grids
 
 
 def read_pgm(path):
@@ -316,9 +361,69 @@ def plot_path_planning(out_dir, table):
     save(figure, os.path.join(out_dir, "path_planning.png"))
 
 
+def sample_std(values):
+    """The standard deviation over seeds as summary.md gives it (n - 1; 0 for one value)."""
+    return float(np.std(values, ddof=1)) if values.size > 1 else 0.0
+
+
+def plot_mrf_maps(out_dir, grids):
+    """Fig. 5 of Li, Barão & Rato: each learned parameter (a row) without and with the MRF, next
+    to the truth, on one logarithmic colour scale; grey: never observed."""
+    low, high = MRF_MAP_RANGE
+    norm = LogNorm(vmin=low, vmax=high)
+    colour_map = plt.get_cmap("viridis").copy()
+    colour_map.set_bad("#bfbfbf")
+    height, width = grids["observed_steps"].shape
+    figure, panels = plt.subplots(2, 3, figsize=(13.0, 6.4), layout="constrained", squeeze=False)
+    for row, (parameter, parameter_label) in enumerate(MRF_PARAMETERS):
+        for column, (source, source_label) in enumerate(MRF_MAP_SOURCES):
+            axes = panels[row][column]
+            values = np.clip(grids[f"{source}_{parameter}"], low, high)  # NaN stays NaN
+            image = axes.imshow(np.ma.masked_invalid(values), cmap=colour_map, norm=norm, origin="lower",
+                                interpolation="nearest", extent=(0, width, 0, height))
+            axes.set_title(f"{parameter_label}: {source_label}", fontsize=10)
+            axes.set_xlabel("x [cells]")
+            axes.set_ylabel("y [cells]")
+        figure.colorbar(image, ax=list(panels[row]), shrink=0.9, label="per step (true 0 drawn at 1e-4)")
+    figure.suptitle("Learned transition probabilities of one run (cf. Li, Barão & Rato, Fig. 5); "
+                    "grey: never observed")
+    save(figure, os.path.join(out_dir, "mrf_maps.png"))
+
+
+def plot_mrf_rmse(out_dir, table):
+    """RMSE per cell class and parameter, plain EM against EM with the MRF (mean and std over
+    the seeds), and the EMs' wall time."""
+    methods = np.array(table["method"])
+    groups = [f"{cells_label}\n{parameter_label}" for _, cells_label in MRF_CELLS
+              for _, parameter_label in MRF_PARAMETERS]
+    columns = [f"{cells}_{parameter}_rmse" for cells, _ in MRF_CELLS for parameter, _ in MRF_PARAMETERS]
+    means = {name: [table[column][methods == name].mean() for column in columns] for name, _ in MRF_METHODS}
+    spreads = {name: [sample_std(table[column][methods == name]) for column in columns] for name, _ in MRF_METHODS}
+    figure, (rmse_axes, time_axes) = plt.subplots(1, 2, figsize=(12.0, 4.8), layout="constrained",
+                                                  gridspec_kw={"width_ratios": (3, 1)})
+    grouped_bars(rmse_axes, groups, MRF_METHODS, means, spreads)
+    use_log_scale_if_spread(rmse_axes, means.values())
+    rmse_axes.set_xticklabels(groups)
+    rmse_axes.set_ylabel("RMSE per step")
+    rmse_axes.set_title("Error of the learned transitions against the truth", fontsize=10)
+    rmse_axes.grid(True, axis="y", alpha=0.3)
+    rmse_axes.legend(fontsize=8)
+    seconds = {name: [table["em_seconds"][methods == name].mean()] for name, _ in MRF_METHODS}
+    seconds_spread = {name: [sample_std(table["em_seconds"][methods == name])] for name, _ in MRF_METHODS}
+    grouped_bars(time_axes, ["EM"], MRF_METHODS, seconds, seconds_spread)
+    time_axes.set_xticklabels([""])
+    time_axes.set_ylabel("wall time per run [s]")
+    time_axes.set_title("Time of the EM", fontsize=10)
+    time_axes.grid(True, axis="y", alpha=0.3)
+    runs = len(set(table["repetition"]))
+    figure.suptitle(f"MRF-smoothed transition maps (Li, Barão & Rato): mean and std over {runs} seeds")
+    save(figure, os.path.join(out_dir, "mrf_rmse.png"))
+
+
 def read_evaluation(out_dir):
     """The CSV files of `out_dir` that exist: (accuracy by scenario, parameter error table or
-    None, path planning table or None); a note for each missing one."""
+    None, path planning table or None, MRF RMSE table or None, MRF maps or None); a note for
+    each missing one."""
     if not os.path.isdir(out_dir):
         raise InputError(f"{out_dir}: no such directory")
     accuracy = {}
@@ -339,19 +444,34 @@ def read_evaluation(out_dir):
         path_planning = read_table(path, ("class",), PLANNING_NUMBERS, may_be_empty=PLANNING_PAPER)
     else:
         print(f"note: path_planning.png skipped: no {path}")
-    if not accuracy and parameter_error is None and path_planning is None:
+    mrf_rmse = mrf_maps = None
+    path = os.path.join(out_dir, "mrf_rmse.csv")
+    if os.path.exists(path):
+        mrf_rmse = read_mrf_rmse(path)
+    else:
+        print(f"note: mrf_rmse.png skipped: no {path}")
+    path = os.path.join(out_dir, "mrf_maps.csv")
+    if os.path.exists(path):
+        mrf_maps = read_mrf_maps(path)
+    else:
+        print(f"note: mrf_maps.png skipped: no {path}")
+    if not accuracy and all(table is None for table in (parameter_error, path_planning, mrf_rmse, mrf_maps)):
         raise InputError(f"{out_dir}: none of the evaluation's CSV files (accuracy_<scenario>.csv, "
-                         "parameter_error.csv, path_planning.csv)")
-    return accuracy, parameter_error, path_planning
+                         "parameter_error.csv, path_planning.csv, mrf_rmse.csv, mrf_maps.csv)")
+    return accuracy, parameter_error, path_planning, mrf_rmse, mrf_maps
 
 
 def plot_evaluation(out_dir, evaluation):
-    accuracy, parameter_error, path_planning = evaluation
+    accuracy, parameter_error, path_planning, mrf_rmse, mrf_maps = evaluation
     plot_accuracy(out_dir, accuracy)
     if parameter_error is not None:
         plot_parameter_error(out_dir, parameter_error)
     if path_planning is not None:
         plot_path_planning(out_dir, path_planning)
+    if mrf_rmse is not None:
+        plot_mrf_rmse(out_dir, mrf_rmse)
+    if mrf_maps is not None:
+        plot_mrf_maps(out_dir, mrf_maps)
 
 
 def show_map(axes, layer, title):
@@ -405,7 +525,7 @@ def main(argv=None):
         description="Plots the evaluation's CSV files and process_bag's map layers as PNG files next to them.")
     parser.add_argument("out_dir", nargs="?", metavar="OUT_DIR",
                         help="directory with the CSV files of the evaluation (accuracy_<scenario>.csv, "
-                             "parameter_error.csv, path_planning.csv)")
+                             "parameter_error.csv, path_planning.csv, mrf_rmse.csv, mrf_maps.csv)")
     parser.add_argument("--layers", metavar="DIR", help="directory with map_server layers (process_bag --out)")
     args = parser.parse_args(argv)
     if args.out_dir is None and args.layers is None:

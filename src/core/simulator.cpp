@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdlib>
 #include <limits>
 #include <stdexcept>
 #include <utility>
@@ -37,6 +38,28 @@ std::uint64_t streamSeed(std::uint64_t seed, std::uint64_t stream) {
 }
 
 double cellCentre(std::int32_t cell, double resolution) { return (cell + 0.5) * resolution; }
+
+// Li, Barão & Rato's simulation (Sec. IV, Fig. 3) in cells. The robot's loop, counter-
+// clockwise through these cell centres: 24 + 12 + 24 + 12 = 72 cells, 24 steps at 3 cells per
+// step, a multiple of 3 so that the shortest hold (a third of a loop) is a whole number of
+// steps. Every square's near face is 3.5 cells from the loop (within the 8-cell beams, with
+// room behind it for beams that pass when it is free), the wall 6.5 cells from its left side.
+constexpr std::array<std::array<std::int32_t, 2>, 4> kMrfLoop{{{10, 9}, {34, 9}, {34, 21}, {10, 21}}};
+constexpr std::int32_t kMrfSpeedCells = 3;
+constexpr std::int32_t kMrfSquareSide = 4;
+// Below the bottom side (the first two), right of the right side, above the top side: where
+// the loop's outward (-pi/2 and -pi/4) beams look.
+constexpr std::array<std::array<std::int32_t, 2>, 4> kMrfSquares{{{15, 2}, {26, 2}, {38, 13}, {20, 25}}};
+
+std::int64_t mrfLoopSteps() {
+  std::int32_t cells = 0;
+  for (std::size_t i = 0; i < kMrfLoop.size(); ++i) {
+    const auto& a = kMrfLoop[i];
+    const auto& b = kMrfLoop[(i + 1) % kMrfLoop.size()];
+    cells += std::abs(b[0] - a[0]) + std::abs(b[1] - a[1]);  // axis-parallel sides
+  }
+  return cells / kMrfSpeedCells;
+}
 
 }  // namespace
 
@@ -202,6 +225,10 @@ void LaserConfig::validate() const {
   require(noise_sigma_m >= 0.0 && std::isfinite(noise_sigma_m), "LaserConfig: noise_sigma must be >= 0");
   require(dropout_probability >= 0.0 && dropout_probability <= 1.0,
           "LaserConfig: dropout_probability must be in [0, 1]");
+  for (std::size_t i = 0; i < active_beams.size(); ++i) {
+    require(active_beams[i] >= 0 && active_beams[i] < beams && (i == 0 || active_beams[i] > active_beams[i - 1]),
+            "LaserConfig: active_beams must be strictly increasing beam indices in [0, beams)");
+  }
 }
 
 Scan simulateScan(const World& world, const Pose2D& laser_pose, const LaserConfig& laser, double stamp_s, Rng& rng) {
@@ -213,7 +240,16 @@ Scan simulateScan(const World& world, const Pose2D& laser_pose, const LaserConfi
   scan.range_min_m = laser.range_min_m;
   scan.range_max_m = laser.range_max_m;
   scan.ranges_m.resize(static_cast<std::size_t>(laser.beams));
+  std::size_t next_active = 0;  // the first entry of active_beams not passed yet
   for (int i = 0; i < laser.beams; ++i) {
+    if (!laser.active_beams.empty()) {
+      if (next_active == laser.active_beams.size() || laser.active_beams[next_active] != i) {
+        // A dark beam: no reading, and no draw (the noise stream is that of the beams that exist).
+        scan.ranges_m[static_cast<std::size_t>(i)] = std::numeric_limits<float>::quiet_NaN();
+        continue;
+      }
+      ++next_active;
+    }
     const double angle = laser_pose.yaw_rad + laser.angle_min_rad + i * laser.angle_increment_rad;
     // Draw the noise for every beam, used or not: the stream stays aligned whatever the world.
     const bool dropout = rng.bernoulli(laser.dropout_probability);
@@ -279,6 +315,9 @@ void ScenarioConfig::validate() const {
   require(steps > 0, "scenario " + name + ": steps must be positive");
   require(scans_per_step > 0, "scenario " + name + ": scans_per_step must be positive");
   require(robot_speed_m_per_step > 0.0, "scenario " + name + ": robot_speed must be positive");
+  require(path_noise_sigma_m >= 0.0 && std::isfinite(path_noise_sigma_m) && path_noise_sigma_rad >= 0.0 &&
+              std::isfinite(path_noise_sigma_rad),
+          "scenario " + name + ": path_noise_sigma_m and path_noise_sigma_rad must be >= 0");
   require(p_hit_given_occ > p_hit_given_free && p_hit_given_free > 0.0 && p_hit_given_occ < 1.0,
           "scenario " + name + ": need 0 < p_hit_given_free < p_hit_given_occ < 1");
   laser.validate();
@@ -292,10 +331,15 @@ void ScenarioConfig::validate() const {
           "scenario " + name + ": p_arrive_per_hour and p_leave_per_hour must be in [0, 1]");
   require(door_change_probability >= 0.0 && door_change_probability <= 1.0,
           "scenario " + name + ": door_change_probability must be in [0, 1]");
+  if (kind == ScenarioKind::kMrfSquares) {
+    for (const std::int64_t hold : square_hold_steps) {
+      require(hold > 0, "scenario " + name + ": square_hold_steps must be positive");
+    }
+  }
 }
 
 std::vector<std::string> scenarioNames() {
-  return {"dynamic_5_5", "dynamic_25_25", "redraw_100", "redraw_300", "parking_lot", "door"};
+  return {"dynamic_5_5", "dynamic_25_25", "redraw_100", "redraw_300", "parking_lot", "door", "mrf_squares"};
 }
 
 ScenarioConfig scenarioConfig(const std::string& name) {
@@ -366,6 +410,41 @@ ScenarioConfig scenarioConfig(const std::string& name) {
     config.description = "a door on the short path between A and B (p = 0.001 per step), and a long detour";
     return config;
   }
+  if (name == "mrf_squares") {
+    // Li, Barão & Rato, Sec. IV: static walls on the left, four square objects holding their
+    // state for dt/3, 2 dt, 3 dt and 7 dt, a robot making 20 loops near a path at 3 cells per
+    // step, four beams at -pi/2, -pi/4, pi/4, pi/2 from its heading, 8 cells long. The paper
+    // leaves dt open; here it is the time of one loop (24 steps), so the squares range from
+    // changing three times per visit to a few times per run.
+    config.kind = ScenarioKind::kMrfSquares;
+    config.width_cells = 46;
+    config.height_cells = 32;
+    config.resolution_m = 0.1;
+    const std::int64_t loop = mrfLoopSteps();
+    config.square_hold_steps = {loop / 3, 2 * loop, 3 * loop, 7 * loop};
+    config.steps = 20 * loop;
+    config.laser.beams = 5;
+    config.laser.angle_min_rad = -0.5 * kPi;
+    config.laser.angle_increment_rad = 0.25 * kPi;
+    config.laser.active_beams = {0, 1, 3, 4};
+    config.laser.range_max_m = 8 * config.resolution_m;
+    // The paper's sensor errs in range ("the static walls are observed free and the free
+    // space around objects occupied sometimes"): a third of a cell makes about one reading
+    // in ten end in the cell before or behind the one it hit. It always returns a reading.
+    config.laser.noise_sigma_m = 0.3 * config.resolution_m;
+    config.laser.dropout_probability = 0.0;
+    config.laser_mount = Pose2D{0.0, 0.0, 0.0};
+    config.robot_speed_m_per_step = kMrfSpeedCells * config.resolution_m;
+    // "Runs near the dashed line randomly": half a cell and 3 degrees per step move the beams'
+    // cells from loop to loop, and 5 sigma still keep the robot a cell clear of every object.
+    config.path_noise_sigma_m = 0.5 * config.resolution_m;
+    config.path_noise_sigma_rad = 0.05;
+    config.p_hit_given_occ = 0.8;
+    config.p_hit_given_free = 0.05;
+    config.description = "Li, Barão & Rato's simulation: walls, four squares holding their state for 8, 48, 72 and "
+                         "168 steps (a third of a loop to 7 loops), 20 noisy loops with 4 beams of 8 cells";
+    return config;
+  }
   std::string names;
   for (const std::string& known : scenarioNames()) names += (names.empty() ? "" : ", ") + known;
   throw std::invalid_argument("unknown scenario '" + name + "' (known: " + names + ")");
@@ -378,7 +457,8 @@ Simulation::Simulation(const ScenarioConfig& config, std::uint64_t world_seed, s
       world_((config.validate(), config.width_cells), config.height_cells, config.resolution_m),
       layout_rng_(streamSeed(world_seed, 0)),
       dynamics_rng_(streamSeed(run_seed, 1)),
-      sensor_rng_(streamSeed(run_seed, 2)) {
+      sensor_rng_(streamSeed(run_seed, 2)),
+      path_rng_(streamSeed(run_seed, 3)) {
   switch (config_.kind) {
     case ScenarioKind::kRandomDynamic:
       buildRandomDynamic();
@@ -389,8 +469,12 @@ Simulation::Simulation(const ScenarioConfig& config, std::uint64_t world_seed, s
     case ScenarioKind::kDoor:
       buildDoor();
       break;
+    case ScenarioKind::kMrfSquares:
+      buildMrfSquares();
+      break;
   }
   path_.emplace(route_, config_.robot_speed_m_per_step);
+  drawPathNoise();
 }
 
 void Simulation::addBorderWalls() {
@@ -531,8 +615,61 @@ void Simulation::buildDoor() {
             at(1, 1)};
 }
 
+void Simulation::buildMrfSquares() {
+  // "The walls on the left are static": a wall along the loop's left side with two short
+  // stubs towards it, a bracket.
+  for (std::int32_t y = 4; y <= 27; ++y) world_.setStatic(3, y, true);
+  for (std::int32_t x = 3; x <= 8; ++x) {
+    world_.setStatic(x, 4, true);
+    world_.setStatic(x, 27, true);
+  }
+  squares_.square_side_cells = kMrfSquareSide;
+  squares_.loop_steps = mrfLoopSteps();
+  for (std::size_t k = 0; k < kMrfSquares.size(); ++k) {
+    squares_.square_corner[k] = CellXY{kMrfSquares[k][0], kMrfSquares[k][1]};
+    const std::int64_t hold = config_.square_hold_steps[k];
+    // A fixed hold is no Markov chain; its truth is the Markov rate of the same changes, one
+    // per `hold` steps in either state (as the parking lot's hourly rates spread over the hour).
+    const double rate = 1.0 / static_cast<double>(hold);
+    const bool occupied = dynamics_rng_.bernoulli(0.5);
+    // The run starts anywhere in the current hold, so the toggles' phase differs by run.
+    square_next_toggle_[k] = 1 + static_cast<std::int64_t>(dynamics_rng_.below(static_cast<std::uint64_t>(hold)));
+    for (std::int32_t y = kMrfSquares[k][1]; y < kMrfSquares[k][1] + kMrfSquareSide; ++y) {
+      for (std::int32_t x = kMrfSquares[k][0]; x < kMrfSquares[k][0] + kMrfSquareSide; ++x) {
+        world_.setScheduled(x, y, TransitionParams{rate, rate}, occupied);
+      }
+    }
+  }
+  const double r = world_.resolution();
+  for (const auto& corner : kMrfLoop) route_.push_back({cellCentre(corner[0], r), cellCentre(corner[1], r)});
+}
+
+void Simulation::toggleSquares() {
+  for (std::size_t k = 0; k < square_next_toggle_.size(); ++k) {
+    if (step_ != square_next_toggle_[k]) continue;
+    square_next_toggle_[k] += config_.square_hold_steps[k];
+    const CellXY corner = squares_.square_corner[k];
+    const bool occupied = !world_.occupied(corner.x, corner.y);
+    for (std::int32_t y = corner.y; y < corner.y + squares_.square_side_cells; ++y) {
+      for (std::int32_t x = corner.x; x < corner.x + squares_.square_side_cells; ++x) world_.setState(x, y, occupied);
+    }
+  }
+}
+
+void Simulation::drawPathNoise() {
+  // Only a noisy path draws: the other scenarios' runs stay as they were.
+  if (config_.path_noise_sigma_m == 0.0 && config_.path_noise_sigma_rad == 0.0) return;
+  path_noise_.x_m = config_.path_noise_sigma_m * path_rng_.normal();
+  path_noise_.y_m = config_.path_noise_sigma_m * path_rng_.normal();
+  path_noise_.yaw_rad = config_.path_noise_sigma_rad * path_rng_.normal();
+}
+
 Pose2D Simulation::robotPose(int scan_index) const {
-  return path_->poseAt(static_cast<double>(step_) + static_cast<double>(scan_index) / config_.scans_per_step);
+  Pose2D pose = path_->poseAt(static_cast<double>(step_) + static_cast<double>(scan_index) / config_.scans_per_step);
+  pose.x_m += path_noise_.x_m;
+  pose.y_m += path_noise_.y_m;
+  pose.yaw_rad += path_noise_.yaw_rad;
+  return pose;
 }
 
 Scan Simulation::scan(int scan_index) { return scanFrom(robotPose(scan_index), scan_index); }
@@ -551,11 +688,18 @@ void Simulation::advance() {
   ++step_;
   if (config_.kind == ScenarioKind::kRandomDynamic && step_ == config_.redraw_at_step) drawDynamicCells(layout_rng_);
   if (config_.kind == ScenarioKind::kParkingLot && step_ % config_.steps_per_hour == 0) parkingHour();
+  if (config_.kind == ScenarioKind::kMrfSquares) toggleSquares();
+  drawPathNoise();
 }
 
 const DoorLayout& Simulation::doorLayout() const {
   if (config_.kind != ScenarioKind::kDoor) throw std::logic_error("doorLayout: not the door scenario");
   return door_;
+}
+
+const MrfSquaresLayout& Simulation::mrfSquaresLayout() const {
+  if (config_.kind != ScenarioKind::kMrfSquares) throw std::logic_error("mrfSquaresLayout: not the mrf_squares scenario");
+  return squares_;
 }
 
 }  // namespace core

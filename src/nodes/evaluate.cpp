@@ -1,5 +1,5 @@
 // evaluate: the papers' experiments on simulated changing worlds (core/evaluation.h,
-// core/path_planning.h), written as CSV tables and a summary into one directory;
+// core/path_planning.h, core/mrf_experiment.h), written as CSV tables and a summary into one directory;
 // scripts/plot_evaluation.py turns them into the papers' figures.
 #include <algorithm>
 #include <cerrno>
@@ -19,6 +19,7 @@
 
 #include "dynamic_occupancy_grid/core/evaluation.h"
 #include "dynamic_occupancy_grid/core/map_export.h"
+#include "dynamic_occupancy_grid/core/mrf_experiment.h"
 #include "dynamic_occupancy_grid/core/path_planning.h"
 
 namespace core = dynamic_occupancy_grid::core;
@@ -36,6 +37,9 @@ const char* const kUsage =
     "  --path-repetitions N  repetitions of the path planning experiment (default 20;\n"
     "                        0 skips it)\n"
     "  --path-runs N         runs from A to B or back per repetition (default 20)\n"
+    "  --mrf-repetitions N   seeds of the MRF experiment (Li, Barão & Rato's simulation,\n"
+    "                        scenario mrf_squares: offline EM with and without the MRF;\n"
+    "                        default 10; 0 skips it)\n"
     "  --seed S              base seed (default 1): the same seed gives the same numbers\n"
     "  --threads N           worker threads (default 0 = one per core)\n";
 
@@ -45,6 +49,7 @@ struct Options {
   int repetitions = 10;
   int path_repetitions = 20;
   int path_runs = 20;
+  int mrf_repetitions = 10;
   std::uint64_t seed = 1;
   unsigned threads = 0;
 };
@@ -93,6 +98,7 @@ Options parseOptions(int argc, char** argv) {
             usageError(error.what());
           }
           if (name == "door") usageError("the door scenario is the path planning experiment (--path-repetitions)");
+          if (name == "mrf_squares") usageError("the mrf_squares scenario is the MRF experiment (--mrf-repetitions)");
           if (std::find(options.scenarios.begin(), options.scenarios.end(), name) != options.scenarios.end()) {
             usageError("scenario " + name + " is listed twice");
           }
@@ -105,6 +111,8 @@ Options parseOptions(int argc, char** argv) {
       options.path_repetitions = static_cast<int>(parseInteger(arg, value, 0, 100000));
     } else if (arg == "--path-runs") {
       options.path_runs = static_cast<int>(parseInteger(arg, value, 1, 100000));
+    } else if (arg == "--mrf-repetitions") {
+      options.mrf_repetitions = static_cast<int>(parseInteger(arg, value, 0, 100000));
     } else if (arg == "--seed") {
       options.seed = static_cast<std::uint64_t>(parseInteger(arg, value, 0, std::numeric_limits<long long>::max()));
     } else if (arg == "--threads") {
@@ -113,8 +121,9 @@ Options parseOptions(int argc, char** argv) {
       usageError("unknown option " + arg);
     }
   }
-  if (options.scenarios.empty() && options.path_repetitions == 0) {
-    usageError("nothing to run: no scenarios (--scenarios none) and no path planning (--path-repetitions 0)");
+  if (options.scenarios.empty() && options.path_repetitions == 0 && options.mrf_repetitions == 0) {
+    usageError("nothing to run: no scenarios (--scenarios none), no path planning (--path-repetitions 0) and no "
+               "MRF experiment (--mrf-repetitions 0)");
   }
   return options;
 }
@@ -221,6 +230,160 @@ struct Check {
   std::string measured;
   bool met;
 };
+
+// The MRF experiment's numbers: a probability (RMSE, map value) with enough digits for the
+// static cells' 1e-4; empty for none (NaN: a cell never observed).
+std::string probability(double value) { return std::isnan(value) ? "" : fixed(value, 8); }
+
+/// The change from `before` to `after` in percent of `before`, with its sign ("-6.1 %").
+std::string signedPercent(double before, double after) {
+  if (before == 0.0) return "n/a";
+  const double change = 100.0 * (after - before) / before;
+  return (change > 0.0 ? "+" : "") + fixed(change, 1) + " %";
+}
+
+std::string mrfRmseCsv(const core::MrfExperimentResult& result) {
+  std::ostringstream csv;
+  csv << "repetition,world_seed,run_seed,method,sparse_cells,sparse_p_occ_given_free_rmse,"
+         "sparse_p_free_given_occ_rmse,well_observed_cells,well_observed_p_occ_given_free_rmse,"
+         "well_observed_p_free_given_occ_rmse,em_iterations,newton_iterations,em_seconds\n";
+  for (std::size_t r = 0; r < result.repetitions.size(); ++r) {
+    const core::MrfRepetition& run = result.repetitions[r];
+    for (const auto& [method, outcome] : {std::make_pair("plain", &run.plain), std::make_pair("mrf", &run.mrf)}) {
+      int newton = 0;
+      for (const std::array<int, 2>& step : outcome->newton_iterations) newton += step[0] + step[1];
+      const core::SplitRmse& e = outcome->rmse;
+      csv << r << ',' << run.world_seed << ',' << run.run_seed << ',' << method << ',' << e.sparse.cells << ','
+          << probability(e.sparse.p_occ_given_free) << ',' << probability(e.sparse.p_free_given_occ) << ','
+          << e.well_observed.cells << ',' << probability(e.well_observed.p_occ_given_free) << ','
+          << probability(e.well_observed.p_free_given_occ) << ',' << outcome->em_iterations << ',' << newton << ','
+          << fixed(outcome->em_seconds, 6) << '\n';
+    }
+  }
+  return csv.str();
+}
+
+// Per EM iteration (0 = the starting point): the objective and, for the MRF, the Newton
+// iterations of each map's M-step.
+std::string mrfIterationsCsv(const core::MrfExperimentResult& result) {
+  std::ostringstream csv;
+  csv << "repetition,method,iteration,objective,newton_p_occ_to_occ,newton_p_free_to_free\n";
+  for (std::size_t r = 0; r < result.repetitions.size(); ++r) {
+    const core::MrfRepetition& run = result.repetitions[r];
+    for (const auto& [method, outcome] : {std::make_pair("plain", &run.plain), std::make_pair("mrf", &run.mrf)}) {
+      for (std::size_t k = 0; k < outcome->objective.size(); ++k) {
+        csv << r << ',' << method << ',' << k << ',' << fixed(outcome->objective[k], 6) << ',';
+        if (k > 0 && k <= outcome->newton_iterations.size()) {
+          csv << outcome->newton_iterations[k - 1][0] << ',' << outcome->newton_iterations[k - 1][1];
+        } else {
+          csv << ',';
+        }
+        csv << '\n';
+      }
+    }
+  }
+  return csv.str();
+}
+
+std::string mrfMapsCsv(const core::MrfMaps& maps) {
+  std::ostringstream csv;
+  csv << "x,y,observed_steps,truth_p_occ_given_free,truth_p_free_given_occ,plain_p_occ_given_free,"
+         "plain_p_free_given_occ,mrf_p_occ_given_free,mrf_p_free_given_occ\n";
+  for (std::int32_t y = 0; y < maps.height; ++y) {
+    for (std::int32_t x = 0; x < maps.width; ++x) {
+      const std::size_t i = static_cast<std::size_t>(y) * static_cast<std::size_t>(maps.width) + static_cast<std::size_t>(x);
+      csv << x << ',' << y << ',' << maps.observed_steps[i];
+      for (const core::TransitionParams* p : {&maps.truth[i], &maps.plain[i], &maps.mrf[i]}) {
+        csv << ',' << probability(p->p_occ_given_free) << ',' << probability(p->p_free_given_occ);
+      }
+      csv << '\n';
+    }
+  }
+  return csv.str();
+}
+
+// The summary's MRF section, and the three targets as checks.
+std::string mrfSummary(const core::ScenarioConfig& scenario, const core::MrfExperimentConfig& config,
+                       const core::MrfExperimentResult& result, std::vector<Check>& checks) {
+  const auto values = [&](const auto& get) {
+    std::vector<double> out;
+    for (const core::MrfRepetition& run : result.repetitions) out.push_back(get(run));
+    return out;
+  };
+  const auto plus_minus = [](const MeanStd& v, int digits) { return fixed(v.mean, digits) + " ± " + fixed(v.std, digits); };
+  std::ostringstream text;
+  text << "\n## MRF-smoothed transition maps (Li, Barão & Rato, Sec. IV)\n\n"
+       << "Scenario " << scenario.name << ": " << scenario.description << ". Offline EM of every observed cell from "
+       << "p = 0.5 (the paper's start), the tools' prior (2 pseudo-transitions), at most " << config.max_iterations
+       << " iterations, without and with the MRF prior at T = " << fixed(config.temperature, 0)
+       << ". RMSE of the learned probabilities per step against the truth (1 / hold time for the squares, 0 for "
+          "static cells), mean ± std over "
+       << result.repetitions.size() << " seeds (seed " << config.seed << "); sparse: fewer than " << config.sparse_below
+       << " observed steps.\n\n"
+       << "| cells | parameter | cells per run | plain EM | MRF EM | change |\n|---|---|---|---|---|---|\n";
+  struct Row {
+    const char* cells;
+    const char* parameter;
+    double plain_mean;
+    double mrf_mean;
+  };
+  std::vector<Row> rows;
+  for (const bool sparse : {true, false}) {
+    for (const bool occ_given_free : {true, false}) {
+      const auto rmse_of = [sparse, occ_given_free](const core::MrfEmOutcome& outcome) {
+        const core::TransitionRmse& e = sparse ? outcome.rmse.sparse : outcome.rmse.well_observed;
+        return occ_given_free ? e.p_occ_given_free : e.p_free_given_occ;
+      };
+      const MeanStd plain = meanStd(values([&](const core::MrfRepetition& run) { return rmse_of(run.plain); }));
+      const MeanStd mrf = meanStd(values([&](const core::MrfRepetition& run) { return rmse_of(run.mrf); }));
+      const MeanStd cells = meanStd(values([&](const core::MrfRepetition& run) {
+        return static_cast<double>(sparse ? run.mrf.rmse.sparse.cells : run.mrf.rmse.well_observed.cells);
+      }));
+      const Row row{sparse ? "sparse" : "well observed", occ_given_free ? "p_occ_given_free" : "p_free_given_occ",
+                    plain.mean, mrf.mean};
+      text << "| " << row.cells << " | " << row.parameter << " | " << fixed(cells.mean, 1) << " | "
+           << plus_minus(plain, 4) << " | " << plus_minus(mrf, 4) << " | " << signedPercent(plain.mean, mrf.mean)
+           << " |\n";
+      rows.push_back(row);
+    }
+  }
+  const MeanStd plain_seconds = meanStd(values([](const core::MrfRepetition& run) { return run.plain.em_seconds; }));
+  const MeanStd mrf_seconds = meanStd(values([](const core::MrfRepetition& run) { return run.mrf.em_seconds; }));
+  const MeanStd ratio =
+      meanStd(values([](const core::MrfRepetition& run) { return run.mrf.em_seconds / run.plain.em_seconds; }));
+  const MeanStd plain_iterations =
+      meanStd(values([](const core::MrfRepetition& run) { return static_cast<double>(run.plain.em_iterations); }));
+  const MeanStd mrf_iterations =
+      meanStd(values([](const core::MrfRepetition& run) { return static_cast<double>(run.mrf.em_iterations); }));
+  // Newton iterations per M-step and map (p(occ -> occ), p(free -> free)).
+  std::array<MeanStd, 2> newton{};
+  for (std::size_t map = 0; map < 2; ++map) {
+    newton[map] = meanStd(values([map](const core::MrfRepetition& run) {
+      double sum = 0.0;
+      for (const std::array<int, 2>& step : run.mrf.newton_iterations) sum += step[map];
+      return run.mrf.newton_iterations.empty() ? 0.0 : sum / static_cast<double>(run.mrf.newton_iterations.size());
+    }));
+  }
+  text << "\nEM wall time per run (each EM single-threaded, seeds in parallel on --threads): plain " << plus_minus(plain_seconds, 3)
+       << " s, MRF " << plus_minus(mrf_seconds, 3) << " s, ratio " << plus_minus(ratio, 2) << ". EM iterations: plain "
+       << plus_minus(plain_iterations, 1) << " (the most any cell used), MRF " << plus_minus(mrf_iterations, 1)
+       << ". Newton iterations per MRF M-step: " << plus_minus(newton[0], 2) << " on p(occ → occ), "
+       << plus_minus(newton[1], 2) << " on p(free → free). Per seed in mrf_rmse.csv, per EM iteration (objective, "
+       << "Newton iterations) in mrf_iterations.csv, the first seed's maps in mrf_maps.csv.\n";
+
+  // A 30 % lower RMSE: the MRF's mean at most 0.7 of plain EM's.
+  checks.push_back({"MRF: sparse-cell RMSE ≥ 30 % lower than plain EM (both parameters)",
+                    "p_occ_given_free " + signedPercent(rows[0].plain_mean, rows[0].mrf_mean) + ", p_free_given_occ " +
+                        signedPercent(rows[1].plain_mean, rows[1].mrf_mean),
+                    rows[0].mrf_mean <= 0.7 * rows[0].plain_mean && rows[1].mrf_mean <= 0.7 * rows[1].plain_mean});
+  checks.push_back({"MRF: well-observed RMSE no higher than plain EM (both parameters)",
+                    "p_occ_given_free " + fixed(rows[2].mrf_mean, 4) + " vs " + fixed(rows[2].plain_mean, 4) +
+                        ", p_free_given_occ " + fixed(rows[3].mrf_mean, 4) + " vs " + fixed(rows[3].plain_mean, 4),
+                    rows[2].mrf_mean <= rows[2].plain_mean && rows[3].mrf_mean <= rows[3].plain_mean});
+  checks.push_back({"MRF: EM time ≤ 5× plain EM", fixed(ratio.mean, 2) + "× (mean of the per-seed ratios)",
+                    ratio.mean <= 5.0});
+  return text.str();
+}
 
 }  // namespace
 
@@ -368,6 +531,22 @@ int main(int argc, char** argv) {
       checks.push_back({"path planning: offline effectiveness ≥ the paper's " + fixed(paper, 2) + " % and ≥ static + 5",
                         fixed(offline.mean, 2) + " % vs static " + fixed(stat.mean, 2) + " %",
                         offline.mean >= paper && offline.mean >= stat.mean + 5.0});
+    }
+
+    if (options.mrf_repetitions > 0) {
+      const core::ScenarioConfig scenario = core::scenarioConfig("mrf_squares");
+      core::MrfExperimentConfig config;
+      config.repetitions = options.mrf_repetitions;
+      config.seed = options.seed;
+      config.threads = options.threads;
+      std::cerr << "evaluate: MRF experiment (" << scenario.name << "), " << config.repetitions << " seeds ..."
+                << std::flush;
+      const core::MrfExperimentResult result = core::runMrfExperiment(scenario, config);
+      std::cerr << " " << fixed(result.seconds, 1) << " s\n";
+      core::writeFileAtomically(options.out + "/mrf_rmse.csv", mrfRmseCsv(result));
+      core::writeFileAtomically(options.out + "/mrf_iterations.csv", mrfIterationsCsv(result));
+      core::writeFileAtomically(options.out + "/mrf_maps.csv", mrfMapsCsv(result.first_maps));
+      summary << mrfSummary(scenario, config, result, checks);
     }
 
     summary << "\n## Targets\n\n| target | measured | met |\n|---|---|---|\n";

@@ -208,6 +208,40 @@ TEST(SimulateScan, ReadsChordMiddlesWithNoiseDropoutsAndNoReturns) {
   EXPECT_EQ(away.range_max_m, 8.0);
 }
 
+TEST(SimulateScan, DarkBeamsReadNothingAndDrawNothing) {
+  World world(40, 40, 0.1);
+  for (std::int32_t y = 0; y < 40; ++y) world.setStatic(30, y, true);
+  LaserConfig laser;
+  laser.beams = 5;
+  laser.angle_min_rad = -kPi / 2;
+  laser.angle_increment_rad = kPi / 4;
+  laser.dropout_probability = 0.0;
+  const Pose2D pose{1.0, 2.05, 0.0};
+  // Listing every beam is the same sensor as listing none: the same readings from the same
+  // noise stream.
+  Rng all_rng(9);
+  Rng listed_rng(9);
+  LaserConfig listed = laser;
+  listed.active_beams = {0, 1, 2, 3, 4};
+  const Scan all = simulateScan(world, pose, laser, 1.0, all_rng);
+  const Scan same = simulateScan(world, pose, listed, 1.0, listed_rng);
+  EXPECT_EQ(all.ranges_m, same.ranges_m);
+  // The middle beam dark: NaN; the beams before it read as before.
+  Rng dark_rng(9);
+  listed.active_beams = {0, 1, 3, 4};
+  const Scan dark = simulateScan(world, pose, listed, 1.0, dark_rng);
+  ASSERT_EQ(dark.ranges_m.size(), 5U);
+  EXPECT_TRUE(std::isnan(dark.ranges_m[2]));
+  EXPECT_EQ(dark.ranges_m[0], all.ranges_m[0]);
+  EXPECT_EQ(dark.ranges_m[1], all.ranges_m[1]);
+  EXPECT_TRUE(std::isfinite(all.ranges_m[2]));  // the wall ahead: the dark beam would have read it
+  for (const std::vector<int>& bad : {std::vector<int>{5}, std::vector<int>{-1}, std::vector<int>{1, 1},
+                                      std::vector<int>{3, 1}}) {
+    listed.active_beams = bad;
+    EXPECT_THROW(listed.validate(), std::invalid_argument);
+  }
+}
+
 TEST(LoopPath, DrivesTheLoopAtItsSpeed) {
   const LoopPath path({{0.0, 0.0}, {2.0, 0.0}, {2.0, 1.0}}, 0.5);
   EXPECT_NEAR(path.lengthM(), 3.0 + std::sqrt(5.0), 1e-12);
@@ -408,6 +442,148 @@ TEST(Scenarios, DoorLayoutAndExplorationRoute) {
   EXPECT_TRUE(near_west);
   EXPECT_TRUE(near_east);
   EXPECT_THROW(Simulation(scenarioConfig("dynamic_5_5"), 1, 1).doorLayout(), std::logic_error);
+}
+
+// Li, Barão & Rato's simulation (Sec. IV): four squares holding their state for dt/3, 2 dt,
+// 3 dt and 7 dt with dt one loop of the robot, whose truth is the Markov rate 1 / hold; static
+// walls on the left; everything else static and free.
+TEST(Scenarios, MrfSquaresHoldTheirStatesForTheirHoldTimes) {
+  const ScenarioConfig config = scenarioConfig("mrf_squares");
+  Simulation simulation(config, 71, 72);
+  const MrfSquaresLayout& layout = simulation.mrfSquaresLayout();
+  const World& world = simulation.world();
+  const std::int64_t dt = layout.loop_steps;
+  EXPECT_EQ(dt, 24);
+  EXPECT_EQ(config.square_hold_steps, (std::array<std::int64_t, 4>{dt / 3, 2 * dt, 3 * dt, 7 * dt}));
+  EXPECT_EQ(config.steps, 20 * dt);
+  const auto square_of = [&](std::int32_t x, std::int32_t y) {
+    for (std::size_t k = 0; k < layout.square_corner.size(); ++k) {
+      const CellXY c = layout.square_corner[k];
+      if (x >= c.x && y >= c.y && x < c.x + layout.square_side_cells && y < c.y + layout.square_side_cells) {
+        return static_cast<int>(k);
+      }
+    }
+    return -1;
+  };
+  std::int32_t leftmost_square = world.width();
+  for (const CellXY c : layout.square_corner) leftmost_square = std::min(leftmost_square, c.x);
+  std::size_t walls = 0;
+  for (std::int32_t y = 0; y < world.height(); ++y) {
+    for (std::int32_t x = 0; x < world.width(); ++x) {
+      const int k = square_of(x, y);
+      if (k >= 0) {
+        const double rate = 1.0 / static_cast<double>(config.square_hold_steps[static_cast<std::size_t>(k)]);
+        EXPECT_DOUBLE_EQ(world.truth(x, y).p_occ_given_free, rate);
+        EXPECT_DOUBLE_EQ(world.truth(x, y).p_free_given_occ, rate);
+      } else {
+        ASSERT_TRUE(world.truth(x, y).isStatic()) << x << ", " << y;
+        if (world.occupied(x, y)) {
+          ++walls;
+          EXPECT_LT(x, leftmost_square);  // the walls are on the left
+        }
+      }
+      EXPECT_FALSE(world.isDynamic(x, y));  // changed by the schedule only
+    }
+  }
+  EXPECT_GT(walls, 20U);
+
+  // Every hold between two toggles lasts exactly its time; the first (the run starts inside a
+  // hold) at most that; all cells of a square change together; nothing else changes.
+  std::array<std::vector<std::int64_t>, 4> toggles;
+  std::vector<std::uint8_t> before = world.occupancy();
+  for (std::int64_t t = 1; t <= config.steps; ++t) {
+    simulation.advance();
+    const std::vector<std::uint8_t>& after = world.occupancy();
+    std::array<int, 4> changed{};
+    for (std::size_t i = 0; i < after.size(); ++i) {
+      if (after[i] == before[i]) continue;
+      const CellXY c = world.cellOf(i);
+      const int k = square_of(c.x, c.y);
+      ASSERT_GE(k, 0) << "cell " << c.x << ", " << c.y << " changed at step " << t;
+      ++changed[static_cast<std::size_t>(k)];
+    }
+    for (std::size_t k = 0; k < 4; ++k) {
+      if (changed[k] == 0) continue;
+      EXPECT_EQ(changed[k], layout.square_side_cells * layout.square_side_cells);
+      toggles[k].push_back(t);
+    }
+    before = after;
+  }
+  for (std::size_t k = 0; k < 4; ++k) {
+    const std::int64_t hold = config.square_hold_steps[k];
+    ASSERT_GE(toggles[k].size(), 2U) << k;
+    EXPECT_LE(toggles[k].front(), hold) << k;
+    for (std::size_t j = 1; j < toggles[k].size(); ++j) EXPECT_EQ(toggles[k][j] - toggles[k][j - 1], hold) << k;
+    EXPECT_GT(toggles[k].back() + hold, config.steps) << k;  // none missed at the end
+  }
+  EXPECT_THROW(Simulation(scenarioConfig("door"), 1, 1).mrfSquaresLayout(), std::logic_error);
+}
+
+// Four beams at -pi/2, -pi/4, pi/4, pi/2 from the heading, 8 cells long; a robot at 3 cells
+// per step whose pose is off its loop by the configured noise, never inside an object.
+TEST(Scenarios, MrfSquaresRobotAndBeams) {
+  const ScenarioConfig config = scenarioConfig("mrf_squares");
+  EXPECT_DOUBLE_EQ(config.laser.range_max_m, 8 * config.resolution_m);
+  EXPECT_DOUBLE_EQ(config.robot_speed_m_per_step, 3 * config.resolution_m);
+  Simulation simulation(config, 81, 82);
+  const std::int64_t dt = simulation.mrfSquaresLayout().loop_steps;
+  std::vector<Pose2D> poses;
+  std::array<int, 5> readings{};
+  for (std::int64_t t = 0; t < config.steps; ++t) {
+    const Pose2D robot = simulation.robotPose();
+    poses.push_back(robot);
+    ASSERT_FALSE(simulation.world().occupied(static_cast<std::int32_t>(std::floor(robot.x_m / config.resolution_m)),
+                                             static_cast<std::int32_t>(std::floor(robot.y_m / config.resolution_m))))
+        << "step " << t;
+    const Scan scan = simulation.scan();
+    EXPECT_EQ(scan.laser_pose.x_m, robot.x_m);
+    EXPECT_EQ(scan.laser_pose.yaw_rad, robot.yaw_rad);
+    ASSERT_EQ(scan.ranges_m.size(), 5U);
+    for (std::size_t i = 0; i < 5; ++i) {
+      if (std::isnan(scan.ranges_m[i])) continue;
+      ++readings[i];
+      EXPECT_TRUE(std::isinf(scan.ranges_m[i]) || scan.ranges_m[i] < 8 * config.resolution_m);
+    }
+    // A beam's reading is where castRay meets the world in its direction (up to the noise).
+    for (const std::size_t i : {std::size_t{0}, std::size_t{1}, std::size_t{3}, std::size_t{4}}) {
+      const double angle = robot.yaw_rad + scan.angle_min_rad + static_cast<double>(i) * scan.angle_increment_rad;
+      const RayHit hit = castRay(simulation.world(), robot.x_m, robot.y_m, angle, scan.range_max_m);
+      if (std::isfinite(hit.entry_m) && std::isfinite(scan.ranges_m[i])) {
+        EXPECT_NEAR(scan.ranges_m[i], 0.5 * (hit.entry_m + hit.exit_m), 6.0 * config.laser.noise_sigma_m);
+      }
+    }
+    simulation.advance();
+  }
+  EXPECT_NEAR(simulation.scan().angle_min_rad, -kPi / 2, 1e-12);
+  EXPECT_NEAR(simulation.scan().angle_increment_rad, kPi / 4, 1e-12);
+  // The beam straight ahead never reads; the four others always do (no dropouts).
+  EXPECT_EQ(readings, (std::array<int, 5>{static_cast<int>(config.steps), static_cast<int>(config.steps), 0,
+                                          static_cast<int>(config.steps), static_cast<int>(config.steps)}));
+  // One loop later the robot is where it was but for the noise of the two steps: differences
+  // of sigma * sqrt(2) per axis, no drift.
+  double dx = 0.0, dx2 = 0.0, dyaw2 = 0.0;
+  double n = 0.0;
+  for (std::size_t t = 0; t + static_cast<std::size_t>(dt) < poses.size(); ++t) {
+    const Pose2D& a = poses[t];
+    const Pose2D& b = poses[t + static_cast<std::size_t>(dt)];
+    dx += b.x_m - a.x_m;
+    dx2 += (b.x_m - a.x_m) * (b.x_m - a.x_m) + (b.y_m - a.y_m) * (b.y_m - a.y_m);
+    dyaw2 += (b.yaw_rad - a.yaw_rad) * (b.yaw_rad - a.yaw_rad);
+    n += 1.0;
+  }
+  const double sigma = config.path_noise_sigma_m;
+  EXPECT_NEAR(dx / n, 0.0, 5.0 * sigma * std::sqrt(2.0 / n));
+  EXPECT_NEAR(std::sqrt(dx2 / (2.0 * n)), sigma * std::sqrt(2.0), 0.1 * sigma);
+  EXPECT_NEAR(std::sqrt(dyaw2 / n), config.path_noise_sigma_rad * std::sqrt(2.0), 0.1 * config.path_noise_sigma_rad);
+  // Half a loop later it is elsewhere: the loop is dt steps long.
+  EXPECT_GT(std::hypot(poses[static_cast<std::size_t>(dt / 2)].x_m - poses[0].x_m,
+                       poses[static_cast<std::size_t>(dt / 2)].y_m - poses[0].y_m),
+            10 * config.resolution_m);
+  // The noise comes from the run seed: the same run again is the same, another run differs.
+  Simulation again(config, 81, 82);
+  Simulation other(config, 81, 83);
+  EXPECT_EQ(again.robotPose().x_m, poses[0].x_m);
+  EXPECT_NE(other.robotPose().x_m, poses[0].x_m);
 }
 
 // The sensor model each scenario maps with is no more certain than its laser: measured

@@ -14,7 +14,8 @@ EVALUATE = None
 PLOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "scripts", "plot_evaluation.py")
 METHODS = ["static", "static_unclamped", "online", "offline", "oracle"]
 SMALL = ["--scenarios", "dynamic_5_5,redraw_100", "--repetitions", "2", "--path-repetitions", "2",
-         "--path-runs", "4", "--threads", "2"]
+         "--path-runs", "4", "--mrf-repetitions", "2", "--threads", "2"]
+MRF_WORLD = (46, 32)  # the mrf_squares scenario's cells (core/simulator.cpp)
 
 
 def evaluate(args):
@@ -36,10 +37,71 @@ class EvaluateTool(unittest.TestCase):
     def test_writes_the_tables_and_the_summary(self):
         self.assertEqual(self.rc, 0, self.stderr)
         for name in ["accuracy_dynamic_5_5.csv", "accuracy_redraw_100.csv", "parameter_error.csv",
-                     "path_planning.csv", "summary.md"]:
+                     "path_planning.csv", "mrf_rmse.csv", "mrf_iterations.csv", "mrf_maps.csv", "summary.md"]:
             self.assertTrue(os.path.isfile(os.path.join(self.out, name)), name)
         self.assertIn("## Targets", self.stdout)
         self.assertIn(self.out, self.stdout)
+
+    def test_summary_has_the_mrf_section_and_its_targets(self):
+        with open(os.path.join(self.out, "summary.md")) as file:
+            summary = file.read()
+        self.assertIn("## MRF-smoothed transition maps", summary)
+        self.assertLess(summary.index("## MRF-smoothed"), summary.index("## Targets"))
+        for cells in ("sparse", "well observed"):
+            for parameter in ("p_occ_given_free", "p_free_given_occ"):
+                self.assertIn(f"| {cells} | {parameter} |", summary)
+        for target in ("MRF: sparse-cell RMSE ≥ 30 % lower than plain EM", "MRF: well-observed RMSE no higher",
+                       "MRF: EM time ≤ 5× plain EM"):
+            self.assertIn(f"| {target}", summary)
+
+    def test_mrf_tables(self):
+        with open(os.path.join(self.out, "mrf_rmse.csv")) as file:
+            rows = list(csv.DictReader(file))
+        self.assertEqual([(row["repetition"], row["method"]) for row in rows],
+                         [("0", "plain"), ("0", "mrf"), ("1", "plain"), ("1", "mrf")])
+        for plain, mrf in (rows[0:2], rows[2:4]):
+            # The same run, so the same cells, split the same way.
+            for column in ("world_seed", "run_seed", "sparse_cells", "well_observed_cells"):
+                self.assertEqual(plain[column], mrf[column], column)
+            self.assertEqual(plain["newton_iterations"], "0")
+            self.assertGreater(int(mrf["newton_iterations"]), 0)
+            for row in (plain, mrf):
+                self.assertGreater(int(row["sparse_cells"]), 0)
+                self.assertGreater(int(row["well_observed_cells"]), 0)
+                self.assertGreater(float(row["em_seconds"]), 0.0)
+                self.assertGreater(int(row["em_iterations"]), 0)
+                for cells in ("sparse", "well_observed"):
+                    for parameter in ("p_occ_given_free", "p_free_given_occ"):
+                        value = float(row[f"{cells}_{parameter}_rmse"])
+                        self.assertGreater(value, 0.0)
+                        self.assertLess(value, 0.5)  # the EM's bound on the learned probabilities
+        self.assertNotEqual(rows[0]["run_seed"], rows[2]["run_seed"])
+
+        with open(os.path.join(self.out, "mrf_iterations.csv")) as file:
+            iterations = list(csv.DictReader(file))
+        for row in rows:
+            mine = [it for it in iterations if it["repetition"] == row["repetition"] and it["method"] == row["method"]]
+            self.assertEqual([int(it["iteration"]) for it in mine], list(range(int(row["em_iterations"]) + 1)))
+            newton = [int(it["newton_p_occ_to_occ"]) + int(it["newton_p_free_to_free"]) for it in mine[1:]
+                      if row["method"] == "mrf"]
+            self.assertEqual(sum(newton), int(row["newton_iterations"]))
+
+        with open(os.path.join(self.out, "mrf_maps.csv")) as file:
+            cells = list(csv.DictReader(file))
+        self.assertEqual(len(cells), MRF_WORLD[0] * MRF_WORLD[1])
+        self.assertEqual({(int(c["x"]), int(c["y"])) for c in cells},
+                         {(x, y) for x in range(MRF_WORLD[0]) for y in range(MRF_WORLD[1])})
+        observed = [c for c in cells if int(c["observed_steps"]) > 0]
+        # The first seed's cells: learned values exactly where observed; truth everywhere.
+        self.assertEqual(len(observed), int(rows[0]["sparse_cells"]) + int(rows[0]["well_observed_cells"]))
+        self.assertEqual(sum(int(c["observed_steps"]) < 10 for c in observed), int(rows[0]["sparse_cells"]))
+        for c in cells:
+            learned = [c[f"{m}_{p}"] for m in ("plain", "mrf") for p in ("p_occ_given_free", "p_free_given_occ")]
+            self.assertEqual({bool(value) for value in learned}, {int(c["observed_steps"]) > 0})
+            self.assertTrue(c["truth_p_occ_given_free"] and c["truth_p_free_given_occ"])
+        # The four squares' truths: 1 / hold time for holds of 8, 48, 72 and 168 steps.
+        truths = {round(float(c["truth_p_occ_given_free"]), 6) for c in cells}
+        self.assertEqual(truths, {0.0, round(1 / 8, 6), round(1 / 48, 6), round(1 / 72, 6), round(1 / 168, 6)})
 
     def test_accuracy_table_has_every_step_and_method_in_range(self):
         with open(os.path.join(self.out, "accuracy_dynamic_5_5.csv")) as file:
@@ -72,25 +134,47 @@ class EvaluateTool(unittest.TestCase):
                              text=True, timeout=300)
         self.assertEqual(run.returncode, 0, run.stderr)
         for name in ["accuracy_dynamic_5_5.png", "accuracy_redraw_100.png", "parameter_error.png",
-                     "path_planning.png"]:
+                     "path_planning.png", "mrf_rmse.png", "mrf_maps.png"]:
             with open(os.path.join(self.out, name), "rb") as file:
                 self.assertEqual(file.read(8), b"\x89PNG\r\n\x1a\n", name)
 
     def test_same_seed_same_numbers(self):
         again = os.path.join(self.tmp.name, "again")
         rc, _, stderr = evaluate(["--out", again, "--scenarios", "dynamic_5_5", "--repetitions", "2",
-                                  "--path-repetitions", "0", "--threads", "1"])
+                                  "--path-repetitions", "0", "--mrf-repetitions", "0", "--threads", "1"])
         self.assertEqual(rc, 0, stderr)
         with open(os.path.join(self.out, "accuracy_dynamic_5_5.csv")) as a, \
                 open(os.path.join(again, "accuracy_dynamic_5_5.csv")) as b:
             self.assertEqual(a.read(), b.read())
+        # --mrf-repetitions 0 skips the MRF experiment.
+        self.assertFalse(os.path.exists(os.path.join(again, "mrf_rmse.csv")))
+        with open(os.path.join(again, "summary.md")) as file:
+            self.assertNotIn("MRF", file.read())
+
+    def test_mrf_same_seed_same_numbers_on_any_threads(self):
+        again = os.path.join(self.tmp.name, "mrf_again")
+        rc, _, stderr = evaluate(["--out", again, "--scenarios", "none", "--path-repetitions", "0",
+                                  "--mrf-repetitions", "2", "--threads", "1"])
+        self.assertEqual(rc, 0, stderr)
+        self.assertEqual(sorted(os.listdir(again)), ["mrf_iterations.csv", "mrf_maps.csv", "mrf_rmse.csv", "summary.md"])
+        for name in ("mrf_maps.csv", "mrf_iterations.csv"):
+            with open(os.path.join(self.out, name)) as a, open(os.path.join(again, name)) as b:
+                self.assertEqual(a.read(), b.read(), name)
+        # Everything but the wall time.
+        tables = []
+        for directory in (self.out, again):
+            with open(os.path.join(directory, "mrf_rmse.csv")) as file:
+                tables.append([{k: v for k, v in row.items() if k != "em_seconds"} for row in csv.DictReader(file)])
+        self.assertEqual(tables[0], tables[1])
 
     def test_errors(self):
         rc, _, stderr = evaluate(["--scenarios", "nope"])
         self.assertEqual(rc, 2)
         self.assertIn("dynamic_5_5", stderr)  # lists the names
         for args in (["--repetitions", "0"], ["--repetitions", "3000000000"], ["--scenarios", "door"],
-                     ["--scenarios", "dynamic_5_5,dynamic_5_5"], ["--scenarios", "none", "--path-repetitions", "0"],
+                     ["--scenarios", "mrf_squares"], ["--mrf-repetitions", "-1"], ["--mrf-repetitions", "x"],
+                     ["--scenarios", "dynamic_5_5,dynamic_5_5"],
+                     ["--scenarios", "none", "--path-repetitions", "0", "--mrf-repetitions", "0"],
                      ["--no-such-option", "1"], ["--out"]):
             rc, _, stderr = evaluate(args)
             self.assertEqual(rc, 2, args)

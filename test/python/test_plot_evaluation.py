@@ -36,7 +36,12 @@ PLANNING_CLASSES = ("short", "long", "indirect_long", "unnecessary_indirect_long
                     "effectiveness")
 LAYERS = ("belief", "predicted", "stationary", "p_occ_given_free", "p_free_given_occ", "static_map")
 ALL_FIGURES = tuple(f"accuracy_{s}.png" for s in ACCURACY_SCENARIOS) + (
-    "fig4.png", "fig5.png", "parameter_error.png", "path_planning.png")
+    "fig4.png", "fig5.png", "parameter_error.png", "path_planning.png", "mrf_rmse.png", "mrf_maps.png")
+MRF_RMSE_HEADER = ("repetition,world_seed,run_seed,method,sparse_cells,sparse_p_occ_given_free_rmse,"
+                   "sparse_p_free_given_occ_rmse,well_observed_cells,well_observed_p_occ_given_free_rmse,"
+                   "well_observed_p_free_given_occ_rmse,em_iterations,newton_iterations,em_seconds")
+MRF_MAPS_HEADER = ("x,y,observed_steps,truth_p_occ_given_free,truth_p_free_given_occ,plain_p_occ_given_free,"
+                   "plain_p_free_given_occ,mrf_p_occ_given_free,mrf_p_free_given_occ")
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 
@@ -74,12 +79,37 @@ def write_path_planning(directory):
                        + ",".join(paper) + "\n")
 
 
+def write_mrf_rmse(directory):
+    with open(os.path.join(directory, "mrf_rmse.csv"), "w") as file:
+        file.write(MRF_RMSE_HEADER + "\n")
+        for repetition in range(3):
+            file.write(f"{repetition},11,12,plain,300,{0.024 + 0.001 * repetition},0.041,735,0.0096,0.055,300,0,0.1\n")
+            file.write(f"{repetition},11,12,mrf,300,{0.016 + 0.001 * repetition},0.030,735,0.0090,0.054,170,1900,0.7\n")
+
+
+def write_mrf_maps(directory, width=12, height=8):
+    """A map with one dynamic square: truth 0.125 there, 0 elsewhere; the left column never
+    observed (its learned values empty)."""
+    with open(os.path.join(directory, "mrf_maps.csv"), "w") as file:
+        file.write(MRF_MAPS_HEADER + "\n")
+        for y in range(height):
+            for x in range(width):
+                truth = 0.125 if 6 <= x < 9 and 2 <= y < 5 else 0.0
+                if x == 0:
+                    file.write(f"{x},{y},0,{truth},{truth},,,,\n")
+                    continue
+                learned = max(truth, 1e-4) * (1.0 + 0.1 * ((x + y) % 3))
+                file.write(f"{x},{y},{x + y},{truth},{truth},{learned},{learned},{learned},{learned}\n")
+
+
 def write_all(directory):
     for scenario in ACCURACY_SCENARIOS:
         # The parking lot long enough for a few of its 108-step hours.
         write_accuracy(directory, scenario, 400 if scenario == "parking_lot" else 120)
     write_parameter_error(directory)
     write_path_planning(directory)
+    write_mrf_rmse(directory)
+    write_mrf_maps(directory)
 
 
 def write_layer(directory, name, width=40, height=30, resolution=0.05, origin=(-1.0, 2.0)):
@@ -149,8 +179,11 @@ class TestPlotEvaluation(unittest.TestCase):
     def test_methods_have_their_colours(self):
         write_accuracy(self.tmp, "dynamic_5_5")
         write_path_planning(self.tmp)
+        write_mrf_rmse(self.tmp)
         rc, _, stderr = self.run_script(self.tmp)
         self.assertEqual(rc, 0, stderr)
+        for method in ("plain", "mrf"):
+            self.assertTrue(has_colour(os.path.join(self.tmp, "mrf_rmse.png"), plot_evaluation.COLOURS[method]), method)
         for method in METHODS:
             self.assertTrue(has_colour(os.path.join(self.tmp, "accuracy_dynamic_5_5.png"),
                                        plot_evaluation.COLOURS[method]), method)
@@ -167,7 +200,7 @@ class TestPlotEvaluation(unittest.TestCase):
         self.assertEqual(self.pngs(self.tmp),
                          ["accuracy_dynamic_5_5.png", "accuracy_redraw_100.png", "accuracy_redraw_300.png", "fig5.png"])
         for skipped in ("accuracy_dynamic_25_25.png", "accuracy_parking_lot.png", "fig4.png", "parameter_error.png",
-                        "path_planning.png"):
+                        "path_planning.png", "mrf_rmse.png", "mrf_maps.png"):
             self.assertRegex(stdout, rf"note: {skipped} skipped")
         self.assertIn("accuracy_dynamic_25_25.csv", stdout)  # what fig4 lacks
 
@@ -205,6 +238,17 @@ class TestPlotEvaluation(unittest.TestCase):
                 + ",".join(f"paper_{m}" for m in PLANNING_METHODS)
                 + "\nshort,," + ",".join(["1"] * 14) + "\n",  # an empty mean
             ],
+            "mrf_rmse.csv": [
+                MRF_RMSE_HEADER + "\n0,1,2,plain,3,0.1,0.1,4,0.1,0.1,5,0,0.1\n",       # no MRF rows
+                MRF_RMSE_HEADER + "\n0,1,2,plain,3,0.1,,4,0.1,0.1,5,0,0.1\n"           # an empty RMSE
+                "0,1,2,mrf,3,0.1,0.1,4,0.1,0.1,5,9,0.5\n",
+            ],
+            "mrf_maps.csv": [
+                MRF_MAPS_HEADER + "\n0,0,1,0,0,0.1,0.1,0.1,0.1\n0,0,1,0,0,0.1,0.1,0.1,0.1\n",  # a cell twice
+                MRF_MAPS_HEADER + "\n0,0,1,0,0,0.1,0.1,0.1,0.1\n1,1,1,0,0,0.1,0.1,0.1,0.1\n",  # cells missing
+                MRF_MAPS_HEADER + "\n0.5,0,1,0,0,0.1,0.1,0.1,0.1\n",                            # not a cell
+                MRF_MAPS_HEADER + "\n0,0,1,,0,0.1,0.1,0.1,0.1\n",                               # no truth
+            ],
         }
         for name, contents in cases.items():
             for content in contents:
@@ -218,6 +262,21 @@ class TestPlotEvaluation(unittest.TestCase):
                 self.assertIn(path, stderr)
                 self.assertNotIn("Traceback", stderr)
                 self.assertEqual(self.pngs(directory), [], "figures written despite the error")
+
+    def test_mrf_maps_are_the_csv_cells(self):
+        write_mrf_maps(self.tmp, width=12, height=8)
+        grids = plot_evaluation.read_mrf_maps(os.path.join(self.tmp, "mrf_maps.csv"))
+        self.assertEqual(grids["truth_p_occ_given_free"].shape, (8, 12))  # indexed [y, x]
+        self.assertEqual(grids["truth_p_occ_given_free"][3, 7], 0.125)
+        self.assertEqual(grids["truth_p_occ_given_free"][7, 7], 0.0)
+        self.assertTrue(np.isnan(grids["mrf_p_free_given_occ"][:, 0]).all())  # never observed
+        self.assertFalse(np.isnan(grids["mrf_p_free_given_occ"][:, 1:]).any())
+        self.assertEqual(grids["observed_steps"][5, 4], 9)
+        # Drawn as six panels (two parameters by truth, plain EM, MRF), wider than high.
+        rc, _, stderr = self.run_script(self.tmp)
+        self.assertEqual(rc, 0, stderr)
+        width, height = self.assert_png(os.path.join(self.tmp, "mrf_maps.png"))
+        self.assertGreater(width, height)
 
     # --- the map layers ------------------------------------------------------------------------
 

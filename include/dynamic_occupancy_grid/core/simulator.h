@@ -123,12 +123,18 @@ struct LaserConfig {
   double range_max_m = 8.0;
   double noise_sigma_m = 0.01;        ///< Gaussian range noise
   double dropout_probability = 0.01;  ///< a beam gives no reading (NaN)
+  /// Indices of the beams that read, strictly increasing; empty: all of them. The others
+  /// always read NaN (no reading, which the mapper ignores). A Scan's beams are evenly spaced,
+  /// so a sensor with a few beams at uneven angles is the evenly spaced fan through them with
+  /// the gaps dark: Li, Barão & Rato's four beams at -pi/2, -pi/4, pi/4, pi/2 are beams
+  /// {0, 1, 3, 4} of a fan of 5 from -pi/2 in steps of pi/4.
+  std::vector<int> active_beams;
 
   /// Throws std::invalid_argument naming the first bad field.
   void validate() const;
 };
 
-/// One scan of `laser` at `laser_pose`. A beam's true range is the middle of its chord
+/// One scan of `laser` at `laser_pose` (every beam, dark ones NaN). A beam's true range is the middle of its chord
 /// through the first occupied cell: objects of a grid world fill their cells, and reading
 /// their boundary would put half of the noisy end points in the free cell in front (an
 /// artefact of the grid world, not of a real laser, whose surfaces lie inside cells). Plus
@@ -160,6 +166,7 @@ enum class ScenarioKind {
   kRandomDynamic,  ///< the papers' grid: a fraction of cells change at random
   kParkingLot,     ///< bays whose cars change every "hour"
   kDoor,           ///< a door on the short path between A and B, and a long detour
+  kMrfSquares,     ///< Li, Barão & Rato's simulation: walls, four squares with fixed hold times
 };
 
 /// A named configuration of a simulated world (scenarioConfig(name)).
@@ -176,6 +183,11 @@ struct ScenarioConfig {
   LaserConfig laser;
   Pose2D laser_mount{0.05, 0.0, 0.0};  ///< laser pose in the robot frame (base_link -> laser)
   double robot_speed_m_per_step = 0.2;
+  /// The robot drives near its scripted path, not on it: every step its pose is offset by
+  /// Gaussian noise of these standard deviations (each axis; heading), drawn from the run
+  /// seed. 0 drives the path exactly.
+  double path_noise_sigma_m = 0.0;
+  double path_noise_sigma_rad = 0.0;
   /// The sensor model for mapping this scenario's scans: the laser's per-beam hit rates on
   /// occupied and free cells as measured on its runs (test_simulator checks them), rounded
   /// towards less certainty.
@@ -196,6 +208,11 @@ struct ScenarioConfig {
   // kDoor
   double door_change_probability = 0.001;  ///< p_occ_given_free = p_free_given_occ of the door
 
+  // kMrfSquares
+  /// Steps each of the four squares holds its state before it toggles (the same for
+  /// occupied and free); must be positive for this kind.
+  std::array<std::int64_t, 4> square_hold_steps{};
+
   /// Throws std::invalid_argument naming the first bad field.
   void validate() const;
 };
@@ -214,6 +231,15 @@ struct DoorLayout {
   std::int32_t long_path_cells = 0;   ///< moves from a to b along the detour
 };
 
+/// The MRF scenario's places (scenarioConfig("mrf_squares"); Li, Barão & Rato, Sec. IV).
+struct MrfSquaresLayout {
+  /// The lowest (x, y) cell of each square, in the order of square_hold_steps.
+  std::array<CellXY, 4> square_corner{};
+  std::int32_t square_side_cells = 0;
+  /// Delta t of the paper's hold times: the steps of one loop of the robot's path.
+  std::int64_t loop_steps = 0;
+};
+
 /// A run of a scenario: the world with its scheduled events, the scripted robot, the laser.
 class Simulation {
  public:
@@ -229,7 +255,8 @@ class Simulation {
   /// The current step (0 at the start).
   std::int64_t step() const { return step_; }
 
-  /// The scripted robot's pose at scan `scan_index` of the current step.
+  /// The robot's pose at scan `scan_index` of the current step: the scripted path's, plus
+  /// the step's path noise (ScenarioConfig::path_noise_sigma_m).
   Pose2D robotPose(int scan_index = 0) const;
   /// Scan `scan_index` (0 .. scans_per_step - 1) of the current step from the scripted
   /// robot; stamped (step + (scan_index + 0.5) / scans_per_step) * time_step_s.
@@ -237,11 +264,14 @@ class Simulation {
   /// The same from any robot pose (a robot driven by a planner).
   Scan scanFrom(const Pose2D& robot_pose, int scan_index = 0);
   /// Ends the current step: the random changes of the dynamic cells, then the events
-  /// scheduled for the next step (re-drawing the dynamic cells, the parking lot's hour).
+  /// scheduled for the next step (re-drawing the dynamic cells, the parking lot's hour, the
+  /// squares' toggles) and the next step's path noise.
   void advance();
 
   /// The door scenario's places; throws std::logic_error for another scenario.
   const DoorLayout& doorLayout() const;
+  /// The MRF scenario's places; throws std::logic_error for another scenario.
+  const MrfSquaresLayout& mrfSquaresLayout() const;
 
  private:
   void buildRandomDynamic();
@@ -249,6 +279,9 @@ class Simulation {
   void buildParkingLot();
   void parkingHour();
   void buildDoor();
+  void buildMrfSquares();
+  void toggleSquares();
+  void drawPathNoise();
   void addBorderWalls();
 
   ScenarioConfig config_;
@@ -256,13 +289,17 @@ class Simulation {
   Rng layout_rng_;
   Rng dynamics_rng_;
   Rng sensor_rng_;
+  Rng path_rng_;
   std::int64_t step_ = 0;
+  Pose2D path_noise_;                                  ///< this step's offset from the path
   std::vector<std::array<double, 2>> route_;           ///< the scripted robot's loop
   std::optional<LoopPath> path_;
   std::vector<std::size_t> free_candidates_;           ///< cells that may become dynamic
   std::vector<std::vector<std::size_t>> bays_;         ///< parking: the cells of each car
   std::vector<std::uint8_t> bay_occupied_;
   DoorLayout door_;
+  MrfSquaresLayout squares_;
+  std::array<std::int64_t, 4> square_next_toggle_{};  ///< the step at which each square toggles next
 };
 
 }  // namespace core

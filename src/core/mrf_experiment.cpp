@@ -1,0 +1,175 @@
+#include "dynamic_occupancy_grid/core/mrf_experiment.h"
+
+#include "repetitions.h"
+
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <stdexcept>
+#include <string>
+#include <utility>
+
+#include "dynamic_occupancy_grid/core/evaluation.h"
+#include "dynamic_occupancy_grid/core/mapper.h"
+
+namespace dynamic_occupancy_grid {
+namespace core {
+namespace {
+
+struct SquaredErrors {
+  double p_occ_given_free = 0.0;
+  double p_free_given_occ = 0.0;
+  std::size_t cells = 0;
+
+  TransitionRmse rmse() const {
+    if (cells == 0) return TransitionRmse{};
+    const auto n = static_cast<double>(cells);
+    return TransitionRmse{std::sqrt(p_occ_given_free / n), std::sqrt(p_free_given_occ / n), cells};
+  }
+};
+
+// The observations of a whole run, recorded as offline EM reads them (as trainOffline does).
+ObservationSequences recordRun(Simulation& simulation, const MapperConfig& mapper_config) {
+  MapperConfig config = mapper_config;
+  config.learn_transitions = false;  // only the observations matter here
+  Mapper mapper(config);
+  SequenceBuilder recorder;
+  mapper.recordObservations(&recorder);
+  for (std::int64_t t = 0; t < simulation.config().steps; ++t) {
+    for (int k = 0; k < simulation.config().scans_per_step; ++k) {
+      const ScanResult result = mapper.integrate(simulation.scan(k));
+      if (result.status != ScanStatus::kIntegrated) {
+        throw std::runtime_error("runMrfExperiment: scan rejected: " + result.error);
+      }
+    }
+    simulation.advance();
+  }
+  mapper.finishStep();
+  mapper.recordObservations(nullptr);
+  return recorder.build();
+}
+
+MrfEmOutcome runEm(const ObservationSequences& sequences, const ObservationModel& sensor, const OfflineEmConfig& config,
+                   const World& world, std::size_t sparse_below, std::vector<TransitionParams>* params) {
+  const auto start = std::chrono::steady_clock::now();
+  OfflineEmResult result = runOfflineEm(sequences, sensor, config);
+  MrfEmOutcome outcome;
+  outcome.em_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  outcome.rmse = transitionRmse(sequences, result.params, world, sparse_below);
+  // objective holds the value before the first M-step and after each one.
+  outcome.em_iterations = static_cast<int>(result.objective.size()) - 1;
+  outcome.objective = std::move(result.objective);
+  outcome.newton_iterations = std::move(result.mrf_newton_iterations);
+  *params = std::move(result.params);
+  return outcome;
+}
+
+struct Run {
+  MrfRepetition repetition;
+  MrfMaps maps;
+};
+
+Run runRepetition(const ScenarioConfig& scenario, const MrfExperimentConfig& config, int repetition) {
+  Run run;
+  // Derived as the accuracy experiment derives its seeds: nearby (seed, repetition) pairs
+  // give unrelated runs.
+  run.repetition.world_seed = mixSeed(config.seed * 1000003ULL + static_cast<std::uint64_t>(repetition));
+  run.repetition.run_seed = mixSeed(run.repetition.world_seed ^ 0x6d7266ULL);  // "mrf": its own stream
+  Simulation simulation(scenario, run.repetition.world_seed, run.repetition.run_seed);
+  const MapperConfig mapper_config = evaluationMapperConfig(scenario);
+  const ObservationSequences sequences = recordRun(simulation, mapper_config);
+  run.repetition.cells_observed = sequences.cellCount();
+  const ObservationModel sensor(mapper_config.p_hit_given_occ, mapper_config.p_hit_given_free);
+
+  OfflineEmConfig em_config = evaluationOfflineEmConfig(mapper_config);
+  em_config.initial_params = TransitionParams{0.5, 0.5};  // the paper's starting point
+  em_config.max_iterations = config.max_iterations;
+  std::vector<TransitionParams> plain;
+  run.repetition.plain = runEm(sequences, sensor, em_config, simulation.world(), config.sparse_below, &plain);
+  em_config.mrf_temperature = config.temperature;
+  std::vector<TransitionParams> mrf;
+  run.repetition.mrf = runEm(sequences, sensor, em_config, simulation.world(), config.sparse_below, &mrf);
+
+  if (repetition == 0) {
+    const World& world = simulation.world();
+    MrfMaps& maps = run.maps;
+    maps.width = world.width();
+    maps.height = world.height();
+    const std::size_t size = world.occupancy().size();
+    constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+    maps.observed_steps.assign(size, 0);
+    maps.plain.assign(size, TransitionParams{kNaN, kNaN});
+    maps.mrf.assign(size, TransitionParams{kNaN, kNaN});
+    maps.truth.resize(size);
+    for (std::size_t i = 0; i < size; ++i) {
+      const CellXY c = world.cellOf(i);
+      maps.truth[i] = world.truth(c.x, c.y);
+    }
+    for (std::size_t c = 0; c < sequences.cellCount(); ++c) {
+      const CellXY xy = sequences.cell(c);
+      const std::size_t i = world.index(xy.x, xy.y);
+      maps.observed_steps[i] = static_cast<std::uint32_t>(sequences.end(c) - sequences.begin(c));
+      maps.plain[i] = plain[c];
+      maps.mrf[i] = mrf[c];
+    }
+  }
+  return run;
+}
+
+}  // namespace
+
+SplitRmse transitionRmse(const ObservationSequences& sequences, const std::vector<TransitionParams>& learned,
+                         const World& world, std::size_t sparse_below) {
+  if (learned.size() != sequences.cellCount()) {
+    throw std::invalid_argument("transitionRmse: " + std::to_string(learned.size()) + " learned parameters for " +
+                                std::to_string(sequences.cellCount()) + " cells");
+  }
+  SquaredErrors sparse;
+  SquaredErrors well_observed;
+  for (std::size_t c = 0; c < sequences.cellCount(); ++c) {
+    const CellXY xy = sequences.cell(c);
+    if (!world.inside(xy.x, xy.y)) {
+      throw std::invalid_argument("transitionRmse: cell (" + std::to_string(xy.x) + ", " + std::to_string(xy.y) +
+                                  ") is outside the world");
+    }
+    const TransitionParams truth = world.truth(xy.x, xy.y);
+    const auto observed = static_cast<std::size_t>(sequences.end(c) - sequences.begin(c));
+    SquaredErrors& errors = observed < sparse_below ? sparse : well_observed;
+    const double e_of = learned[c].p_occ_given_free - truth.p_occ_given_free;
+    const double e_fo = learned[c].p_free_given_occ - truth.p_free_given_occ;
+    errors.p_occ_given_free += e_of * e_of;
+    errors.p_free_given_occ += e_fo * e_fo;
+    ++errors.cells;
+  }
+  return SplitRmse{sparse.rmse(), well_observed.rmse()};
+}
+
+void MrfExperimentConfig::validate() const {
+  if (repetitions <= 0) throw std::invalid_argument("runMrfExperiment: repetitions must be positive");
+  if (!(temperature > 0.0) || !std::isfinite(temperature)) {
+    throw std::invalid_argument("runMrfExperiment: temperature must be positive and finite");
+  }
+  if (sparse_below == 0) throw std::invalid_argument("runMrfExperiment: sparse_below must be positive");
+  if (max_iterations <= 0 || max_iterations > std::numeric_limits<std::uint16_t>::max()) {
+    throw std::invalid_argument("runMrfExperiment: max_iterations must be in [1, 65535]");
+  }
+}
+
+MrfExperimentResult runMrfExperiment(const ScenarioConfig& scenario, const MrfExperimentConfig& config,
+                                     const std::function<void(int done)>& progress) {
+  scenario.validate();
+  config.validate();
+  const auto start = std::chrono::steady_clock::now();
+  std::vector<Run> runs(static_cast<std::size_t>(config.repetitions));
+  runRepetitions(
+      runs.size(), config.threads,
+      [&](std::size_t r) { runs[r] = runRepetition(scenario, config, static_cast<int>(r)); }, progress);
+  MrfExperimentResult result;
+  result.first_maps = std::move(runs.front().maps);
+  for (Run& run : runs) result.repetitions.push_back(std::move(run.repetition));
+  result.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  return result;
+}
+
+}  // namespace core
+}  // namespace dynamic_occupancy_grid
