@@ -135,6 +135,32 @@ std::vector<double> mrfMapGradient(const MrfMapProblem& problem, const std::vect
   return gradient;
 }
 
+double mrfMapObjectiveChange(const MrfMapProblem& problem, const std::vector<double>& from,
+                             const std::vector<double>& to) {
+  check(problem, from);
+  check(problem, to);
+  // Term by term: F itself is a sum of many large terms, and its difference between two
+  // nearby points would drown in their rounding.
+  double change = 0.0;
+  for (std::size_t i = 0; i < from.size(); ++i) {
+    if (from[i] == to[i]) continue;
+    if (problem.stay[i] > 0.0) change += problem.stay[i] * (logSigmoid(to[i]) - logSigmoid(from[i]));
+    if (problem.leave[i] > 0.0) change += problem.leave[i] * (logSigmoid(-to[i]) - logSigmoid(-from[i]));
+  }
+  const CellNeighbours& graph = *problem.graph;
+  double pairs = 0.0;
+  for (std::size_t i = 0; i + 1 < graph.offsets.size(); ++i) {
+    for (std::uint32_t k = graph.offsets[i]; k < graph.offsets[i + 1]; ++k) {
+      const std::uint32_t j = graph.indices[k];
+      if (j <= i) continue;
+      const double before = from[i] - from[j];
+      const double after = to[i] - to[j];
+      pairs += (after - before) * (after + before);
+    }
+  }
+  return change - problem.inverse_temperature * pairs;
+}
+
 int maximizeMrfMap(const MrfMapProblem& problem, std::vector<double>& logits, int max_newton_iterations) {
   check(problem, logits);
   const std::size_t n = logits.size();
@@ -148,48 +174,54 @@ int maximizeMrfMap(const MrfMapProblem& problem, std::vector<double>& logits, in
 
   std::vector<double> h(n), step(n), residual(n), direction(n), product(n), preconditioned(n), trial(n);
   std::vector<char> free(n);
-  double objective = mrfMapObjective(problem, logits);
+  const auto precondition = [&](const std::vector<double>& r, std::vector<double>& z) {
+    for (std::size_t i = 0; i < n; ++i) z[i] = free[i] ? r[i] / (h[i] + two_lambda * degree[i]) : 0.0;
+  };
+  // Backtracking along the projected path from `logits` in direction `step` (Armijo, with the
+  // objective's change computed term by term); true if a point that gains was found.
+  const auto line_search = [&](const std::vector<double>& gradient) {
+    double t = 1.0;
+    for (int halving = 0; halving < 60; ++halving, t *= 0.5) {
+      double predicted = 0.0;
+      for (std::size_t i = 0; i < n; ++i) {
+        trial[i] = std::clamp(logits[i] + t * step[i], problem.lo, problem.hi);
+        predicted += gradient[i] * (trial[i] - logits[i]);
+      }
+      // A clipped long step may predict nothing where a shorter one gains: keep halving.
+      if (!(predicted > 0.0)) continue;
+      const double change = mrfMapObjectiveChange(problem, logits, trial);
+      if (change > 0.0 && change >= 1e-4 * predicted) return true;
+    }
+    return false;
+  };
+  double forcing = 0.1;
   int iteration = 0;
   while (iteration < max_newton_iterations) {
     const std::vector<double> gradient = mrfMapGradient(problem, logits);
     // -Hessian = diag(h) + 2 lambda L; a tiny ridge keeps cells without counts and without
     // neighbours (h = 0, nothing pulling) from making the system singular: they do not move.
     for (std::size_t i = 0; i < n; ++i) {
-      const double s = sigmoid(logits[i]);
-      h[i] = (problem.stay[i] + problem.leave[i]) * s * (1.0 - s) + 1e-12;
+      h[i] = (problem.stay[i] + problem.leave[i]) * sigmoid(logits[i]) * sigmoid(-logits[i]) + 1e-12;
     }
     // Projected Newton: a variable at a bound whose gradient points outwards stays there.
-    // Converged when every free variable's own Newton step (gradient over curvature, in
-    // logits) is below 1e-10: as strict for a cell with few counts as for one with many, and
-    // above the rounding of the gradient (about 1e-16 / (p (1 - p)) in logits).
-    double largest_step = 0.0;
+    bool any_free = false;
     for (std::size_t i = 0; i < n; ++i) {
       free[i] = !((logits[i] <= problem.lo && gradient[i] < 0.0) || (logits[i] >= problem.hi && gradient[i] > 0.0));
-      if (free[i]) largest_step = std::max(largest_step, std::abs(gradient[i]) / (h[i] + two_lambda * degree[i]));
+      any_free = any_free || (free[i] && gradient[i] != 0.0);
     }
-    if (largest_step <= 1e-10) break;
-    ++iteration;
-    // Conjugate gradients for (-H)_FF step = gradient_F, Jacobi-preconditioned.
+    if (!any_free) break;
+    // Conjugate gradients for (-H)_FF step = gradient_F, Jacobi-preconditioned, solved only
+    // as precisely as the last Newton step was large (inexact Newton: superlinear, and the
+    // early steps cost a few CG iterations instead of hundreds).
     std::fill(step.begin(), step.end(), 0.0);
     for (std::size_t i = 0; i < n; ++i) residual[i] = free[i] ? gradient[i] : 0.0;
-    const auto precondition = [&](const std::vector<double>& r, std::vector<double>& z) {
-      for (std::size_t i = 0; i < n; ++i) {
-        if (!free[i]) {
-          z[i] = 0.0;
-          continue;
-        }
-        z[i] = r[i] / (h[i] + two_lambda * degree[i]);
-      }
-    };
     precondition(residual, preconditioned);
     direction = preconditioned;
     double rz = dot(residual, preconditioned);
-    // Inexact Newton: the system is solved only as precisely as the step is still large
-    // (relative residual min(0.1, largest step)); the steps stay superlinear and the early
-    // ones cost a few CG iterations instead of hundreds.
-    const double forcing = std::min(0.1, largest_step);
-    const double stop = forcing * forcing * dot(residual, residual);
-    for (std::size_t cg = 0; cg < 4 * n + 20 && dot(residual, residual) > stop; ++cg) {
+    // Measured in the preconditioned norm (each equation scaled by its diagonal), so that a
+    // weakly tied cell's equation counts as much as a heavily observed one's.
+    const double stop = forcing * forcing * rz;
+    for (std::size_t cg = 0; cg < 4 * n + 20 && rz > stop; ++cg) {
       applySystem(*problem.graph, h, two_lambda, free, direction, product);
       const double curvature = dot(direction, product);
       if (!(curvature > 0.0)) break;
@@ -204,26 +236,27 @@ int maximizeMrfMap(const MrfMapProblem& problem, std::vector<double>& logits, in
       rz = rz_next;
       for (std::size_t i = 0; i < n; ++i) direction[i] = preconditioned[i] + beta * direction[i];
     }
-    // Backtracking along the projected path (Armijo).
-    double t = 1.0;
-    bool accepted = false;
-    double trial_objective = objective;
-    for (int halving = 0; halving < 60; ++halving, t *= 0.5) {
-      double predicted = 0.0;
-      for (std::size_t i = 0; i < n; ++i) {
-        trial[i] = std::clamp(logits[i] + t * step[i], problem.lo, problem.hi);
-        predicted += gradient[i] * (trial[i] - logits[i]);
-      }
-      if (!(predicted > 0.0)) break;  // the projected step goes nowhere: at rounding level
-      trial_objective = mrfMapObjective(problem, trial);
-      if (trial_objective > objective && trial_objective >= objective + 1e-4 * predicted) {
-        accepted = true;
-        break;
-      }
+    // Converged when the Newton step itself (coupling included, so a shift of all logits
+    // together, which costs no smoothing, is measured right) is below 1e-6 in logits; that
+    // last step is still taken, which with Newton's quadratic convergence leaves an error
+    // far below it. An M-step inside EM needs no more: the next E-step moves the counts.
+    double largest_step = 0.0;
+    for (std::size_t i = 0; i < n; ++i) largest_step = std::max(largest_step, std::abs(step[i]));
+    if (largest_step <= 1e-13) break;
+    const bool last = largest_step <= 1e-6;
+    forcing = std::min(0.1, largest_step);
+    ++iteration;
+    if (last) {
+      if (line_search(gradient)) logits.swap(trial);
+      break;
     }
-    if (!accepted) break;  // no ascent left at rounding level
+    if (!line_search(gradient)) {
+      // The Newton direction found no gain (rounding, or a degenerate system): fall back to
+      // the preconditioned gradient once before giving up.
+      precondition(gradient, step);
+      if (!line_search(gradient)) break;
+    }
     logits.swap(trial);
-    objective = trial_objective;
   }
   return iteration;
 }

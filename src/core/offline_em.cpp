@@ -8,8 +8,10 @@
 #include <exception>
 #include <limits>
 #include <mutex>
+#include <optional>
 #include <stdexcept>
 #include <string>
+#include <system_error>
 #include <thread>
 
 namespace dynamic_occupancy_grid {
@@ -304,8 +306,10 @@ void OfflineEmConfig::validate() const {
           "offline_em max_iterations must be in [0, 65535], got " + std::to_string(max_iterations));
   require(std::isfinite(tolerance) && tolerance >= 0.0,
           "offline_em tolerance must be >= 0, got " + std::to_string(tolerance));
-  require(std::isfinite(mrf_temperature) && mrf_temperature >= 0.0,
-          "offline_em mrf_temperature must be >= 0 (0 = off), got " + std::to_string(mrf_temperature));
+  // Below 1e-9 the coupling (2 / T per pair) swamps any evidence by 1e9 and more: the maps
+  // are flat to rounding, and the solver's arithmetic degrades.
+  require(std::isfinite(mrf_temperature) && (mrf_temperature == 0.0 || mrf_temperature >= 1e-9),
+          "offline_em mrf_temperature must be 0 (off) or >= 1e-9, got " + std::to_string(mrf_temperature));
   require(!(symmetric && mrf_temperature > 0.0),
           "offline_em mrf_temperature > 0 does not combine with symmetric: the MRF smooths p(occ -> occ) and "
           "p(free -> free) separately");
@@ -398,7 +402,11 @@ OfflineEmResult runOfflineEmMrf(const ObservationSequences& sequences, const Obs
       }
     };
     std::vector<std::thread> threads;
-    for (std::size_t t = 1; t < thread_count; ++t) threads.emplace_back(worker);
+    try {
+      for (std::size_t t = 1; t < thread_count; ++t) threads.emplace_back(worker);
+    } catch (const std::system_error&) {
+      // No more threads to be had: the ones started and this one share the work.
+    }
     worker();
     for (std::thread& thread : threads) thread.join();
     if (failure) std::rethrow_exception(failure);
@@ -438,30 +446,39 @@ OfflineEmResult runOfflineEmMrf(const ObservationSequences& sequences, const Obs
     }
     std::array<int, 2> newton{0, 0};
     // The two maps are independent problems: one per core.
-    if (thread_count > 1) {
-      std::exception_ptr failure;
-      std::thread other([&]() {
-        try {
-          newton[1] = maximizeMrfMap(free, logit_free);
-        } catch (...) {
-          failure = std::current_exception();
-        }
-      });
+    std::optional<std::thread> other;
+    std::exception_ptr failure;
+    if ((config.threads == 0 ? hardware : config.threads) > 1) {
+      try {
+        other.emplace([&]() {
+          try {
+            newton[1] = maximizeMrfMap(free, logit_free);
+          } catch (...) {
+            failure = std::current_exception();
+          }
+        });
+      } catch (const std::system_error&) {
+        other.reset();  // no second thread: both maps on this one
+      }
+    }
+    if (other) {
       try {
         newton[0] = maximizeMrfMap(occ, logit_occ);
       } catch (...) {
-        other.join();
+        other->join();
         throw;
       }
-      other.join();
+      other->join();
       if (failure) std::rethrow_exception(failure);
     } else {
       newton[0] = maximizeMrfMap(occ, logit_occ);
       newton[1] = maximizeMrfMap(free, logit_free);
     }
     result.mrf_newton_iterations.push_back(newton);
+    // The logit bounds are the probability bounds; the clamp only removes rounding.
     for (std::size_t c = 0; c < cells; ++c) {
-      result.params[c] = TransitionParams{sigmoid(-logit_free[c]), sigmoid(-logit_occ[c])};
+      result.params[c] = TransitionParams{std::clamp(sigmoid(-logit_free[c]), config.p_min, config.p_max),
+                                          std::clamp(sigmoid(-logit_occ[c]), config.p_min, config.p_max)};
     }
     const double next_objective = e_step();
     const double gain = next_objective - objective;
@@ -576,7 +593,11 @@ OfflineEmResult runOfflineEm(const ObservationSequences& sequences, const Observ
   const unsigned hardware = std::max(1U, std::thread::hardware_concurrency());
   const std::size_t thread_count = std::min<std::size_t>(config.threads == 0 ? hardware : config.threads, chunks);
   std::vector<std::thread> threads;
-  for (std::size_t t = 1; t < thread_count; ++t) threads.emplace_back(worker);
+  try {
+    for (std::size_t t = 1; t < thread_count; ++t) threads.emplace_back(worker);
+  } catch (const std::system_error&) {
+    // No more threads to be had: the ones started and this one share the work.
+  }
   worker();
   for (std::thread& thread : threads) thread.join();
   if (failure) std::rethrow_exception(failure);

@@ -3,7 +3,9 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
+#include <limits>
 #include <random>
 #include <stdexcept>
 
@@ -118,6 +120,67 @@ TEST(MaximizeMrfMap, ReachesTheConstrainedMaximum) {
       EXPECT_LE(dog::mrfMapObjective(p.problem, other), best + 1e-9);
     }
   }
+}
+
+// A start just inside the upper bound, where the full projected Newton step predicts no
+// gain but a shorter one does: the line search must keep halving, not give up.
+TEST(MaximizeMrfMap, KeepsSearchingWhenTheClippedStepPredictsNothing) {
+  const std::vector<dog::CellXY> cells{{0, 0}, {1, 0}};
+  const dog::CellNeighbours graph = dog::eightNeighbours(cells);
+  dog::MrfMapProblem problem;
+  problem.graph = &graph;
+  problem.inverse_temperature = 57.887275017243994;
+  problem.lo = -3.0;
+  problem.hi = 3.0;
+  problem.stay = {697.28578000763468, 40.335874917086755};
+  problem.leave = {0.048198958893809957, 19.974258220561108};
+  std::vector<double> l{2.9999960041146623, 2.9999706307559975};
+  dog::maximizeMrfMap(problem, l);
+  const std::vector<double> gradient = dog::mrfMapGradient(problem, l);
+  // KKT: the first at the upper bound pushing out, the second interior with zero gradient.
+  EXPECT_EQ(l[0], 3.0);
+  EXPECT_GT(gradient[0], 0.0);
+  EXPECT_NEAR(gradient[1], 0.0, 1e-6);
+  EXPECT_LT(l[1], 2.9);
+}
+
+// With a near-infinite coupling every cell takes one common value, the one that maximises
+// the summed evidence (a shift of all logits costs no smoothing: the solver must still move).
+TEST(MaximizeMrfMap, StrongCouplingGivesOneCommonValue) {
+  const RandomProblem p = randomProblem(4, 1e6);
+  std::vector<double> l(p.cells.size(), 0.5);
+  dog::maximizeMrfMap(p.problem, l);
+  double stay = 0.0;
+  double leave = 0.0;
+  for (std::size_t i = 0; i < l.size(); ++i) {
+    stay += p.problem.stay[i];
+    leave += p.problem.leave[i];
+  }
+  // Only if the graph is connected; the random block with 15 % holes almost always is, and
+  // this seed is.
+  const double common = std::clamp(logit(stay / (stay + leave)), p.problem.lo, p.problem.hi);
+  for (const double v : l) EXPECT_NEAR(v, common, 1e-3);
+}
+
+// Newton with the right Hessian converges in a handful of steps; a wrong curvature (say the
+// coupling's factor 2 forgotten) makes it linear and slow.
+TEST(MaximizeMrfMap, ConvergesInFewNewtonSteps) {
+  for (unsigned seed = 1; seed <= 5; ++seed) {
+    RandomProblem p = randomProblem(seed, 1.0 / 5.0, 12, 9);
+    p.problem.lo = -20.0;
+    p.problem.hi = 20.0;
+    std::vector<double> l(p.cells.size(), 0.0);
+    EXPECT_LE(dog::maximizeMrfMap(p.problem, l), 15) << seed;
+  }
+}
+
+TEST(MrfMapObjectiveChange, EqualsTheDifferenceOfObjectives) {
+  const RandomProblem p = randomProblem(2, 0.3);
+  std::vector<double> a(p.cells.size(), 0.4);
+  std::vector<double> b = a;
+  for (std::size_t i = 0; i < b.size(); i += 3) b[i] += 0.25 * static_cast<double>(i % 5);
+  EXPECT_NEAR(dog::mrfMapObjectiveChange(p.problem, a, b),
+              dog::mrfMapObjective(p.problem, b) - dog::mrfMapObjective(p.problem, a), 1e-8);
 }
 
 TEST(MaximizeMrfMap, WithoutCouplingEachCellIsItsRatio) {
@@ -235,6 +298,29 @@ TEST(OfflineEmMrf, ObjectiveNeverDecreasesAndThreadsDoNotMatter) {
   for (std::size_t k = 1; k < one.objective.size(); ++k) {
     EXPECT_GE(one.objective[k], one.objective[k - 1] - 1e-9 * std::abs(one.objective[k - 1])) << k;
   }
+  // The reported objective is the log-likelihood plus the MAP prior plus the MRF prior of the
+  // returned parameters, recomputed here independently.
+  double log_likelihood = 0.0;
+  double log_prior = 0.0;
+  std::vector<double> logit_occ(sequences.cellCount());
+  std::vector<double> logit_free(sequences.cellCount());
+  std::vector<dog::CellXY> cells(sequences.cellCount());
+  for (std::size_t c = 0; c < sequences.cellCount(); ++c) {
+    const dog::TransitionParams& a = one.params[c];
+    log_likelihood += dog::forwardBackward(sequences.begin(c), sequences.end(c), sensor, a, 0.5).log_likelihood;
+    const double w = config.prior_weight;
+    log_prior += w * (1.0 - config.prior.p_free_given_occ) * std::log(1.0 - a.p_free_given_occ) +
+                 w * config.prior.p_free_given_occ * std::log(a.p_free_given_occ) +
+                 w * config.prior.p_occ_given_free * std::log(a.p_occ_given_free) +
+                 w * (1.0 - config.prior.p_occ_given_free) * std::log(1.0 - a.p_occ_given_free);
+    logit_occ[c] = logit(1.0 - a.p_free_given_occ);
+    logit_free[c] = logit(1.0 - a.p_occ_given_free);
+    cells[c] = sequences.cell(c);
+  }
+  const dog::CellNeighbours graph = dog::eightNeighbours(cells);
+  const double expected = log_likelihood + log_prior + dog::mrfPrior(graph, 1.0 / 50.0, logit_occ) +
+                          dog::mrfPrior(graph, 1.0 / 50.0, logit_free);
+  EXPECT_NEAR(one.objective.back(), expected, 1e-6 * std::abs(expected));
   for (std::size_t c = 0; c < one.params.size(); ++c) {
     ASSERT_EQ(one.params[c].p_occ_given_free, two.params[c].p_occ_given_free);
     ASSERT_EQ(one.params[c].p_free_given_occ, two.params[c].p_free_given_occ);
@@ -276,6 +362,8 @@ TEST(OfflineEmMrf, ConfigErrors) {
   config.mrf_temperature = -1.0;
   EXPECT_THROW(config.validate(), std::invalid_argument);
   config.mrf_temperature = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_THROW(config.validate(), std::invalid_argument);
+  config.mrf_temperature = 1e-10;  // a coupling that swamps any evidence by 1e10
   EXPECT_THROW(config.validate(), std::invalid_argument);
   config.mrf_temperature = 50.0;
   config.symmetric = true;
