@@ -27,19 +27,6 @@ std::size_t policyIndex(const std::vector<Policy>& policies, Policy policy) {
   return static_cast<std::size_t>(it - policies.begin());
 }
 
-MeanStd meanStd(const std::vector<double>& values) {
-  MeanStd result;
-  if (values.empty()) return result;
-  double sum = 0.0;
-  for (const double v : values) sum += v;
-  result.mean = sum / static_cast<double>(values.size());
-  if (values.size() < 2) return result;
-  double squares = 0.0;
-  for (const double v : values) squares += (v - result.mean) * (v - result.mean);
-  result.std = std::sqrt(squares / static_cast<double>(values.size() - 1));
-  return result;
-}
-
 // The map a policy plans on, and the method whose belief of the door random and optimal
 // hold (the oracle: the true transitions, filtered on the robot's own scans).
 Method planningMethod(Policy policy) {
@@ -300,6 +287,19 @@ class RepetitionRunner {
 };
 
 }  // namespace
+
+MeanStd meanStd(const std::vector<double>& values) {
+  MeanStd result;
+  if (values.empty()) return result;
+  double sum = 0.0;
+  for (const double v : values) sum += v;
+  result.mean = sum / static_cast<double>(values.size());
+  if (values.size() < 2) return result;
+  double squares = 0.0;
+  for (const double v : values) squares += (v - result.mean) * (v - result.mean);
+  result.std = std::sqrt(squares / static_cast<double>(values.size() - 1));
+  return result;
+}
 
 std::string policyName(Policy policy) {
   switch (policy) {

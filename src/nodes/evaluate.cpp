@@ -128,24 +128,8 @@ Options parseOptions(int argc, char** argv) {
   return options;
 }
 
-struct MeanStd {
-  double mean = 0.0;
-  double std = 0.0;
-};
-
-/// Mean and (sample) standard deviation.
-MeanStd meanStd(const std::vector<double>& values) {
-  MeanStd result;
-  if (values.empty()) return result;
-  for (const double v : values) result.mean += v;
-  result.mean /= static_cast<double>(values.size());
-  if (values.size() > 1) {
-    double squares = 0.0;
-    for (const double v : values) squares += (v - result.mean) * (v - result.mean);
-    result.std = std::sqrt(squares / static_cast<double>(values.size() - 1));
-  }
-  return result;
-}
+using core::MeanStd;
+using core::meanStd;
 
 /// Per repetition, the mean accuracy (percent) of steps [from, to).
 std::vector<double> windowMeans(const std::vector<std::vector<double>>& repetitions, std::size_t from, std::size_t to) {
@@ -202,14 +186,14 @@ std::string pathPlanningCsv(const core::PathPlanningResult& result) {
     csv << name;
     for (const core::Policy policy : core::kAllPolicies) {
       if (ran(policy)) {
-        const core::MeanStd v = ours(policy);
+        const MeanStd v = ours(policy);
         csv << ',' << fixed(v.mean, 3) << ',' << fixed(v.std, 3);
       } else {
         csv << ",,";
       }
     }
     for (const core::Policy policy : core::kAllPolicies) {
-      const std::optional<core::MeanStd> v = paper(policy);
+      const std::optional<MeanStd> v = paper(policy);
       csv << ',' << (v ? fixed(v->mean, 2) : "");
     }
     csv << '\n';
@@ -221,7 +205,7 @@ std::string pathPlanningCsv(const core::PathPlanningResult& result) {
         [&](core::Policy policy) { return core::paperTable1(policy, run_class); });
   }
   row("effectiveness", [&](core::Policy policy) { return result.effectiveness(policy); },
-      [](core::Policy policy) { return std::optional<core::MeanStd>(core::paperEffectiveness(policy)); });
+      [](core::Policy policy) { return std::optional<MeanStd>(core::paperEffectiveness(policy)); });
   return csv.str();
 }
 
@@ -525,8 +509,8 @@ int main(int argc, char** argv) {
               << "Percent of runs, mean ± std over " << config.repetitions << " repetitions of " << config.runs
               << " runs; the paper's values in parentheses.\n\n"
               << core::formatPathPlanningTable(result);
-      const core::MeanStd offline = result.effectiveness(core::Policy::kOffline);
-      const core::MeanStd stat = result.effectiveness(core::Policy::kStatic);
+      const MeanStd offline = result.effectiveness(core::Policy::kOffline);
+      const MeanStd stat = result.effectiveness(core::Policy::kStatic);
       const double paper = core::paperEffectiveness(core::Policy::kOffline).mean;
       checks.push_back({"path planning: offline effectiveness ≥ the paper's " + fixed(paper, 2) + " % and ≥ static + 5",
                         fixed(offline.mean, 2) + " % vs static " + fixed(stat.mean, 2) + " %",

@@ -187,6 +187,8 @@ struct MeanStd {
   double mean = 0.0;
   double std = 0.0;  ///< sample standard deviation (n - 1), 0 for one value
 };
+/// Mean and sample standard deviation of `values` (both 0 for none).
+MeanStd meanStd(const std::vector<double>& values);
 
 struct PathPlanningResult {
   std::vector<Policy> policies;  ///< as in the config
