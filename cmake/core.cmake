@@ -12,6 +12,7 @@ add_library(dynamic_occupancy_grid_core
   ${DOG_ROOT}/src/core/layers.cpp
   ${DOG_ROOT}/src/core/map_export.cpp
   ${DOG_ROOT}/src/core/mapper.cpp
+  ${DOG_ROOT}/src/core/memory_model.cpp
   ${DOG_ROOT}/src/core/model_io.cpp
   ${DOG_ROOT}/src/core/mrf.cpp
   ${DOG_ROOT}/src/core/mrf_experiment.cpp
@@ -20,6 +21,7 @@ add_library(dynamic_occupancy_grid_core
   ${DOG_ROOT}/src/core/path_planning.cpp
   ${DOG_ROOT}/src/core/planner.cpp
   ${DOG_ROOT}/src/core/prediction_check.cpp
+  ${DOG_ROOT}/src/core/scan_beams.cpp
   ${DOG_ROOT}/src/core/simulator.cpp
   ${DOG_ROOT}/src/core/step_clock.cpp
 )

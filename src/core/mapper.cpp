@@ -6,6 +6,7 @@
 #include <stdexcept>
 #include <string>
 
+#include "dynamic_occupancy_grid/core/scan_beams.h"
 #include "dynamic_occupancy_grid/core/traversal.h"
 
 namespace dynamic_occupancy_grid {
@@ -43,10 +44,6 @@ const MapperConfig& validated(const MapperConfig& config) {
   config.validate();
   return config;
 }
-
-// Largest lattice coordinate the traversal handles (int32 with margin); a grid limited to
-// max_map_size_m never comes close, a wild pose or range does.
-constexpr double kMaxLatticeCoordinate = 1.0e9;
 
 }  // namespace
 
@@ -97,23 +94,8 @@ ScanResult Mapper::integrate(const Scan& scan) {
     result.error = std::move(error);
     return result;
   };
-  if (scan.ranges_m.empty()) return reject(ScanStatus::kRejectedInvalid, "empty scan (no ranges)");
-  if (!std::isfinite(scan.stamp_s)) return reject(ScanStatus::kRejectedInvalid, "stamp is not finite");
+  if (const auto error = scanFieldsError(scan)) return reject(ScanStatus::kRejectedInvalid, *error);
   const Pose2D& pose = scan.laser_pose;
-  if (!std::isfinite(pose.x_m) || !std::isfinite(pose.y_m) || !std::isfinite(pose.yaw_rad)) {
-    return reject(ScanStatus::kRejectedInvalid, "laser pose is not finite");
-  }
-  if (!std::isfinite(scan.angle_min_rad) || !std::isfinite(scan.angle_increment_rad) ||
-      (scan.ranges_m.size() > 1 && scan.angle_increment_rad == 0.0)) {
-    return reject(ScanStatus::kRejectedInvalid,
-                  "angle_min and angle_increment must be finite, and angle_increment non-zero");
-  }
-  if (!(scan.range_min_m >= 0.0) || !std::isfinite(scan.range_min_m) ||
-      !(scan.range_max_m > scan.range_min_m)) {
-    return reject(ScanStatus::kRejectedInvalid,
-                  "need 0 <= range_min < range_max, got range_min " + std::to_string(scan.range_min_m) +
-                      ", range_max " + std::to_string(scan.range_max_m));
-  }
   const double u0 = grid_.toLatticeX(pose.x_m);
   const double v0 = grid_.toLatticeY(pose.y_m);
   if (std::abs(u0) > kMaxLatticeCoordinate || std::abs(v0) > kMaxLatticeCoordinate) {
@@ -136,56 +118,20 @@ ScanResult Mapper::integrate(const Scan& scan) {
     return reject(ScanStatus::kRejectedInvalid, "stamp too far after the first one for time_step");
   }
 
-  // Beam end points in lattice coordinates. Readings (issue rules):
-  //   finite range in [range_min, range_max): misses up to the end cell, a hit in it;
-  //   range >= range_max or +inf: misses up to max_free_range (capped at range_max), no hit;
-  //   NaN, -inf, < range_min: ignored.
-  struct Beam {
-    double u1;
-    double v1;
-    bool hit;
-  };
-  std::vector<Beam> beams;
-  beams.reserve(scan.ranges_m.size());
-  const double free_range_m = std::min(config_.max_free_range_m, scan.range_max_m);
-  const double cells_per_m = 1.0 / config_.resolution_m;
-  const double max_beam_m = 1.5 * maxCellsPerSide(config_) * config_.resolution_m;
+  // Beam end points in lattice coordinates (the reading rules: scan_beams.h).
+  BeamRules rules;
+  rules.cells_per_m = 1.0 / config_.resolution_m;
+  rules.max_free_range_m = config_.max_free_range_m;
+  rules.max_beam_m = 1.5 * maxCellsPerSide(config_) * config_.resolution_m;
+  std::vector<BeamEnd> beams;
+  BeamCounts counts;
   CellBox box;
-  box.include(static_cast<std::int32_t>(std::floor(u0)), static_cast<std::int32_t>(std::floor(v0)));
-  for (std::size_t i = 0; i < scan.ranges_m.size(); ++i) {
-    const double range = scan.ranges_m[i];
-    double length_m;
-    bool hit;
-    if (std::isnan(range) || range < scan.range_min_m) {
-      ++result.beams_ignored;
-      continue;
-    }
-    if (range >= scan.range_max_m) {  // includes +inf
-      ++result.beams_no_return;
-      if (free_range_m <= 0.0) continue;
-      length_m = free_range_m;
-      hit = false;
-    } else {
-      ++result.beams_hit;
-      length_m = range;
-      hit = true;
-    }
-    // No beam needs to be longer than the map's diagonal: its cells beyond that are
-    // outside the map anyway, and walking them would cost time for nothing.
-    if (length_m > max_beam_m) {
-      length_m = max_beam_m;
-      hit = false;
-    }
-    const double beam_angle = scan.angle_min_rad + static_cast<double>(i) * scan.angle_increment_rad;
-    const double angle = pose.yaw_rad + (scan.upside_down ? -beam_angle : beam_angle);
-    const double u1 = u0 + std::cos(angle) * length_m * cells_per_m;
-    const double v1 = v0 + std::sin(angle) * length_m * cells_per_m;
-    if (std::abs(u1) > kMaxLatticeCoordinate || std::abs(v1) > kMaxLatticeCoordinate) {
-      return reject(ScanStatus::kRejectedInvalid, "beam " + std::to_string(i) + " ends too far from the map origin");
-    }
-    box.include(static_cast<std::int32_t>(std::floor(u1)), static_cast<std::int32_t>(std::floor(v1)));
-    beams.push_back(Beam{u1, v1, hit});
+  if (const auto bad_beam = beamEnds(scan, u0, v0, rules, beams, counts, box)) {
+    return reject(ScanStatus::kRejectedInvalid, "beam " + std::to_string(*bad_beam) + " ends too far from the map origin");
   }
+  result.beams_hit = counts.hit;
+  result.beams_no_return = counts.no_return;
+  result.beams_ignored = counts.ignored;
 
   // Accepted from here on: the step bookkeeping may change.
   clock_.startAt(scan.stamp_s);
@@ -214,7 +160,7 @@ ScanResult Mapper::integrate(const Scan& scan) {
     }
     return cached_tile;
   };
-  for (const Beam& beam : beams) {
+  for (const BeamEnd& beam : beams) {
     const CellXY end = traverseSegment(u0, v0, beam.u1, beam.v1, [&](std::int32_t x, std::int32_t y) {
       CellGrid::Tile* tile = tile_of(x, y);
       if (tile == nullptr) {
