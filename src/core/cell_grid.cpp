@@ -173,9 +173,9 @@ CellGrid::Tile* CellGrid::tileForWriting(std::int32_t x, std::int32_t y) {
     tile->scan_mark.fill(0);
     tile->tile_x = tileOf(x);
     tile->tile_y = tileOf(y);
-    allocated_cells_.include(tile->tile_x << kTileBits, tile->tile_y << kTileBits);
-    allocated_cells_.include((tile->tile_x << kTileBits) + kTileSize - 1,
-                             (tile->tile_y << kTileBits) + kTileSize - 1);
+    allocated_cells_.include(tile->tile_x * kTileSize, tile->tile_y * kTileSize);
+    allocated_cells_.include((tile->tile_x * kTileSize) + kTileSize - 1,
+                             (tile->tile_y * kTileSize) + kTileSize - 1);
     *tile_slot = std::move(tile);
     ++allocated_tiles_;
   }

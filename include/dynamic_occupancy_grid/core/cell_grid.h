@@ -84,8 +84,8 @@ class CellGrid {
     std::int32_t tile_x;  ///< lattice coordinates of the tile (cell x >> kTileBits)
     std::int32_t tile_y;
 
-    std::int32_t cellX(int offset) const { return (tile_x << kTileBits) + (offset & (kTileSize - 1)); }
-    std::int32_t cellY(int offset) const { return (tile_y << kTileBits) + (offset >> kTileBits); }
+    std::int32_t cellX(int offset) const { return (tile_x * kTileSize) + (offset & (kTileSize - 1)); }
+    std::int32_t cellY(int offset) const { return (tile_y * kTileSize) + (offset >> kTileBits); }
   };
 
   /// Initial values of a freshly allocated cell.
@@ -146,8 +146,8 @@ class CellGrid {
   bool insideLimits(std::int32_t x, std::int32_t y) const;
   /// Every cell of tile (tile_x, tile_y) is inside the limits (no per-cell check needed).
   bool tileInsideLimits(std::int32_t tile_x, std::int32_t tile_y) const {
-    return insideLimits(tile_x << kTileBits, tile_y << kTileBits) &&
-           insideLimits((tile_x << kTileBits) + kTileSize - 1, (tile_y << kTileBits) + kTileSize - 1);
+    return insideLimits(tile_x * kTileSize, tile_y * kTileSize) &&
+           insideLimits((tile_x * kTileSize) + kTileSize - 1, (tile_y * kTileSize) + kTileSize - 1);
   }
   static int offsetOf(std::int32_t x, std::int32_t y) {
     return ((y & (kTileSize - 1)) << kTileBits) | (x & (kTileSize - 1));
