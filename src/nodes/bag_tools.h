@@ -37,6 +37,8 @@ inline const char* const kSharedUsage =
     "  --end-time T          only scans stamped at or before T (ROS time, s; default: all)\n"
     "  --resolution M        cell size in metres (default 0.05)\n"
     "  --time-step S         HMM time step in seconds (default 1.0)\n"
+    "  --max-range M         readings longer than M metres count as no return (default:\n"
+    "                        the sensor's range_max)\n"
     "  --max-free-range M    beams without return clear cells up to M metres (default 10;\n"
     "                        0 ignores them)\n"
     "  --p-hit-given-occ P   sensor model: p(hit | occupied) (default 0.7)\n"
@@ -183,6 +185,8 @@ inline bool parseSharedOption(const std::string& arg, Arguments& args, SharedOpt
     options->mapper.resolution_m = args.positiveNumber();
   } else if (arg == "--time-step") {
     options->mapper.time_step_s = args.positiveNumber();
+  } else if (arg == "--max-range") {
+    options->source.max_range_m = args.positiveNumber();
   } else if (arg == "--max-free-range") {
     options->mapper.max_free_range_m = args.nonNegativeNumber();
   } else if (arg == "--p-hit-given-occ") {

@@ -180,7 +180,9 @@ BagScanStats BagScanSource::forEachScan(const std::function<void(const core::Sca
     if (!stats.first_stamp_s) stats.first_stamp_s = stamp_s;
     stats.last_stamp_s = stamp_s;
     try {
-      on_scan(toCoreScan(msg, pose, upside_down));
+      core::Scan scan = toCoreScan(msg, pose, upside_down);
+      scan.range_max_m = std::min(scan.range_max_m, options_.max_range_m);
+      on_scan(std::move(scan));
     } catch (...) {
       throw CallbackFailed{std::current_exception()};
     }

@@ -232,6 +232,17 @@ class TestBagTools(unittest.TestCase):
                 in_lines += len(cells)
         self.assertGreater(in_lines / occupied.sum(), PARAMS["min_line_fraction"])
 
+    def test_max_range_turns_long_readings_into_no_return(self):
+        # --max-range 1 with --max-free-range 0: readings beyond 1 m are ignored, so only the
+        # cells within 1 m of the laser are mapped.
+        base = self.load(os.path.join(self.neato()[3], "model.dogm"))
+        rc, stdout, stderr, out = self.process("neato_max_range", NEATO_BAG,
+                                               NEATO_ARGS + ["--max-range", "1", "--max-free-range", "0"])
+        self.assertEqual(rc, 0, stderr)
+        short = self.load(os.path.join(out, "model.dogm"))
+        self.assertGreater(short.cell_count, 0)
+        self.assertLess(short.cell_count, 0.5 * base.cell_count, stdout)
+
     def test_neato_bag_uses_most_scans(self):
         rc, stdout, _, out = self.neato()
         self.assertEqual(rc, 0)
@@ -454,6 +465,7 @@ class TestBagTools(unittest.TestCase):
                      [NEATO_BAG, "--em-iterations", "0"], [NEATO_BAG, "--threads", "two"],
                      [NEATO_BAG, "--p-hit-given-occ", "1.5"], [NEATO_BAG, "--p-hit-given-occ", "0.1"],
                      [NEATO_BAG, "--laser-pose", "1,2"], [NEATO_BAG, "--snapshot-every", "0"],
+                     [NEATO_BAG, "--max-range", "0"], [NEATO_BAG, "--max-range", "-2"],
                      [NEATO_BAG, "--no-such-option"], [NEATO_BAG, "--time-step"], [NEATO_BAG, NEATO_BAG], []):
             self.assert_fails("process_bag", args + out, 2, "usage: process_bag")
         self.assert_fails("offline_em", [NEATO_BAG], 2, "--out", "usage: offline_em")

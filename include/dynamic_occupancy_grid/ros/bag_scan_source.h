@@ -11,6 +11,7 @@
 
 #include <cstddef>
 #include <functional>
+#include <limits>
 #include <memory>
 #include <optional>
 #include <string>
@@ -33,6 +34,9 @@ struct BagScanSourceOptions {
   /// Seconds of bag (recording) time of /tf read after a scan before its pose is looked up:
   /// transforms are often recorded a little after the scans they apply to.
   double tf_lookahead_s = 2.0;
+  /// Readings longer than this count as "no return", as the node's ~max_range: the scan's
+  /// range_max is lowered to it (infinity keeps the sensor's).
+  double max_range_m = std::numeric_limits<double>::infinity();
 };
 
 struct BagScanStats {
