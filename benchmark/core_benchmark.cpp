@@ -3,10 +3,14 @@
 //   30 m sensor), 0.05 m cells.
 //   Learning: online EM per observed cell-step; offline EM in observed cell-steps per
 //   second per iteration.
+//   Issue 6: the same scan into a fixed 4000 x 4000 map (200 m x 200 m, sensor in the
+//   middle), scan + step as one figure, the per-scan cost against the map's size, and (when
+//   CMake found OctoMap) OctoMap inserting the same scan as a point cloud.
 
 #include <benchmark/benchmark.h>
 
 #include <cmath>
+#include <algorithm>
 #include <cstdint>
 #include <random>
 #include <vector>
@@ -15,6 +19,10 @@
 #include "dynamic_occupancy_grid/core/offline_em.h"
 #include "dynamic_occupancy_grid/core/online_em.h"
 #include "dynamic_occupancy_grid/core/traversal.h"
+
+#ifdef DOG_BENCHMARK_OCTOMAP
+#include <octomap/OcTree.h>
+#endif
 
 namespace dog = dynamic_occupancy_grid::core;
 
@@ -25,7 +33,7 @@ constexpr double kFieldOfView = 1.5 * M_PI;
 constexpr double kRange = 29.97;
 constexpr double kResolution = 0.05;
 
-dog::Scan makeScan(double stamp_s) {
+dog::Scan makeScan(double stamp_s, double range_m = kRange) {
   dog::Scan scan;
   scan.stamp_s = stamp_s;
   scan.laser_pose = dog::Pose2D{0.013, -0.021, 0.1};
@@ -33,8 +41,22 @@ dog::Scan makeScan(double stamp_s) {
   scan.angle_increment_rad = kFieldOfView / (kBeams - 1);
   scan.range_min_m = 0.1;
   scan.range_max_m = 30.0;
-  scan.ranges_m.assign(kBeams, static_cast<float>(kRange));
+  scan.ranges_m.assign(kBeams, static_cast<float>(range_m));
   return scan;
+}
+
+// A fixed map of side x side cells centred on the world origin (the scan's sensor is at
+// the origin, so it sits in the middle of the map).
+dog::MapperConfig fixedMapConfig(std::int64_t side_cells) {
+  dog::MapperConfig config;
+  config.resolution_m = kResolution;
+  config.fixed_bounds = true;
+  config.width_m = static_cast<double>(side_cells) * kResolution;
+  config.height_m = config.width_m;
+  config.origin_x_m = -config.width_m / 2.0;
+  config.origin_y_m = -config.height_m / 2.0;
+  config.max_map_size_m = std::max(config.max_map_size_m, config.width_m);
+  return config;
 }
 
 dog::MapperConfig benchmarkConfig() {
@@ -85,6 +107,99 @@ void BM_ScanIntegrate(benchmark::State& state) {
   state.SetLabel("area already allocated, step stays open");
 }
 BENCHMARK(BM_ScanIntegrate)->Unit(benchmark::kMicrosecond);
+
+// Issue 6: the same as BM_ScanIntegrate, in a fixed map of arg x arg cells (4000: 200 m x
+// 200 m) with the sensor in its middle, instead of a growing map.
+void BM_ScanIntegrateFixedMap(benchmark::State& state) {
+  dog::Mapper mapper(fixedMapConfig(state.range(0)));
+  const dog::Scan scan = makeScan(0.0);
+  mapper.integrate(scan);
+  std::size_t beams = 0;
+  for (auto _ : state) {
+    const dog::ScanResult result = mapper.integrate(scan);
+    beams += result.beams_hit;
+  }
+  benchmark::DoNotOptimize(beams);
+  state.SetLabel("fixed " + std::to_string(state.range(0)) + "^2 map, area allocated, step stays open");
+}
+BENCHMARK(BM_ScanIntegrateFixedMap)->Arg(4000)->Unit(benchmark::kMicrosecond);
+
+// Issue 6: what one scan costs when every scan is its own time step (the worst case: no
+// step update is shared by several scans): integrate into the 4000 x 4000 map, then apply
+// the step to the ~623 k cells touched (filter + online EM + baseline, consecutive steps).
+// This is the figure compared with OctoMap's insertion of the same scan.
+void BM_ScanAndStep(benchmark::State& state) {
+  dog::MapperConfig config = fixedMapConfig(4000);
+  config.learn_transitions = state.range(0) != 0;
+  dog::Mapper mapper(config);
+  double stamp = 0.0;
+  mapper.integrate(makeScan(stamp));
+  mapper.finishStep();
+  dog::Scan scan = makeScan(stamp);
+  for (auto _ : state) {
+    stamp += 1.0;  // the next step: no unobserved gap
+    scan.stamp_s = stamp;
+    mapper.integrate(scan);
+    mapper.finishStep();
+    benchmark::DoNotOptimize(mapper.takeChangedCells());
+  }
+  state.SetItemsProcessed(state.iterations() * kBeams);  // beams per second
+  state.SetLabel(config.learn_transitions ? "4000^2 map, integrate + filter + online EM"
+                                          : "4000^2 map, integrate + filter only");
+}
+BENCHMARK(BM_ScanAndStep)->Arg(1)->Arg(0)->Unit(benchmark::kMicrosecond);
+
+// Issue 6: per-scan cost against the map's size. The same 12 m scan (fits in the smallest
+// map: 500 cells = 25 m, sensor in the middle) into fixed maps of arg x arg cells,
+// integrate + step (online EM) per scan. The cost should not depend on the map's size.
+void BM_ScanMapSize(benchmark::State& state) {
+  dog::Mapper mapper(fixedMapConfig(state.range(0)));
+  double stamp = 0.0;
+  dog::Scan scan = makeScan(stamp, 12.0);
+  mapper.integrate(scan);
+  mapper.finishStep();
+  std::size_t outside = 0;
+  for (auto _ : state) {
+    stamp += 1.0;
+    scan.stamp_s = stamp;
+    outside += mapper.integrate(scan).cells_outside;
+    mapper.finishStep();
+    benchmark::DoNotOptimize(mapper.takeChangedCells());
+  }
+  state.counters["cells_outside"] = static_cast<double>(outside);  // 0: the scan fits
+  state.counters["tiles"] = static_cast<double>(mapper.grid().allocatedTiles());
+  state.SetItemsProcessed(state.iterations() * kBeams);
+  state.SetLabel("12 m scan, integrate + step, " + std::to_string(state.range(0)) + "^2 map");
+}
+BENCHMARK(BM_ScanMapSize)->Arg(500)->Arg(8000)->Unit(benchmark::kMicrosecond);
+
+#ifdef DOG_BENCHMARK_OCTOMAP
+// Issue 6's peer: OctoMap (Debian liboctomap-dev) inserting the same scan as a point cloud
+// at z = 0: OcTree(0.05), insertPointCloud(cloud, origin, 30 m) with its defaults (exact
+// ray casting, no lazy evaluation: inner nodes updated per scan). The tree already holds
+// the area (one scan inserted before timing), as for BM_ScanIntegrate.
+void BM_OctoMapInsertScan(benchmark::State& state) {
+  const dog::Scan scan = makeScan(0.0);
+  const octomap::point3d origin(static_cast<float>(scan.laser_pose.x_m), static_cast<float>(scan.laser_pose.y_m),
+                                0.0f);
+  octomap::Pointcloud cloud;
+  for (int i = 0; i < kBeams; ++i) {
+    const double angle = scan.laser_pose.yaw_rad + scan.angle_min_rad + i * scan.angle_increment_rad;
+    cloud.push_back(static_cast<float>(scan.laser_pose.x_m + std::cos(angle) * kRange),
+                    static_cast<float>(scan.laser_pose.y_m + std::sin(angle) * kRange), 0.0f);
+  }
+  octomap::OcTree tree(kResolution);
+  tree.insertPointCloud(cloud, origin, scan.range_max_m);
+  for (auto _ : state) {
+    tree.insertPointCloud(cloud, origin, scan.range_max_m);
+  }
+  benchmark::DoNotOptimize(tree.size());
+  state.counters["nodes"] = static_cast<double>(tree.size());
+  state.SetItemsProcessed(state.iterations() * kBeams);  // beams per second
+  state.SetLabel("OcTree(0.05), insertPointCloud, maxrange 30 m");
+}
+BENCHMARK(BM_OctoMapInsertScan)->Unit(benchmark::kMicrosecond);
+#endif
 
 // Applying a step: every cell touched by one scan is brought over its gap, filtered (and,
 // with argument 1, its online EM statistics updated) and its baseline updated. Reported per

@@ -17,9 +17,11 @@ workspace=${DOG_WORKSPACE:-$HOME/dog_ws}
 export PATH=/usr/bin:/bin:$PATH
 
 # Packages: build, tests (gtest, rostest, python message modules, pomegranate for the
-# cross-check), benchmarks, demo (rviz under Xvfb, tf2 tools).
+# cross-check), benchmarks (Google Benchmark; OctoMap as the peer of issue 6, optional in
+# CMake; Debian/Ubuntu names on both branches, like libbenchmark-dev), demo (rviz under
+# Xvfb, tf2 tools).
 common_packages=(
-  build-essential cmake libeigen3-dev libgtest-dev googletest libbenchmark-dev
+  build-essential cmake libeigen3-dev libgtest-dev googletest libbenchmark-dev liboctomap-dev
   python3-numpy python3-matplotlib python3-pomegranate xvfb
 )
 debian_ros_packages=(
