@@ -1,5 +1,6 @@
 #include "dynamic_occupancy_grid/ros/grid_messages.h"
 
+#include <algorithm>
 #include <utility>
 
 namespace dynamic_occupancy_grid {
@@ -42,6 +43,35 @@ map_msgs::OccupancyGridUpdate toOccupancyGridUpdate(const core::CellBox& full, c
   msg.width = static_cast<std::uint32_t>(box.width());
   msg.height = static_cast<std::uint32_t>(box.height());
   msg.data = std::move(values);
+  return msg;
+}
+
+MapHypotheses toMapHypotheses(const core::MemoryModel& memory, std::size_t max_hypotheses,
+                              const std::string& frame_id, const ros::Time& stamp) {
+  MapHypotheses msg;
+  msg.header.frame_id = frame_id;
+  msg.header.stamp = stamp;
+  msg.updates = static_cast<std::uint32_t>(memory.updates());
+  const core::CellBox bounds = memory.bounds();
+  const core::MapWindow window = memory.window(bounds);
+  const std::vector<core::MapHypothesis> hypotheses = memory.hypotheses();
+  msg.total_hypotheses = static_cast<std::uint32_t>(hypotheses.size());
+  const std::size_t count = std::min(hypotheses.size(), max_hypotheses);
+  msg.hypotheses.reserve(count);
+  for (std::size_t i = 0; i < count; ++i) {
+    dynamic_occupancy_grid::MapHypothesis hypothesis;
+    hypothesis.map = toOccupancyGrid(window, memory.hypothesisGrid(hypotheses[i], bounds), frame_id, stamp);
+    hypothesis.weight = hypotheses[i].weight;
+    hypothesis.configurations = hypotheses[i].configurations;
+    hypothesis.excluded = hypotheses[i].excluded;
+    msg.hypotheses.push_back(std::move(hypothesis));
+  }
+  for (const core::ConfigurationInfo& configuration : memory.configurations()) {
+    msg.configuration_ids.push_back(configuration.id);
+    msg.configuration_presence.push_back(configuration.presence);
+    msg.configuration_cells.push_back(static_cast<std::uint32_t>(configuration.cells));
+    msg.configuration_created_update.push_back(static_cast<std::uint32_t>(configuration.created_update));
+  }
   return msg;
 }
 

@@ -70,7 +70,7 @@ bool MappingNode::start() {
   for (const std::string& name : unknown) {
     ROS_WARN("parameter %s is not one of this node's parameters (a typo?); it is ignored", name.c_str());
   }
-  if (!parameters_.model_file.empty()) {
+  if (parameters_.runsHmm() && !parameters_.model_file.empty()) {
     try {
       mapper_ = core::loadModel(parameters_.model_file);
     } catch (const std::exception& e) {
@@ -86,11 +86,62 @@ bool MappingNode::start() {
       newest_stamp_s_ = mapper_->clock().stepStart(*mapper_->lastAppliedStep() + 1);
     }
     ROS_INFO("loaded model %s", parameters_.model_file.c_str());
-  } else {
+  } else if (parameters_.runsHmm()) {
     mapper_ = std::make_unique<core::Mapper>(parameters_.mapper);
   }
+  if (parameters_.runsMemory()) {
+    core::MemoryModelConfig memory_config = parameters_.memory;
+    if (mapper_) {
+      // Both models on one lattice: a loaded model's, if any.
+      const core::MapperConfig& lattice = mapper_->config();
+      memory_config.resolution_m = lattice.resolution_m;
+      memory_config.origin_x_m = lattice.origin_x_m;
+      memory_config.origin_y_m = lattice.origin_y_m;
+      memory_config.max_free_range_m = lattice.max_free_range_m;
+      memory_config.max_map_size_m = lattice.max_map_size_m;
+    }
+    try {
+      memory_ = std::make_unique<core::MemoryModel>(memory_config);
+    } catch (const std::invalid_argument& e) {
+      ROS_FATAL("the memory model cannot use the grid of the model %s: %s", parameters_.model_file.c_str(), e.what());
+      return false;
+    }
+  }
 
-  const double time_step_s = mapper_->config().time_step_s;
+  if (mapper_) advertiseHmm();
+  if (memory_) advertiseMemory();
+  services_.push_back(private_nh_.advertiseService("reset", &MappingNode::reset, this));
+
+  tf_listener_ = std::make_unique<tf2_ros::TransformListener>(tf_buffer_, nh_);
+  for (const std::string& topic : parameters_.scan_topics) {
+    scan_subscribers_.push_back(
+        std::make_unique<message_filters::Subscriber<sensor_msgs::LaserScan>>(nh_, topic, parameters_.scan_queue_size));
+    scan_filters_.push_back(std::make_unique<tf2_ros::MessageFilter<sensor_msgs::LaserScan>>(
+        *scan_subscribers_.back(), tf_buffer_, parameters_.fixed_frame,
+        static_cast<std::uint32_t>(parameters_.scan_queue_size), nh_));
+    scan_filters_.back()->registerCallback(boost::bind(&MappingNode::scanCallback, this, boost::placeholders::_1));
+    scan_filters_.back()->registerFailureCallback(
+        boost::bind(&MappingNode::scanDropped, this, boost::placeholders::_1, boost::placeholders::_2));
+  }
+  publish_timer_ = private_nh_.createTimer(ros::Duration(parameters_.publish_period_s), &MappingNode::publishTimer, this);
+
+  std::ostringstream topics;
+  for (const std::string& topic : parameters_.scan_topics) topics << " " << nh_.resolveName(topic);
+  if (mapper_) {
+    ROS_INFO("mapping scans from%s in frame '%s' with the cell HMM: %.3f m cells, time step %.3f s, transitions %s",
+             topics.str().c_str(), parameters_.fixed_frame.c_str(), mapper_->config().resolution_m,
+             mapper_->config().time_step_s, mapper_->config().learn_transitions ? "learned online" : "fixed");
+  }
+  if (memory_) {
+    ROS_INFO("mapping scans from%s in frame '%s' with the STM/LTM memory model: %.3f m cells, an update every "
+             "%.2f m of laser travel, %d configurations in the hypotheses",
+             topics.str().c_str(), parameters_.fixed_frame.c_str(), memory_->config().resolution_m,
+             memory_->config().update_distance_m, memory_->config().hypothesis_configurations);
+  }
+  return true;
+}
+
+void MappingNode::advertiseHmm() {
   const auto add_output = [this](ros::NodeHandle& nh, const std::string& name, LayerView view) {
     const std::size_t index = outputs_.size();
     outputs_.emplace_back();
@@ -113,8 +164,8 @@ bool MappingNode::start() {
   };
   outputs_.reserve(7);
   add_output(private_nh_, "belief", probability(core::Layer::kBelief));
-  add_output(private_nh_, "predicted",
-             LayerView{core::Layer::kPredicted, 1.0f, horizonSteps(parameters_.prediction_horizon_s, time_step_s)});
+  const std::int64_t horizon_steps = horizonSteps(parameters_.prediction_horizon_s, mapper_->config().time_step_s);
+  add_output(private_nh_, "predicted", LayerView{core::Layer::kPredicted, 1.0f, horizon_steps});
   add_output(private_nh_, "stationary", probability(core::Layer::kStationary));
   add_output(private_nh_, "p_occ_given_free", transition(core::Layer::kOccGivenFree));
   add_output(private_nh_, "p_free_given_occ", transition(core::Layer::kFreeGivenOcc));
@@ -126,29 +177,33 @@ bool MappingNode::start() {
   services_.push_back(private_nh_.advertiseService("save_model", &MappingNode::saveModel, this));
   services_.push_back(private_nh_.advertiseService("load_model", &MappingNode::loadModel, this));
   services_.push_back(private_nh_.advertiseService("export_layers", &MappingNode::exportLayers, this));
-  services_.push_back(private_nh_.advertiseService("reset", &MappingNode::reset, this));
   services_.push_back(private_nh_.advertiseService("get_cell", &MappingNode::getCell, this));
   services_.push_back(private_nh_.advertiseService("predict_map", &MappingNode::predictMap, this));
+}
 
-  tf_listener_ = std::make_unique<tf2_ros::TransformListener>(tf_buffer_, nh_);
-  for (const std::string& topic : parameters_.scan_topics) {
-    scan_subscribers_.push_back(
-        std::make_unique<message_filters::Subscriber<sensor_msgs::LaserScan>>(nh_, topic, parameters_.scan_queue_size));
-    scan_filters_.push_back(std::make_unique<tf2_ros::MessageFilter<sensor_msgs::LaserScan>>(
-        *scan_subscribers_.back(), tf_buffer_, parameters_.fixed_frame,
-        static_cast<std::uint32_t>(parameters_.scan_queue_size), nh_));
-    scan_filters_.back()->registerCallback(boost::bind(&MappingNode::scanCallback, this, boost::placeholders::_1));
-    scan_filters_.back()->registerFailureCallback(
-        boost::bind(&MappingNode::scanDropped, this, boost::placeholders::_1, boost::placeholders::_2));
+void MappingNode::advertiseMemory() {
+  for (const bool long_term : {true, false}) {
+    const std::string name = long_term ? "ltm" : "stm";
+    const std::size_t index = memory_outputs_.size();
+    memory_outputs_.emplace_back();
+    MemoryOutput& output = memory_outputs_.back();
+    output.long_term = long_term;
+    const ros::SubscriberStatusCallback connected = [this, index](const ros::SingleSubscriberPublisher&) {
+      std::lock_guard<std::mutex> lock(mutex_);
+      publishMemoryFull(memory_outputs_[index]);
+    };
+    output.full = private_nh_.advertise<nav_msgs::OccupancyGrid>(name, 1, connected, ros::SubscriberStatusCallback(),
+                                                                 ros::VoidConstPtr(), true);
+    output.updates = private_nh_.advertise<map_msgs::OccupancyGridUpdate>(name + "_updates", 10);
   }
-  publish_timer_ = private_nh_.createTimer(ros::Duration(parameters_.publish_period_s), &MappingNode::publishTimer, this);
-
-  std::ostringstream topics;
-  for (const std::string& topic : parameters_.scan_topics) topics << " " << nh_.resolveName(topic);
-  ROS_INFO("mapping scans from%s in frame '%s': %.3f m cells, time step %.3f s, transitions %s",
-           topics.str().c_str(), parameters_.fixed_frame.c_str(), mapper_->config().resolution_m, time_step_s,
-           mapper_->config().learn_transitions ? "learned online" : "fixed");
-  return true;
+  // Latched: a new subscriber gets the last hypotheses, or the current ones if they were not
+  // published for want of subscribers.
+  const ros::SubscriberStatusCallback connected = [this](const ros::SingleSubscriberPublisher&) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (hypotheses_need_publish_) publishHypotheses();
+  };
+  hypotheses_ = private_nh_.advertise<MapHypotheses>("hypotheses", 1, connected, ros::SubscriberStatusCallback(),
+                                                     ros::VoidConstPtr(), true);
 }
 
 void MappingNode::scanDropped(const sensor_msgs::LaserScan::ConstPtr& msg, tf2_ros::FilterFailureReason reason) {
@@ -198,6 +253,8 @@ void MappingNode::scanCallback(const sensor_msgs::LaserScan::ConstPtr& msg) {
   scan.range_max_m = std::min(scan.range_max_m, parameters_.max_range_m);
 
   std::lock_guard<std::mutex> lock(mutex_);
+  if (memory_) integrateMemory(scan, msg->header.frame_id);
+  if (!mapper_) return;
   if (newest_stamp_s_ && scan.stamp_s < *newest_stamp_s_ - parameters_.time_jump_threshold_s) {
     // A bag played again or a simulator reset: keep the map, go on from the next step.
     ROS_WARN_THROTTLE(1.0, "time jumped back by %.1f s (bag restarted?): keeping the map, continuing it after step %lld",
@@ -218,8 +275,31 @@ void MappingNode::scanCallback(const sensor_msgs::LaserScan::ConstPtr& msg) {
   }
 }
 
+void MappingNode::integrateMemory(const core::Scan& scan, const std::string& frame_id) {
+  // Views gather scans by the laser's travel, not by time: a bag played again goes on
+  // with the same memory.
+  const core::MemoryScanResult result = memory_->integrate(scan);
+  if (!result.integrated) {
+    ROS_WARN_THROTTLE(kWarnPeriodS, "memory model: dropping scan from frame '%s' stamped %.3f: %s", frame_id.c_str(),
+                      scan.stamp_s, result.error.c_str());
+    return;
+  }
+  if (result.cells_outside > 0) {
+    ROS_WARN_THROTTLE(30.0, "memory model: beams reach beyond max_map_size; those cells are not mapped");
+  }
+  if (result.update) {
+    memory_stamp_ = toRosTime(scan.stamp_s);
+    memory_updated_ = true;
+    ROS_DEBUG("memory update %lld: %zu cells hit, %zu missed, %zu migrated to LTM, %zu forgotten",
+              static_cast<long long>(result.update->index), result.update->view_hits, result.update->view_misses,
+              result.update->migrated.size(), result.update->forgotten);
+  }
+}
+
 void MappingNode::publishTimer(const ros::TimerEvent&) {
   std::lock_guard<std::mutex> lock(mutex_);
+  if (memory_) publishMemory(false);
+  if (!mapper_) return;
   // Apply the step being gathered once no scan of it can still come (scans of a later step
   // apply it anyway). Only when ROS time and the scans' stamps agree: a bag played without
   // --clock has stamps far from ROS time.
@@ -270,6 +350,56 @@ void MappingNode::publishFull(Output& output) {
   output.full.publish(toOccupancyGrid(mapper_->grid().window(bounds), std::move(values), parameters_.fixed_frame, stamp));
   output.needs_full = false;
 }
+
+void MappingNode::publishMemory(bool force_full) {
+  if (!force_full && !memory_updated_) return;  // the grids change at updates only
+  memory_updated_ = false;
+  const ros::Time now = ros::Time::now();
+  const core::CellBox bounds = memory_->bounds();
+  const core::CellBox changed = memory_->takeChangedCells();
+  const bool full_due = force_full || !sameBox(bounds, memory_published_bounds_) ||
+                        parameters_.full_map_period_s == 0.0 ||
+                        (now - memory_last_full_publish_).toSec() >= parameters_.full_map_period_s;
+  bool sent_full = false;
+  for (MemoryOutput& output : memory_outputs_) {
+    if (full_due || output.needs_full) {
+      if (output.full.getNumSubscribers() == 0) {
+        output.needs_full = true;  // rendered when someone listens
+        continue;
+      }
+      publishMemoryFull(output);
+      sent_full = true;
+    } else if (!changed.empty() && output.updates.getNumSubscribers() > 0) {
+      std::vector<std::int8_t> values = output.long_term ? memory_->ltmGrid(changed) : memory_->stmGrid(changed);
+      output.updates.publish(
+          toOccupancyGridUpdate(bounds, changed, std::move(values), parameters_.fixed_frame, memoryStamp()));
+    }
+  }
+  if (full_due || sent_full) {
+    memory_published_bounds_ = bounds;
+    if (full_due) memory_last_full_publish_ = now;
+  }
+  if (hypotheses_.getNumSubscribers() > 0) {
+    publishHypotheses();
+  } else {
+    hypotheses_need_publish_ = true;
+  }
+}
+
+void MappingNode::publishMemoryFull(MemoryOutput& output) {
+  const core::CellBox bounds = memory_->bounds();
+  std::vector<std::int8_t> values = output.long_term ? memory_->ltmGrid(bounds) : memory_->stmGrid(bounds);
+  output.full.publish(toOccupancyGrid(memory_->window(bounds), std::move(values), parameters_.fixed_frame, memoryStamp()));
+  output.needs_full = false;
+}
+
+void MappingNode::publishHypotheses() {
+  hypotheses_.publish(toMapHypotheses(*memory_, static_cast<std::size_t>(parameters_.max_published_hypotheses),
+                                      parameters_.fixed_frame, memoryStamp()));
+  hypotheses_need_publish_ = false;
+}
+
+ros::Time MappingNode::memoryStamp() const { return memory_stamp_.value_or(ros::Time::now()); }
 
 void MappingNode::replaceMapper(std::unique_ptr<core::Mapper> mapper) {
   mapper_ = std::move(mapper);
@@ -501,10 +631,15 @@ bool MappingNode::exportLayers(ExportLayers::Request& request, ExportLayers::Res
 bool MappingNode::reset(std_srvs::Trigger::Request&, std_srvs::Trigger::Response& response) {
   std::lock_guard<std::mutex> lock(mutex_);
   // An empty map with the current model's configuration (a loaded model's, if any).
-  replaceMapper(std::make_unique<core::Mapper>(mapper_->config()));
+  if (mapper_) replaceMapper(std::make_unique<core::Mapper>(mapper_->config()));
+  if (memory_) {
+    memory_ = std::make_unique<core::MemoryModel>(memory_->config());
+    memory_stamp_.reset();
+    publishMemory(true);
+  }
   response.success = true;
-  response.message = "map cleared";
-  ROS_INFO("map cleared by ~reset");
+  response.message = mapper_ && memory_ ? "map and memory cleared" : mapper_ ? "map cleared" : "memory cleared";
+  ROS_INFO("%s by ~reset", response.message.c_str());
   return true;
 }
 

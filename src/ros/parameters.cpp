@@ -10,6 +10,7 @@
 #include <limits>
 #include <set>
 #include <stdexcept>
+#include <string>
 
 namespace dynamic_occupancy_grid {
 namespace ros_layer {
@@ -112,6 +113,24 @@ class Reader {
   std::string error_;
 };
 
+/// The memory model's checks name its config fields ("stm.p_hit must be ...", "ltm: need
+/// l_min < l_max", "update_distance must be ..."): the same message naming the parameters.
+/// The grid fields it shares with the mapper (resolution, max_map_size, ...) keep their names.
+std::string memoryParameterMessage(const std::string& message) {
+  const auto starts_with = [&message](const std::string& prefix) { return message.compare(0, prefix.size(), prefix) == 0; };
+  for (const std::string store : {"stm", "ltm"}) {
+    if (starts_with(store + ".")) return "memory/" + store + "_" + message.substr(store.size() + 1);
+    if (starts_with(store + ":")) {
+      return "memory/" + store + "_l_min, memory/" + store + "_l_max" + message.substr(store.size());
+    }
+  }
+  for (const std::string field :
+       {"update_distance", "initial_mapping_updates", "ltm_occupied_log_odds", "hypothesis_configurations"}) {
+    if (starts_with(field)) return "memory/" + message;
+  }
+  return message;
+}
+
 }  // namespace
 
 bool readParameters(const ros::NodeHandle& private_nh, NodeParameters* parameters, std::string* error,
@@ -130,6 +149,17 @@ bool readParameters(const ros::NodeHandle& private_nh, NodeParameters* parameter
   read.number("time_jump_threshold", &p.time_jump_threshold_s);
   read.number("max_range", &p.max_range_m);
   read.text("model_file", &p.model_file);
+  std::string model = "hmm";
+  read.text("model", &model);
+  if (model == "hmm") {
+    p.model = MapModel::kHmm;
+  } else if (model == "memory") {
+    p.model = MapModel::kMemory;
+  } else if (model == "both") {
+    p.model = MapModel::kBoth;
+  } else {
+    read.fail("model", "must be \"hmm\", \"memory\" or \"both\", got \"" + model + "\"");
+  }
 
   core::MapperConfig& m = p.mapper;
   read.number("resolution", &m.resolution_m);
@@ -177,6 +207,27 @@ bool readParameters(const ros::NodeHandle& private_nh, NodeParameters* parameter
   em.prior = m.prior_transitions;
   em.initial_p_occ = m.initial_p_occ;
 
+  // The memory model (Morris et al.) on the mapper's lattice.
+  core::MemoryModelConfig& memory = p.memory;
+  read.number("memory/update_distance", &memory.update_distance_m);
+  read.integer("memory/initial_mapping_updates", &memory.initial_mapping_updates, 0, 1000000000);
+  read.number("memory/stm_l_min", &memory.stm.l_min);
+  read.number("memory/stm_l_max", &memory.stm.l_max);
+  read.number("memory/stm_p_hit", &memory.stm.p_hit);
+  read.number("memory/stm_p_miss", &memory.stm.p_miss);
+  read.number("memory/ltm_l_min", &memory.ltm.l_min);
+  read.number("memory/ltm_l_max", &memory.ltm.l_max);
+  read.number("memory/ltm_p_hit", &memory.ltm.p_hit);
+  read.number("memory/ltm_p_miss", &memory.ltm.p_miss);
+  read.number("memory/ltm_occupied_log_odds", &memory.ltm_occupied_log_odds);
+  read.integer("memory/hypothesis_configurations", &memory.hypothesis_configurations, 0, 10);
+  read.integer("memory/max_published_hypotheses", &p.max_published_hypotheses, 1, 1024);
+  memory.resolution_m = m.resolution_m;
+  memory.origin_x_m = m.origin_x_m;
+  memory.origin_y_m = m.origin_y_m;
+  memory.max_free_range_m = m.max_free_range_m;
+  memory.max_map_size_m = m.max_map_size_m;
+
   read.require(!p.fixed_frame.empty(), "fixed_frame", "must not be empty");
   read.require(!p.scan_topics.empty(), "scan_topics", "must list at least one topic");
   for (const std::string& topic : p.scan_topics) read.require(!topic.empty(), "scan_topics", "has an empty topic");
@@ -187,6 +238,8 @@ bool readParameters(const ros::NodeHandle& private_nh, NodeParameters* parameter
   read.require(p.max_scan_latency_s >= 0.0, "max_scan_latency", "must be >= 0 s");
   read.require(p.time_jump_threshold_s > 0.0, "time_jump_threshold", "must be > 0 s");
   read.require(p.max_range_m > 0.0, "max_range", "must be > 0 m");
+  read.require(p.model != MapModel::kMemory || p.model_file.empty(), "model_file",
+               "holds a cell HMM model: it needs ~model hmm or both, not memory");
   if (read.error().empty()) {
     // The core's own checks name the value (their names are these parameters' names).
     try {
@@ -194,6 +247,13 @@ bool readParameters(const ros::NodeHandle& private_nh, NodeParameters* parameter
       em.validate();
     } catch (const std::invalid_argument& e) {
       *error = std::string("invalid parameter value (in ") + private_nh.getNamespace() + "): " + e.what();
+      return false;
+    }
+    try {
+      memory.validate();
+    } catch (const std::invalid_argument& e) {
+      *error = std::string("invalid parameter value (in ") + private_nh.getNamespace() +
+               "): " + memoryParameterMessage(e.what());
       return false;
     }
   }

@@ -27,7 +27,8 @@ bag="$package_dir/data/example/stationary_laser_people.bag"
 declare -A variants=(
   [mapping.launch]="
     defaults|
-    nodelet_model_odom|use_nodelet:=true|model:=/tmp/model.yaml|fixed_frame:=odom|scan_topic:=/front/scan|output:=log"
+    nodelet_model_odom|use_nodelet:=true|model:=/tmp/model.yaml|fixed_frame:=odom|scan_topic:=/front/scan|output:=log
+    memory_model|mapping_model:=memory"
   [replay.launch]="
     bag|bag:=$bag
     static_pose_nodelet_norviz|bag:=$bag|static_laser_pose:=1.5 -2 0.5|laser_frame:=base_laser|rviz:=false|use_nodelet:=true|model:=/tmp/model.yaml|rate:=2|start:=10"

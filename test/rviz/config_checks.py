@@ -28,6 +28,9 @@ LAYERS = {
     "p_occ_given_free": ("costmap", False),
     "p_free_given_occ": ("costmap", False),
     "static_map": ("map", True),
+    # The memory model's stores (~model memory or both).
+    "ltm": ("map", False),
+    "stm": ("map", False),
 }
 SCAN_TOPIC = "/scan"
 FIXED_FRAME = "map"

@@ -6,12 +6,15 @@
 #include <nav_msgs/OccupancyGrid.h>
 #include <ros/time.h>
 
+#include <cstddef>
 #include <cstdint>
 #include <string>
 #include <vector>
 
 #include "dynamic_occupancy_grid/core/cell_grid.h"
 #include "dynamic_occupancy_grid/core/layers.h"
+#include "dynamic_occupancy_grid/core/memory_model.h"
+#include "dynamic_occupancy_grid/MapHypotheses.h"
 
 namespace dynamic_occupancy_grid {
 namespace ros_layer {
@@ -35,6 +38,11 @@ nav_msgs::OccupancyGrid toOccupancyGrid(const core::MapWindow& window, std::vect
 map_msgs::OccupancyGridUpdate toOccupancyGridUpdate(const core::CellBox& full, const core::CellBox& box,
                                                     std::vector<std::int8_t> values,
                                                     const std::string& frame_id, const ros::Time& stamp);
+
+/// The memory model's hypotheses: the best `max_hypotheses` (by weight), each with its map
+/// as a full grid over the model's bounds, and every configuration in LTM.
+MapHypotheses toMapHypotheses(const core::MemoryModel& memory, std::size_t max_hypotheses,
+                              const std::string& frame_id, const ros::Time& stamp);
 
 }  // namespace ros_layer
 }  // namespace dynamic_occupancy_grid

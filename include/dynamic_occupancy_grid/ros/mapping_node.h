@@ -1,8 +1,9 @@
 #pragma once
 // The mapping node: LaserScans (through tf2_ros::MessageFilter on the fixed frame) into a
-// core::Mapper, the map layers out as latched OccupancyGrids plus their updates, and the
-// services. One class for the node (src/nodes/mapping_node.cpp) and the nodelet
-// (src/ros/mapping_nodelet.cpp). Topics, services and parameters: README.md.
+// core::Mapper (the cell HMM) and/or a core::MemoryModel (Morris et al.'s STM/LTM, ~model),
+// the map layers out as latched OccupancyGrids plus their updates, the memory model's map
+// hypotheses, and the services. One class for the node (src/nodes/mapping_node.cpp) and the
+// nodelet (src/ros/mapping_nodelet.cpp). Topics, services and parameters: README.md.
 
 #include <message_filters/subscriber.h>
 #include <ros/ros.h>
@@ -28,6 +29,7 @@
 #include "dynamic_occupancy_grid/RunOfflineEm.h"
 #include "dynamic_occupancy_grid/SaveModel.h"
 #include "dynamic_occupancy_grid/core/mapper.h"
+#include "dynamic_occupancy_grid/core/memory_model.h"
 #include "dynamic_occupancy_grid/ros/grid_messages.h"
 #include "dynamic_occupancy_grid/ros/parameters.h"
 
@@ -57,12 +59,33 @@ class MappingNode {
     bool horizon_from_parameter = false;
   };
 
+  /// One published store of the memory model (~ltm, ~stm): the full grid and its updates.
+  struct MemoryOutput {
+    bool long_term = true;   ///< LTM, else STM
+    ros::Publisher full;
+    ros::Publisher updates;
+    bool needs_full = true;  ///< a new subscriber, new bounds or a reset
+  };
+
+  /// The cell HMM's layers, offline EM progress and services (not with ~model memory).
+  void advertiseHmm();
+  /// ~ltm, ~stm (and their updates), ~hypotheses.
+  void advertiseMemory();
   void scanCallback(const sensor_msgs::LaserScan::ConstPtr& msg);
+  /// The scan into the memory model; caller holds mutex_.
+  void integrateMemory(const core::Scan& scan, const std::string& frame_id);
   void scanDropped(const sensor_msgs::LaserScan::ConstPtr& msg, tf2_ros::FilterFailureReason reason);
   void publishTimer(const ros::TimerEvent& event);
   void publishLayers(bool force_full);
   /// The full grid of `output` now; caller holds mutex_.
   void publishFull(Output& output);
+  /// After a memory update (or with `force_full`): ~ltm, ~stm (full or their updates) and
+  /// ~hypotheses; caller holds mutex_.
+  void publishMemory(bool force_full);
+  void publishMemoryFull(MemoryOutput& output);
+  void publishHypotheses();
+  /// Stamp of the memory model's outputs: the scan that completed the last update.
+  ros::Time memoryStamp() const;
   /// Puts `mapper` in place of the live one (load, reset); caller holds mutex_.
   void replaceMapper(std::unique_ptr<core::Mapper> mapper);
 
@@ -83,17 +106,25 @@ class MappingNode {
   std::vector<std::unique_ptr<message_filters::Subscriber<sensor_msgs::LaserScan>>> scan_subscribers_;
   std::vector<std::unique_ptr<tf2_ros::MessageFilter<sensor_msgs::LaserScan>>> scan_filters_;
 
-  std::vector<Output> outputs_;
+  std::vector<Output> outputs_;            ///< the HMM's layers (none with ~model memory)
+  std::vector<MemoryOutput> memory_outputs_;  ///< ~ltm, ~stm (none with ~model hmm)
+  ros::Publisher hypotheses_;
   ros::Publisher offline_em_progress_;
   std::vector<ros::ServiceServer> services_;
   ros::Timer publish_timer_;
 
   /// Guards everything below (scans, services, the timer and the offline EM thread).
   std::mutex mutex_;
-  std::unique_ptr<core::Mapper> mapper_;
+  std::unique_ptr<core::Mapper> mapper_;  ///< null with ~model memory
   std::optional<double> newest_stamp_s_;  ///< newest scan stamp integrated
   core::CellBox published_bounds_;        ///< bounds of the last full grids
   ros::Time last_full_publish_;
+  std::unique_ptr<core::MemoryModel> memory_;  ///< null with ~model hmm
+  std::optional<ros::Time> memory_stamp_;     ///< of the scan that completed the last update
+  bool memory_updated_ = false;               ///< an update (or reset) not published yet
+  bool hypotheses_need_publish_ = true;       ///< for the next subscriber of ~hypotheses
+  core::CellBox memory_published_bounds_;
+  ros::Time memory_last_full_publish_;
 
   std::thread offline_em_thread_;
   std::atomic<bool> offline_em_running_{false};

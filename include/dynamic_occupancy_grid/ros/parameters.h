@@ -9,12 +9,17 @@
 #include <vector>
 
 #include "dynamic_occupancy_grid/core/mapper.h"
+#include "dynamic_occupancy_grid/core/memory_model.h"
 #include "dynamic_occupancy_grid/core/offline_em.h"
 
 namespace dynamic_occupancy_grid {
 namespace ros_layer {
 
+/// Which map model the node runs on the scans (~model).
+enum class MapModel { kHmm, kMemory, kBoth };
+
 struct NodeParameters {
+  MapModel model = MapModel::kHmm;      ///< ~model: "hmm", "memory" or "both"
   std::string fixed_frame = "map";
   std::vector<std::string> scan_topics{"scan"};
   int scan_queue_size = 50;            ///< scans waiting for their transform, per topic
@@ -29,6 +34,11 @@ struct NodeParameters {
   std::string model_file;              ///< loaded at start-up when set
   core::MapperConfig mapper;
   core::OfflineEmConfig offline_em;
+  /// ~memory/*; its lattice, max_free_range and max_map_size are the mapper's.
+  core::MemoryModelConfig memory;
+  int max_published_hypotheses = 4;    ///< best hypotheses in ~hypotheses
+  bool runsHmm() const { return model != MapModel::kMemory; }
+  bool runsMemory() const { return model != MapModel::kHmm; }
 };
 
 /// Reads and validates every parameter under `private_nh` (defaults for missing ones).
