@@ -257,17 +257,19 @@ MemoryUpdate MemoryModel::update() {
       }
       continue;
     }
-    // Rehearsal, eq. (5), for what the LTM does not hold; a cell not in STM stands at l_min.
+    // Rehearsal, eq. (5), for what the LTM does not hold: a new point enters STM at l_min,
+    // a hit adds logit(p_hit), a miss resets the cell to l_min (it stays in STM).
     if (hit) {
-      const bool present = !std::isnan(tile.stm[i]);
-      const double before = present ? tile.stm[i] : config_.stm.l_min;
-      const double after = std::min(before + stm_hit, config_.stm.l_max);
-      if (!present) ++stm_cells_;
-      tile.stm[i] = static_cast<float>(after);
-      if (after >= config_.stm.l_max) migrating.push_back(Migrating{&tile, i, cell});
+      if (std::isnan(tile.stm[i])) {
+        tile.stm[i] = static_cast<float>(config_.stm.l_min);
+        ++stm_cells_;
+      } else {
+        const double after = std::min(tile.stm[i] + stm_hit, config_.stm.l_max);
+        tile.stm[i] = static_cast<float>(after);
+        if (after >= config_.stm.l_max) migrating.push_back(Migrating{&tile, i, cell});
+      }
     } else if (!std::isnan(tile.stm[i])) {
-      tile.stm[i] = kAbsent;  // reset to l_min: the same as not being in STM
-      --stm_cells_;
+      tile.stm[i] = static_cast<float>(config_.stm.l_min);
     }
   }
   view_cells_.clear();

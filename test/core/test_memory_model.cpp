@@ -87,9 +87,10 @@ TEST(MemoryModel, DefaultsAreTableOne) {
   }
 }
 
-// Table I: a new cell stands at 0.40 + logit(0.7) = 1.247 after its first hit, below 1.28;
-// the second consecutive hit clamps it at 1.28 and it migrates to LTM at 4.59.
-TEST(MemoryModel, CellHitInTwoConsecutiveUpdatesMigrates) {
+// Table I: a new cell enters STM at 0.40 with its first hit, stands at 0.40 + logit(0.7) =
+// 1.247 < 1.28 after its second; the third consecutive hit clamps it at 1.28 and it
+// migrates to LTM at 4.59.
+TEST(MemoryModel, CellHitInThreeConsecutiveUpdatesMigrates) {
   MemoryModel model(testConfig());
   ASSERT_TRUE(model.integrate(rowScan(3)).integrated);
   MemoryUpdate first = model.update();
@@ -97,13 +98,16 @@ TEST(MemoryModel, CellHitInTwoConsecutiveUpdatesMigrates) {
   EXPECT_EQ(first.view_misses, 3u);
   EXPECT_FALSE(first.configuration.has_value());
   ASSERT_TRUE(model.stmLogOdds(3, 0).has_value());
-  EXPECT_NEAR(*model.stmLogOdds(3, 0), 0.40 + logit(0.7), 1e-6);
+  EXPECT_NEAR(*model.stmLogOdds(3, 0), 0.40, 1e-6);
   EXPECT_FALSE(model.ltmLogOdds(3, 0).has_value());
   EXPECT_FALSE(model.stmLogOdds(2, 0).has_value());  // missed cells hold nothing
   EXPECT_TRUE(model.observed(2, 0));
   EXPECT_FALSE(model.observed(4, 0));
   EXPECT_EQ(model.stmCells(), 1u);
 
+  model.integrate(rowScan(3));
+  EXPECT_FALSE(model.update().configuration.has_value());
+  EXPECT_NEAR(*model.stmLogOdds(3, 0), 0.40 + logit(0.7), 1e-6);
   model.integrate(rowScan(3));
   const MemoryUpdate second = model.update();
   ASSERT_TRUE(second.configuration.has_value());
@@ -116,25 +120,30 @@ TEST(MemoryModel, CellHitInTwoConsecutiveUpdatesMigrates) {
   EXPECT_EQ(model.configurationOf(3, 0), std::optional<std::uint32_t>(1u));
   EXPECT_EQ(model.ltmCells(), 1u);
   EXPECT_EQ(model.stmCells(), 0u);
-  EXPECT_EQ(model.updates(), 2);
+  EXPECT_EQ(model.updates(), 3);
 }
 
-// Eq. (5): a miss resets STM to l_min, so hit, miss, hit does not migrate; the next hit,
-// the second of a new run, does.
+// Eq. (5): a miss resets STM to l_min and the cell stays in STM, so hit, hit, miss, hit does
+// not migrate; the next hit, the second after the reset, does.
 TEST(MemoryModel, MissBetweenHitsResetsRehearsal) {
   MemoryModel model(testConfig());
-  model.integrate(rowScan(3));
-  model.update();
+  for (int i = 0; i < 2; ++i) {
+    model.integrate(rowScan(3));
+    model.update();
+  }
   model.integrate(rowScan(5));  // cell 3 missed
   model.update();
-  EXPECT_FALSE(model.stmLogOdds(3, 0).has_value());
+  ASSERT_TRUE(model.stmLogOdds(3, 0).has_value());
+  EXPECT_NEAR(*model.stmLogOdds(3, 0), 0.40, 1e-6);
   model.integrate(rowScan(3));
   EXPECT_FALSE(model.update().configuration.has_value());
   model.integrate(rowScan(3));
-  EXPECT_TRUE(model.update().configuration.has_value());
+  EXPECT_EQ(model.update().migrated, (std::vector<CellXY>{{3, 0}}));
   // An update that does not observe the cell keeps its STM value.
-  model.integrate(rowScan(7));
-  model.update();
+  for (int i = 0; i < 2; ++i) {
+    model.integrate(rowScan(7));
+    model.update();
+  }
   model.integrate(beamScan(0.5, 0.5, kPi / 2.0, 2.0f));  // along +y: cell 7 unobserved
   model.update();
   model.integrate(rowScan(7));
@@ -145,7 +154,7 @@ TEST(MemoryModel, MissBetweenHitsResetsRehearsal) {
 // below -2.9, and a hit on the way refreshes it to 4.59.
 TEST(MemoryModel, LtmDecaysOnMissesAndIsForgotten) {
   MemoryModel model(testConfig());
-  for (int i = 0; i < 2; ++i) {
+  for (int i = 0; i < 3; ++i) {
     model.integrate(rowScan(3));
     model.update();
   }
@@ -195,6 +204,7 @@ TEST(MemoryModel, ViewSumsHitsAndMissesAsLogOdds) {
     for (int i = 0; i < misses; ++i) model.integrate(rowScan(5));
     const MemoryUpdate update = model.update();
     EXPECT_EQ(model.stmLogOdds(3, 0).has_value(), misses == 2) << misses << " misses";
+    EXPECT_EQ(model.stmCells(), misses == 2 ? 2u : 1u);
     EXPECT_EQ(update.view_hits, misses == 2 ? 2u : 1u);  // cell 5 is a hit too
   }
 }
@@ -212,7 +222,7 @@ TEST(MemoryModel, HitWinsWithinAScan) {
   EXPECT_EQ(update.view_hits, 2u);    // cells 2 and 4
   EXPECT_EQ(update.view_misses, 3u);  // cells 0, 1, 3 (each once)
   EXPECT_TRUE(model.stmLogOdds(2, 0).has_value());
-  EXPECT_NEAR(*model.stmLogOdds(2, 0), 0.40 + logit(0.7), 1e-6);
+  EXPECT_NEAR(*model.stmLogOdds(2, 0), 0.40, 1e-6);
 }
 
 // Updates happen after update_distance of laser travel, never from turning on the spot.
@@ -237,55 +247,57 @@ TEST(MemoryModel, ViewUpdatesAfterTravelledDistance) {
 
 TEST(MemoryModel, ConfigurationsGroupOneUpdatesMigrations) {
   MemoryModelConfig config = testConfig();
-  config.initial_mapping_updates = 2;
+  config.initial_mapping_updates = 3;
   MemoryModel model(config);
   Scan two = rowScan(3);
   two.ranges_m = {3.0f, 3.0f};
   two.angle_increment_rad = kPi / 2.0;  // cells (3, 0) and (0, 3)
-  // Updates 0 and 1: (3, 0) and (0, 3) migrate during initial mapping: the base map.
-  model.integrate(two);
-  model.update();
+  // Updates 0-2: (3, 0) and (0, 3) migrate during initial mapping: the base map.
+  for (int i = 0; i < 2; ++i) {
+    model.integrate(two);
+    model.update();
+  }
   model.integrate(two);
   EXPECT_EQ(model.update().configuration, std::optional<std::uint32_t>(0u));
-  // Updates 2, 3: (5, 0) migrates as configuration 1; updates 4, 5: (0, 6) as 2.
-  for (int i = 0; i < 2; ++i) {
+  // Updates 3-5: (5, 0) migrates as configuration 1; updates 6-8: (0, 6) as 2.
+  for (int i = 0; i < 3; ++i) {
     model.integrate(rowScan(5));
     model.update();
   }
   EXPECT_EQ(model.configurationOf(5, 0), std::optional<std::uint32_t>(1u));
-  for (int i = 0; i < 2; ++i) {
+  for (int i = 0; i < 3; ++i) {
     model.integrate(beamScan(0.5, 0.5, kPi / 2.0, 6.0f));
     model.update();
   }
   EXPECT_EQ(model.configurationOf(0, 6), std::optional<std::uint32_t>(2u));
   EXPECT_EQ(model.configurationOf(3, 0), std::optional<std::uint32_t>(0u));
-  // (0, 6)'s beams passed (0, 3): decayed twice, still in the base map.
+  // (0, 6)'s beams passed (0, 3): decayed three times, still in the base map.
   EXPECT_EQ(model.configurationOf(0, 3), std::optional<std::uint32_t>(0u));
-  EXPECT_NEAR(*model.ltmLogOdds(0, 3), 4.59 + 2.0 * logit(0.4), 1e-5);
+  EXPECT_NEAR(*model.ltmLogOdds(0, 3), 4.59 + 3.0 * logit(0.4), 1e-5);
   const std::vector<ConfigurationInfo> infos = model.configurations();
   ASSERT_EQ(infos.size(), 3u);
   EXPECT_EQ(infos[0].id, 0u);
   EXPECT_EQ(infos[1].id, 1u);
-  EXPECT_EQ(infos[1].created_update, 3);
-  EXPECT_EQ(infos[2].created_update, 5);
+  EXPECT_EQ(infos[1].created_update, 5);
+  EXPECT_EQ(infos[2].created_update, 8);
   EXPECT_EQ(infos[0].cells, 2u);
-  // Both base cells were passed by two later beams: (3, 0) by (5, 0)'s, (0, 3) by (0, 6)'s.
-  EXPECT_NEAR(infos[0].presence, 1.0 / (1.0 + std::exp(-(4.59 + 2.0 * logit(0.4)))), 1e-6);
+  // Both base cells were passed by three later beams: (3, 0) by (5, 0)'s, (0, 3) by (0, 6)'s.
+  EXPECT_NEAR(infos[0].presence, 1.0 / (1.0 + std::exp(-(4.59 + 3.0 * logit(0.4)))), 1e-6);
   EXPECT_NEAR(infos[2].presence, 1.0 / (1.0 + std::exp(-4.59)), 1e-6);
 }
 
 // Base: (2, 1) via a beam along +x from (0.5, 1.5). Configurations 1: (5, 0), 2: (7, 0).
 MemoryModel twoConfigurations(int hypothesis_configurations) {
   MemoryModelConfig config = testConfig();
-  config.initial_mapping_updates = 2;
+  config.initial_mapping_updates = 3;
   config.hypothesis_configurations = hypothesis_configurations;
   MemoryModel model(config);
-  for (int i = 0; i < 2; ++i) {
+  for (int i = 0; i < 3; ++i) {
     model.integrate(beamScan(0.5, 1.5, 0.0, 2.0f));
     model.update();
   }
   for (const int end : {5, 7}) {
-    for (int i = 0; i < 2; ++i) {
+    for (int i = 0; i < 3; ++i) {
       model.integrate(rowScan(end));
       model.update();
     }
@@ -295,8 +307,8 @@ MemoryModel twoConfigurations(int hypothesis_configurations) {
 
 TEST(MemoryModel, HypothesesEnumerateConfigurationsWithPresenceWeights) {
   const MemoryModel model = twoConfigurations(4);
-  // Configuration 2's beam passed through (5, 0) twice: 4.59 + 2 logit(0.4).
-  const double l5 = 4.59 + 2.0 * logit(0.4);
+  // Configuration 2's beam passed through (5, 0) three times: 4.59 + 3 logit(0.4).
+  const double l5 = 4.59 + 3.0 * logit(0.4);
   ASSERT_NEAR(*model.ltmLogOdds(5, 0), l5, 1e-5);
   const double p1 = 1.0 / (1.0 + std::exp(-l5));
   const double p2 = 1.0 / (1.0 + std::exp(-4.59));
@@ -355,7 +367,7 @@ TEST(MemoryModel, HypothesesEnumerateOnlyTheNewestConfigurations) {
   EXPECT_EQ(hypotheses[1].excluded, (std::vector<std::uint32_t>{2}));
   const CellBox box = one.bounds();
   const std::vector<std::int8_t> grid = one.hypothesisGrid(hypotheses[1], box);
-  EXPECT_EQ(grid[5], kGridOccupied);  // configuration 1: LTM log-odds 3.78 > 0
+  EXPECT_EQ(grid[5], kGridOccupied);  // configuration 1: LTM log-odds 3.37 > 0
   EXPECT_EQ(grid[7], kGridFree);      // configuration 2: excluded
   MemoryModelConfig none = testConfig();
   none.hypothesis_configurations = 0;
@@ -410,8 +422,10 @@ TEST(MemoryModel, NoReturnBeamsClearUpToMaxFreeRange) {
 
 TEST(MemoryModel, CopiesAreDeep) {
   MemoryModel model(testConfig());
-  model.integrate(rowScan(3));
-  model.update();
+  for (int i = 0; i < 2; ++i) {
+    model.integrate(rowScan(3));
+    model.update();
+  }
   MemoryModel copy(model);
   model.integrate(rowScan(3));
   model.update();
@@ -466,10 +480,14 @@ TEST(MemoryModel, MatchesStepByStepReference) {
           c.ltm = *c.ltm + miss;
         }
       } else if (evidence > 0) {
-        c.stm = std::min(c.stm.value_or(0.40) + hit, 1.28);
-        if (*c.stm >= 1.28) migrating.push_back(cell);
-      } else {
-        c.stm.reset();
+        if (!c.stm) {
+          c.stm = 0.40;
+        } else {
+          c.stm = std::min(*c.stm + hit, 1.28);
+          if (*c.stm >= 1.28) migrating.push_back(cell);
+        }
+      } else if (c.stm) {
+        c.stm = 0.40;
       }
     }
     const std::uint32_t id = u < 3 ? 0 : next_id;

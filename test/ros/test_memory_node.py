@@ -4,10 +4,12 @@
 
 The scene (memory_node.test): the laser faces the wall x = WALL_X of wall_scene.py and
 alternates between the poses A and B, 0.6 m apart (more than ~memory/update_distance), one
-scan each: the first two scans make update 0, every later scan one update. The wall is seen
-in updates 0..3 (in LTM from update 1); OBJECT_1 appears in updates 2 and 3 (it migrates to
-LTM at update 3 as configuration 1, after the 3 base-map updates); OBJECT_2 in update 3
-only (STM, not LTM). Each scan comes with its transform on /tf at its stamp. The test waits
+scan each: the first two scans make update 0, every later scan one update. With Table I's
+values a new cell migrates when hit in three consecutive updates. The wall is seen in
+updates 0..5 (in LTM from update 2, the base map; wall cells in one pose's fan only are hit
+every other update and migrate at update 4, so the base map takes updates 0..4); OBJECT_1
+appears in updates 3..5 (it migrates to LTM at update 5 as configuration 1); OBJECT_2 in
+update 5 only (STM, not LTM). Each scan comes with its transform on /tf at its stamp. The test waits
 for each update's ~hypotheses before sending the next scan."""
 
 import math
@@ -48,10 +50,12 @@ FREE_POINTS = [(x, 2.05) for x in (1.25, 1.55, 1.85, 2.35, 2.65, 2.85)]
 # (pose, objects) of each scan; scan k >= 1 completes update k - 1.
 SCANS = [
     (POSE_A, []),
-    (POSE_B, []),                      # update 0
-    (POSE_A, []),                      # update 1: the wall migrates (base map)
-    (POSE_B, [OBJECT_1]),              # update 2: object 1 into STM
-    (POSE_A, [OBJECT_1, OBJECT_2]),    # update 3: object 1 migrates (configuration 1), object 2 into STM
+    (POSE_B, []),                      # update 0: the wall into STM
+    (POSE_A, []),                      # update 1
+    (POSE_B, []),                      # update 2: the wall migrates (base map)
+    (POSE_A, [OBJECT_1]),              # update 3: object 1 into STM
+    (POSE_B, [OBJECT_1]),              # update 4
+    (POSE_A, [OBJECT_1, OBJECT_2]),    # update 5: object 1 migrates (configuration 1), object 2 into STM
 ]
 UPDATES = len(SCANS) - 1
 SCAN_PERIOD = 0.6  # s of simulated time between scans
@@ -166,22 +170,25 @@ class TestMemoryNode(unittest.TestCase):
     def values(self, grid, points):
         return [grid_value(grid, x, y) for x, y in points]
 
-    # --- one update vs two: STM and LTM ---------------------------------------------------------
+    # --- one update vs three: STM and LTM ---------------------------------------------------------
     def test_wall_seen_once_is_in_stm_not_ltm(self):
         ltm = self.grid_after(MEMORY, 'ltm', 0)
         stm = self.grid_after(MEMORY, 'stm', 0)
         self.assertEqual(same_geometry_problems(stm, ltm), [])
         self.assertEqual(ltm.header.frame_id, 'map')
         self.assertAlmostEqual(ltm.info.resolution, RESOLUTION, places=6)
-        # STM after one hit: l_min + logit(p_hit) = 0.40 + 0.85, sigma = 0.78.
+        # A new STM point: l_min = 0.40, sigma = 0.60.
         for value in self.values(stm, WALL_POINTS):
-            self.assertEqual(value, 78, 'stm wall after update 0: %s' % self.values(stm, WALL_POINTS))
+            self.assertEqual(value, 60, 'stm wall after update 0: %s' % self.values(stm, WALL_POINTS))
         self.assertEqual(self.values(ltm, WALL_POINTS), [0] * len(WALL_POINTS))
         self.assertEqual(self.values(ltm, FREE_POINTS), [0] * len(FREE_POINTS))
         self.assertEqual(self.values(stm, FREE_POINTS), [0] * len(FREE_POINTS))
 
-    def test_wall_seen_twice_is_in_ltm(self):
-        for update in (1, UPDATES - 1):
+    def test_wall_seen_three_times_is_in_ltm(self):
+        # After two updates: rehearsed, 0.40 + logit(0.7) = 1.25, sigma = 0.78; not in LTM.
+        self.assertEqual(self.values(self.grid_after(MEMORY, 'stm', 1), WALL_POINTS), [78] * len(WALL_POINTS))
+        self.assertEqual(self.values(self.grid_after(MEMORY, 'ltm', 1), WALL_POINTS), [0] * len(WALL_POINTS))
+        for update in (2, UPDATES - 1):
             ltm = self.grid_after(MEMORY, 'ltm', update)
             stm = self.grid_after(MEMORY, 'stm', update)
             wall = self.values(ltm, WALL_POINTS)
@@ -198,19 +205,19 @@ class TestMemoryNode(unittest.TestCase):
         last = UPDATES - 1
         ltm = self.grid_after(MEMORY, 'ltm', last)
         stm = self.grid_after(MEMORY, 'stm', last)
-        self.assertEqual(grid_value(stm, *OBJECT_2_POINT), 78)
+        self.assertEqual(grid_value(stm, *OBJECT_2_POINT), 60)
         self.assertEqual(grid_value(ltm, *OBJECT_2_POINT), 0)
-        # Object 1, seen in two updates, has migrated.
+        # Object 1, seen in three updates, has migrated.
         self.assertGreater(grid_value(ltm, *OBJECT_1_POINT), OCCUPIED)
         self.assertEqual(grid_value(stm, *OBJECT_1_POINT), 0)
-        # After update 2 object 1 was in STM only.
-        self.assertEqual(grid_value(self.grid_after(MEMORY, 'stm', 2), *OBJECT_1_POINT), 78)
-        self.assertEqual(grid_value(self.grid_after(MEMORY, 'ltm', 2), *OBJECT_1_POINT), 0)
+        # After update 4 (seen twice) object 1 was in STM only.
+        self.assertEqual(grid_value(self.grid_after(MEMORY, 'stm', 4), *OBJECT_1_POINT), 78)
+        self.assertEqual(grid_value(self.grid_after(MEMORY, 'ltm', 4), *OBJECT_1_POINT), 0)
 
     def test_updates_are_smaller_than_the_grid(self):
         ltm = self.grid_after(MEMORY, 'ltm', UPDATES - 1)
         updates = self.record[MEMORY, 'ltm_updates'].snapshot()
-        # Updates 1..3 change cells within the bounds of update 0 (seen from both poses): sent
+        # Updates 1..5 change cells within the bounds of update 0 (seen from both poses): sent
         # as updates (the grids after them, checked above, come from these). Those from pose A,
         # whose fan is narrower, cover less than the grid.
         self.assertEqual(len(updates), UPDATES - 1)
@@ -220,9 +227,8 @@ class TestMemoryNode(unittest.TestCase):
             self.assertTrue(update.x >= 0 and update.x + update.width <= ltm.info.width)
             self.assertTrue(update.y >= 0 and update.y + update.height <= ltm.info.height)
             self.assertTrue(all(-1 <= v <= 100 for v in update.data))
-        from_a = [u for u in updates if abs(stamp_of(u) - self.stamps[1]) < 1e-6 or
-                  abs(stamp_of(u) - self.stamps[3]) < 1e-6]
-        self.assertEqual(len(from_a), 2)
+        from_a = [u for u in updates if any(abs(stamp_of(u) - self.stamps[k]) < 1e-6 for k in (1, 3, 5))]
+        self.assertEqual(len(from_a), 3)
         for update in from_a:
             self.assertLess(update.width * update.height, ltm.info.width * ltm.info.height)
 
@@ -237,9 +243,9 @@ class TestMemoryNode(unittest.TestCase):
         ltm = self.grid_after(MEMORY, 'ltm', UPDATES - 1)
         self.assertAlmostEqual(stamp_of(msg), self.stamps[-1], places=3)
         self.assertEqual(msg.header.frame_id, 'map')
-        # The base map (0: the wall, updates 0..2) and object 1 (configuration 1, update 3).
+        # The base map (0: the wall, from update 2) and object 1 (configuration 1, update 5).
         self.assertEqual(list(msg.configuration_ids), [0, 1])
-        self.assertEqual(list(msg.configuration_created_update), [1, 3])
+        self.assertEqual(list(msg.configuration_created_update), [2, 5])
         self.assertEqual(msg.configuration_cells[1], 1)
         self.assertAlmostEqual(msg.configuration_presence[1], 1.0 / (1.0 + math.exp(-4.59)), places=4)
         self.assertEqual(msg.total_hypotheses, 2)

@@ -9,11 +9,11 @@
 //   STM  novelty being rehearsed: occupied cells the LTM does not hold. A miss resets a cell
 //        to stm.l_min, a hit adds logit(stm.p_hit) (eq. 5), clamped to stm.l_max. A cell
 //        that reaches stm.l_max migrates to LTM (at ltm.l_max).
-// The paper's new STM point "initialised with l_min and updated by eq. 5": a cell not in
-// STM stands at stm.l_min, its first hit takes it to l_min + logit(p_hit). A cell reset to
-// l_min therefore holds nothing a cell not in STM would not, and is dropped. With Table I's
-// values (0.40 + 0.85 = 1.25 < 1.28) a cell migrates when it is hit in two consecutive
-// updates, with no update in between that saw it free.
+// As in the paper, a new STM point is "initialised with l_min" by the hit that adds it, and
+// later hits rehearse it; a miss resets it to l_min, where it stays in STM. With Table I's
+// values (0.40 + 0.85 = 1.25 < 1.28) a new cell migrates when it is hit in three
+// consecutive updates, a reset one in two, with no update in between that saw it free: a
+// person must stand in the same cell over two or three views to reach LTM.
 //
 // Updates. Scans are not applied one by one: their observations are gathered into a *view*
 // until the laser has travelled update_distance_m, and the view updates the stores
