@@ -12,6 +12,7 @@ add_library(dynamic_occupancy_grid_core
   ${DOG_ROOT}/src/core/layers.cpp
   ${DOG_ROOT}/src/core/map_export.cpp
   ${DOG_ROOT}/src/core/mapper.cpp
+  ${DOG_ROOT}/src/core/memory_experiment.cpp
   ${DOG_ROOT}/src/core/memory_model.cpp
   ${DOG_ROOT}/src/core/model_io.cpp
   ${DOG_ROOT}/src/core/mrf.cpp

@@ -51,6 +51,13 @@ constexpr std::int32_t kMrfSquareSide = 4;
 // the loop's outward (-pi/2 and -pi/4) beams look.
 constexpr std::array<std::array<std::int32_t, 2>, 4> kMrfSquares{{{15, 2}, {26, 2}, {38, 13}, {20, 25}}};
 
+// The dividers office (scenarioConfig("dividers")), in cells.
+constexpr std::int32_t kDividersWidth = 40;
+constexpr std::int32_t kDividersHeight = 25;
+constexpr std::int32_t kDividersWallX = 20;
+constexpr std::int32_t kDividersPassageHeight = 3;
+constexpr std::array<std::int32_t, 3> kDividersPassages{{3, 11, 19}};
+
 std::int64_t mrfLoopSteps() {
   std::int32_t cells = 0;
   for (std::size_t i = 0; i < kMrfLoop.size(); ++i) {
@@ -336,10 +343,20 @@ void ScenarioConfig::validate() const {
       require(hold > 0, "scenario " + name + ": square_hold_steps must be positive");
     }
   }
+  if (kind == ScenarioKind::kDividers) {
+    require(divider_period_steps > 0, "scenario " + name + ": divider_period_steps must be positive");
+    require(divider_toggle_probability >= 0.0 && divider_toggle_probability <= 1.0,
+            "scenario " + name + ": divider_toggle_probability must be in [0, 1]");
+    require(people >= 0 && people <= 20, "scenario " + name + ": people must be in [0, 20]");
+    require(width_cells == kDividersWidth && height_cells == kDividersHeight,
+            "scenario " + name + ": the dividers office is " + std::to_string(kDividersWidth) + " x " +
+                std::to_string(kDividersHeight) + " cells");
+  }
 }
 
 std::vector<std::string> scenarioNames() {
-  return {"dynamic_5_5", "dynamic_25_25", "redraw_100", "redraw_300", "parking_lot", "door", "mrf_squares"};
+  return {"dynamic_5_5", "dynamic_25_25", "redraw_100", "redraw_300", "parking_lot", "door", "mrf_squares",
+          "dividers"};
 }
 
 ScenarioConfig scenarioConfig(const std::string& name) {
@@ -445,6 +462,32 @@ ScenarioConfig scenarioConfig(const std::string& name) {
                          "168 steps (a third of a loop to 7 loops), 20 noisy loops with 4 beams of 8 cells";
     return config;
   }
+  if (name == "dividers") {
+    // Morris et al., Sec. IV, in 2D and smaller: an 8 m x 5 m office of 0.2 m cells split by
+    // a wall with three passages (DividersLayout); dividers move every 150 steps (the
+    // memory experiment's episode) with probability 0.2 each, so a configuration holds for
+    // about five episodes; three people walk at one cell per step. A 360° laser of 4 m:
+    // from the middle of a half it sees the wall's three passages.
+    config.kind = ScenarioKind::kDividers;
+    config.width_cells = kDividersWidth;
+    config.height_cells = kDividersHeight;
+    config.resolution_m = 0.2;
+    config.steps = 3000;
+    // One beam per degree: even at range several beams cross each cell, so a person's cell
+    // is seen free again in the scans after it left (the memory model's view needs more
+    // than two misses per hit to call a cell free).
+    config.laser.beams = 360;
+    config.laser.range_max_m = 4.0;
+    config.laser.noise_sigma_m = 0.01;
+    config.laser_mount = Pose2D{0.0, 0.0, 0.0};
+    config.robot_speed_m_per_step = config.resolution_m;
+    config.divider_period_steps = 150;
+    config.divider_toggle_probability = 0.2;
+    config.people = 3;
+    config.description = "an office split by a wall with 3 passages, dividers moving every 150 steps (p = 0.2 "
+                         "each), 3 people walking one cell per step";
+    return config;
+  }
   std::string names;
   for (const std::string& known : scenarioNames()) names += (names.empty() ? "" : ", ") + known;
   throw std::invalid_argument("unknown scenario '" + name + "' (known: " + names + ")");
@@ -471,6 +514,9 @@ Simulation::Simulation(const ScenarioConfig& config, std::uint64_t world_seed, s
       break;
     case ScenarioKind::kMrfSquares:
       buildMrfSquares();
+      break;
+    case ScenarioKind::kDividers:
+      buildDividers();
       break;
   }
   path_.emplace(route_, config_.robot_speed_m_per_step);
@@ -680,7 +726,20 @@ Scan Simulation::scanFrom(const Pose2D& robot_pose, int scan_index) {
   }
   const double stamp =
       (static_cast<double>(step_) + (scan_index + 0.5) / config_.scans_per_step) * config_.time_step_s;
-  return simulateScan(world_, compose(robot_pose, config_.laser_mount), config_.laser, stamp, sensor_rng_);
+  const Pose2D laser = compose(robot_pose, config_.laser_mount);
+  if (config_.kind == ScenarioKind::kDividers) {
+    // A person passing through the laser's own cell is too close to be seen (DividersLayout):
+    // hide it for this scan.
+    const auto x = static_cast<std::int32_t>(std::floor(laser.x_m / world_.resolution()));
+    const auto y = static_cast<std::int32_t>(std::floor(laser.y_m / world_.resolution()));
+    if (isPerson(x, y)) {
+      world_.setState(x, y, false);
+      Scan scan = simulateScan(world_, laser, config_.laser, stamp, sensor_rng_);
+      world_.setState(x, y, true);
+      return scan;
+    }
+  }
+  return simulateScan(world_, laser, config_.laser, stamp, sensor_rng_);
 }
 
 void Simulation::advance() {
@@ -689,6 +748,10 @@ void Simulation::advance() {
   if (config_.kind == ScenarioKind::kRandomDynamic && step_ == config_.redraw_at_step) drawDynamicCells(layout_rng_);
   if (config_.kind == ScenarioKind::kParkingLot && step_ % config_.steps_per_hour == 0) parkingHour();
   if (config_.kind == ScenarioKind::kMrfSquares) toggleSquares();
+  if (config_.kind == ScenarioKind::kDividers) {
+    if (step_ % config_.divider_period_steps == 0) moveDividers(false);
+    movePeople();
+  }
   drawPathNoise();
 }
 
@@ -700,6 +763,150 @@ const DoorLayout& Simulation::doorLayout() const {
 const MrfSquaresLayout& Simulation::mrfSquaresLayout() const {
   if (config_.kind != ScenarioKind::kMrfSquares) throw std::logic_error("mrfSquaresLayout: not the mrf_squares scenario");
   return squares_;
+}
+
+const DividersLayout& Simulation::dividersLayout() const {
+  if (config_.kind != ScenarioKind::kDividers) throw std::logic_error("dividersLayout: not the dividers scenario");
+  return dividers_;
+}
+
+bool Simulation::isPerson(std::int32_t x, std::int32_t y) const {
+  if (config_.kind != ScenarioKind::kDividers) return false;
+  for (const CellXY& person : dividers_.people) {
+    if (person.x == x && person.y == y) return true;
+  }
+  return false;
+}
+
+bool Simulation::isStructure(std::int32_t x, std::int32_t y) const { return world_.occupied(x, y) && !isPerson(x, y); }
+
+int DividersLayout::dividerAt(std::int32_t x, std::int32_t y) const {
+  for (std::size_t p = 0; p < passage_min_y.size(); ++p) {
+    if (inDivider(p, x, y)) return static_cast<int>(p);
+  }
+  return -1;
+}
+
+// ---------------------------------------------------------------- dividers
+
+void Simulation::buildDividers() {
+  addBorderWalls();
+  dividers_.wall_x = kDividersWallX;
+  dividers_.passage_height = kDividersPassageHeight;
+  dividers_.passage_min_y.assign(kDividersPassages.begin(), kDividersPassages.end());
+  const std::int32_t middle = kDividersPassages[1] + kDividersPassageHeight / 2;
+  dividers_.a = CellXY{4, middle};
+  dividers_.b = CellXY{world_.width() - 5, middle};
+  // A divider's truth is the Markov rate of its moves (as the parking lot's hourly rates).
+  const double rate = config_.divider_toggle_probability / static_cast<double>(config_.divider_period_steps);
+  for (std::int32_t y = 1; y < world_.height() - 1; ++y) {
+    if (dividers_.dividerAt(kDividersWallX, y) >= 0) {
+      world_.setScheduled(kDividersWallX, y, TransitionParams{rate, rate}, false);
+    } else {
+      world_.setStatic(kDividersWallX, y, true);
+    }
+  }
+  dividers_.closed.assign(dividers_.passage_min_y.size(), 0);
+  moveDividers(true);
+  for (int i = 0; i < config_.people; ++i) {
+    const CellXY cell = randomFreeCell(dynamics_rng_);
+    world_.setState(cell.x, cell.y, true);
+    dividers_.people.push_back(cell);
+    waypoints_.push_back(randomFreeCell(dynamics_rng_));
+  }
+  // The scripted robot (tools, tests) loops around the left half; the memory experiment
+  // drives its own robots.
+  const double r = world_.resolution();
+  const auto at = [r](std::int32_t x, std::int32_t y) { return std::array<double, 2>{cellCentre(x, r), cellCentre(y, r)}; };
+  route_ = {at(4, 4), at(kDividersWallX - 5, 4), at(kDividersWallX - 5, world_.height() - 5),
+            at(4, world_.height() - 5)};
+}
+
+void Simulation::moveDividers(bool initial) {
+  std::vector<std::size_t> just_closed;
+  for (std::size_t p = 0; p < dividers_.closed.size(); ++p) {
+    const bool was_closed = dividers_.closed[p] != 0;
+    const bool closed = initial ? dynamics_rng_.bernoulli(0.5)
+                                : was_closed != dynamics_rng_.bernoulli(config_.divider_toggle_probability);
+    if (closed && (initial || !was_closed)) just_closed.push_back(p);
+    dividers_.closed[p] = closed ? 1 : 0;
+  }
+  if (std::all_of(dividers_.closed.begin(), dividers_.closed.end(), [](std::uint8_t c) { return c != 0; })) {
+    // Every passage closed: one that just closed stays open (there is one: they were not
+    // all closed before).
+    dividers_.closed[just_closed[dynamics_rng_.below(just_closed.size())]] = 0;
+  }
+  for (std::size_t p = 0; p < dividers_.closed.size(); ++p) {
+    const bool closed = dividers_.closed[p] != 0;
+    for (std::int32_t y = dividers_.passage_min_y[p]; y < dividers_.passage_min_y[p] + dividers_.passage_height; ++y) {
+      if (!closed) {
+        if (!isPerson(dividers_.wall_x, y)) world_.setState(dividers_.wall_x, y, false);
+        continue;
+      }
+      for (CellXY& person : dividers_.people) {
+        if (person.x != dividers_.wall_x || person.y != y) continue;
+        // Pushed out to the nearest free cell (rows of the wall column excluded).
+        world_.setState(person.x, person.y, false);
+        CellXY best = person;
+        std::int32_t best_distance = std::numeric_limits<std::int32_t>::max();
+        for (std::int32_t cy = 1; cy < world_.height() - 1; ++cy) {
+          for (std::int32_t cx = 1; cx < world_.width() - 1; ++cx) {
+            const std::int32_t d = std::abs(cx - person.x) + std::abs(cy - person.y);
+            if (cx == dividers_.wall_x || d >= best_distance || world_.occupied(cx, cy)) continue;
+            best = CellXY{cx, cy};
+            best_distance = d;
+          }
+        }
+        person = best;
+        world_.setState(person.x, person.y, true);
+      }
+      world_.setState(dividers_.wall_x, y, true);
+    }
+  }
+}
+
+bool Simulation::freeForPerson(std::int32_t x, std::int32_t y) const {
+  // Occupied covers walls, closed dividers and the other people.
+  return world_.inside(x, y) && !world_.occupied(x, y);
+}
+
+CellXY Simulation::randomFreeCell(Rng& rng) const {
+  while (true) {
+    const auto x = static_cast<std::int32_t>(rng.below(static_cast<std::uint64_t>(world_.width())));
+    const auto y = static_cast<std::int32_t>(rng.below(static_cast<std::uint64_t>(world_.height())));
+    if (x != dividers_.wall_x && freeForPerson(x, y)) return CellXY{x, y};
+  }
+}
+
+void Simulation::movePeople() {
+  constexpr std::array<std::array<std::int32_t, 2>, 4> kMoves{{{1, 0}, {-1, 0}, {0, 1}, {0, -1}}};
+  for (std::size_t i = 0; i < dividers_.people.size(); ++i) {
+    CellXY& person = dividers_.people[i];
+    const auto distance = [&](std::int32_t x, std::int32_t y) {
+      return std::abs(x - waypoints_[i].x) + std::abs(y - waypoints_[i].y);
+    };
+    std::array<CellXY, 4> options{};
+    std::size_t count = 0;
+    for (const auto& move : kMoves) {
+      const CellXY next{person.x + move[0], person.y + move[1]};
+      if (distance(next.x, next.y) < distance(person.x, person.y) && freeForPerson(next.x, next.y)) {
+        options[count++] = next;
+      }
+    }
+    if (count == 0) {
+      // Arrived or stuck: a new waypoint, and a random free step.
+      waypoints_[i] = randomFreeCell(dynamics_rng_);
+      for (const auto& move : kMoves) {
+        const CellXY next{person.x + move[0], person.y + move[1]};
+        if (freeForPerson(next.x, next.y)) options[count++] = next;
+      }
+      if (count == 0) continue;  // boxed in
+    }
+    const CellXY next = options[dynamics_rng_.below(count)];
+    world_.setState(person.x, person.y, false);
+    world_.setState(next.x, next.y, true);
+    person = next;
+  }
 }
 
 }  // namespace core

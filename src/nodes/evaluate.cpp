@@ -19,6 +19,7 @@
 
 #include "dynamic_occupancy_grid/core/evaluation.h"
 #include "dynamic_occupancy_grid/core/map_export.h"
+#include "dynamic_occupancy_grid/core/memory_experiment.h"
 #include "dynamic_occupancy_grid/core/mrf_experiment.h"
 #include "dynamic_occupancy_grid/core/path_planning.h"
 
@@ -40,6 +41,9 @@ const char* const kUsage =
     "  --mrf-repetitions N   seeds of the MRF experiment (Li, Barão & Rato's simulation,\n"
     "                        scenario mrf_squares: offline EM with and without the MRF;\n"
     "                        default 10; 0 skips it)\n"
+    "  --memory-repetitions N  seeds of the memory navigation experiment (Morris et al.,\n"
+    "                        scenario dividers: static map, HMM grid, STM/LTM hypotheses;\n"
+    "                        default 10; 0 skips it)\n"
     "  --seed S              base seed (default 1): the same seed gives the same numbers\n"
     "  --threads N           worker threads (default 0 = one per core)\n";
 
@@ -50,6 +54,7 @@ struct Options {
   int path_repetitions = 20;
   int path_runs = 20;
   int mrf_repetitions = 10;
+  int memory_repetitions = 10;
   std::uint64_t seed = 1;
   unsigned threads = 0;
 };
@@ -99,6 +104,7 @@ Options parseOptions(int argc, char** argv) {
           }
           if (name == "door") usageError("the door scenario is the path planning experiment (--path-repetitions)");
           if (name == "mrf_squares") usageError("the mrf_squares scenario is the MRF experiment (--mrf-repetitions)");
+          if (name == "dividers") usageError("the dividers scenario is the memory experiment (--memory-repetitions)");
           if (std::find(options.scenarios.begin(), options.scenarios.end(), name) != options.scenarios.end()) {
             usageError("scenario " + name + " is listed twice");
           }
@@ -113,6 +119,8 @@ Options parseOptions(int argc, char** argv) {
       options.path_runs = static_cast<int>(parseInteger(arg, value, 1, 100000));
     } else if (arg == "--mrf-repetitions") {
       options.mrf_repetitions = static_cast<int>(parseInteger(arg, value, 0, 100000));
+    } else if (arg == "--memory-repetitions") {
+      options.memory_repetitions = static_cast<int>(parseInteger(arg, value, 0, 100000));
     } else if (arg == "--seed") {
       options.seed = static_cast<std::uint64_t>(parseInteger(arg, value, 0, std::numeric_limits<long long>::max()));
     } else if (arg == "--threads") {
@@ -121,9 +129,10 @@ Options parseOptions(int argc, char** argv) {
       usageError("unknown option " + arg);
     }
   }
-  if (options.scenarios.empty() && options.path_repetitions == 0 && options.mrf_repetitions == 0) {
-    usageError("nothing to run: no scenarios (--scenarios none), no path planning (--path-repetitions 0) and no "
-               "MRF experiment (--mrf-repetitions 0)");
+  if (options.scenarios.empty() && options.path_repetitions == 0 && options.mrf_repetitions == 0 &&
+      options.memory_repetitions == 0) {
+    usageError("nothing to run: no scenarios (--scenarios none), no path planning (--path-repetitions 0), no "
+               "MRF experiment (--mrf-repetitions 0) and no memory experiment (--memory-repetitions 0)");
   }
   return options;
 }
@@ -214,6 +223,40 @@ struct Check {
   std::string measured;
   bool met;
 };
+
+// The memory experiment per method: mean and std over the seeds of each metric; the
+// memory's LTM counts on its row (empty for the maps without one).
+std::string memoryCsv(const core::MemoryExperimentResult& result) {
+  std::ostringstream csv;
+  csv << "method,goal_reached_percent_mean,goal_reached_percent_std,path_ratio_mean,path_ratio_std,"
+         "replans_per_episode_mean,replans_per_episode_std,people_in_ltm_mean,people_in_ltm_std,"
+         "other_non_structure_in_ltm_mean,divider_cells_in_ltm_mean,divider_cells_in_ltm_std,"
+         "divider_configurations_mean,repetitions,episodes,seconds\n";
+  const auto count = [&](std::size_t core::MemoryRepetition::*field) {
+    return result.perRepetition([field](const core::MemoryRepetition& r) { return static_cast<double>(r.*field); });
+  };
+  for (const core::NavigationMethod method : core::kAllNavigationMethods) {
+    const MeanStd reached = result.goalReachedPercent(method);
+    const MeanStd ratio = result.pathRatio(method);
+    const MeanStd replans = result.replansPerEpisode(method);
+    csv << core::navigationMethodName(method) << ',' << fixed(reached.mean, 4) << ',' << fixed(reached.std, 4) << ','
+        << fixed(ratio.mean, 6) << ',' << fixed(ratio.std, 6) << ',' << fixed(replans.mean, 4) << ','
+        << fixed(replans.std, 4) << ',';
+    if (method == core::NavigationMethod::kMemory) {
+      const MeanStd people = count(&core::MemoryRepetition::people_in_ltm);
+      const MeanStd dividers = count(&core::MemoryRepetition::divider_cells_in_ltm);
+      csv << fixed(people.mean, 4) << ',' << fixed(people.std, 4) << ','
+          << fixed(count(&core::MemoryRepetition::other_non_structure_in_ltm).mean, 4) << ','
+          << fixed(dividers.mean, 4) << ',' << fixed(dividers.std, 4) << ','
+          << fixed(count(&core::MemoryRepetition::divider_configurations).mean, 4) << ',';
+    } else {
+      csv << ",,,,,,";
+    }
+    csv << result.repetitions.size() << ',' << result.repetitions.front().episodes[0].size() << ','
+        << fixed(result.seconds, 3) << '\n';
+  }
+  return csv.str();
+}
 
 // The MRF experiment's numbers: a probability (RMSE, map value) with enough digits for the
 // static cells' 1e-4; empty for none (NaN: a cell never observed).
@@ -531,6 +574,35 @@ int main(int argc, char** argv) {
       core::writeFileAtomically(options.out + "/mrf_iterations.csv", mrfIterationsCsv(result));
       core::writeFileAtomically(options.out + "/mrf_maps.csv", mrfMapsCsv(result.first_maps));
       summary << mrfSummary(scenario, config, result, checks);
+    }
+
+    if (options.memory_repetitions > 0) {
+      const core::ScenarioConfig scenario = core::scenarioConfig("dividers");
+      core::MemoryExperimentConfig config;
+      config.repetitions = options.memory_repetitions;
+      config.seed = options.seed;
+      config.threads = options.threads;
+      std::cerr << "evaluate: memory navigation (" << scenario.name << "), " << config.repetitions << " seeds x "
+                << config.episodes << " episodes ..." << std::flush;
+      const core::MemoryExperimentResult result = core::runMemoryExperiment(scenario, config);
+      std::cerr << " " << fixed(result.seconds, 1) << " s\n";
+      core::writeFileAtomically(options.out + "/memory_navigation.csv", memoryCsv(result));
+      summary << "\n## Memory navigation (STM/LTM map hypotheses, Morris et al.)\n\n"
+              << scenario.description << ". " << config.mapping_episodes << " oracle-driven mapping episodes, then "
+              << config.episodes << " scored episodes of " << scenario.divider_period_steps
+              << " steps between a and b; mean ± std over " << config.repetitions << " seeds (seed " << config.seed
+              << "), " << fixed(result.seconds, 1) << " s.\n\n"
+              << core::formatMemoryTable(result);
+      std::size_t people = 0;
+      std::size_t divider_cells = 0;
+      for (const core::MemoryRepetition& r : result.repetitions) {
+        people += r.people_in_ltm;
+        divider_cells += r.divider_cells_in_ltm;
+      }
+      checks.push_back({"memory: people in LTM: 0", std::to_string(people) + " person cells migrated over all seeds",
+                        people == 0});
+      checks.push_back({"memory: dividers reach LTM", std::to_string(divider_cells) + " divider cells migrated",
+                        divider_cells > 0});
     }
 
     summary << "\n## Targets\n\n| target | measured | met |\n|---|---|---|\n";

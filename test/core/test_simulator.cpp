@@ -647,6 +647,136 @@ TEST(Simulation, ScanStampsFallInTheirStepAndRunsReproduce) {
   EXPECT_THROW(a.scan(4), std::invalid_argument);
 }
 
+// The dividers scenario (DividersLayout): dividers move only at multiples of the period, each
+// toggling with the documented probability, at least one passage always open; people move one
+// cell per step and never overlap structure or each other; structure and people are told
+// apart; the same seeds give the same run.
+TEST(Scenarios, DividersMoveAtTheDocumentedRateAndOnePassageIsAlwaysOpen) {
+  ScenarioConfig config = scenarioConfig("dividers");
+  config.divider_period_steps = 5;
+  config.people = 0;
+  Simulation simulation(config, 3, 4);
+  const DividersLayout& layout = simulation.dividersLayout();
+  ASSERT_EQ(layout.passage_min_y.size(), 3U);
+  double toggles = 0.0;
+  double chances = 0.0;
+  double forced = 0.0;  // moves that left the same two passages closed
+  std::vector<std::uint8_t> before = layout.closed;
+  for (int t = 1; t <= 20000; ++t) {
+    simulation.advance();
+    const std::vector<std::uint8_t>& now = layout.closed;
+    ASSERT_LT(std::count(now.begin(), now.end(), 1), 3) << "step " << t;
+    for (std::size_t p = 0; p < now.size(); ++p) {
+      // The world agrees with the layout, on every cell of the divider.
+      for (std::int32_t y = layout.passage_min_y[p]; y < layout.passage_min_y[p] + layout.passage_height; ++y) {
+        ASSERT_EQ(simulation.world().occupied(layout.wall_x, y), now[p] != 0);
+        ASSERT_EQ(simulation.isStructure(layout.wall_x, y), now[p] != 0);
+      }
+    }
+    if (t % config.divider_period_steps != 0) {
+      ASSERT_EQ(now, before) << "a divider moved between periods, step " << t;
+      continue;
+    }
+    // The rule that keeps a passage open only ever keeps an open divider open: a closed
+    // divider opens with exactly the toggle probability.
+    for (std::size_t p = 0; p < now.size(); ++p) {
+      if (before[p] == 0) continue;
+      toggles += now[p] == 0 ? 1.0 : 0.0;
+      chances += 1.0;
+    }
+    forced += std::count(before.begin(), before.end(), 1) == 2 && std::count(now.begin(), now.end(), 1) == 2 ? 1.0 : 0.0;
+    before = now;
+  }
+  ASSERT_GT(chances, 3000.0);
+  const double p = config.divider_toggle_probability;
+  EXPECT_NEAR(toggles / chances, p, binomialTolerance(p, chances));
+  // Two closed stay closed and the open one closes: the rule re-opened it (or it stayed open).
+  EXPECT_GT(forced, 0.0);
+}
+
+TEST(Scenarios, DividersPeopleWalkOneCellPerStepAndNeverOverlapStructure) {
+  ScenarioConfig config = scenarioConfig("dividers");
+  config.divider_period_steps = 7;  // many divider moves, some of them onto people
+  config.divider_toggle_probability = 0.5;
+  config.people = 6;
+  Simulation simulation(config, 5, 6);
+  const DividersLayout& layout = simulation.dividersLayout();
+  ASSERT_EQ(layout.people.size(), 6U);
+  std::vector<CellXY> before = layout.people;
+  double moves = 0.0;
+  int crossings = 0;
+  for (int t = 1; t <= 5000; ++t) {
+    simulation.advance();
+    const bool dividers_moved = t % config.divider_period_steps == 0;
+    for (std::size_t i = 0; i < layout.people.size(); ++i) {
+      const CellXY c = layout.people[i];
+      ASSERT_TRUE(simulation.world().occupied(c.x, c.y));
+      ASSERT_TRUE(simulation.isPerson(c.x, c.y));
+      ASSERT_FALSE(simulation.isStructure(c.x, c.y));
+      // Not on a wall cell nor a closed divider (the wall column only in an open passage).
+      if (c.x == layout.wall_x) {
+        const int p = layout.dividerAt(c.x, c.y);
+        ASSERT_GE(p, 0);
+        ASSERT_EQ(layout.closed[static_cast<std::size_t>(p)], 0);
+      }
+      ASSERT_TRUE(c.x > 0 && c.y > 0 && c.x < config.width_cells - 1 && c.y < config.height_cells - 1);
+      for (std::size_t j = 0; j < i; ++j) ASSERT_FALSE(layout.people[j] == c);
+      const int step = std::abs(c.x - before[i].x) + std::abs(c.y - before[i].y);
+      if (!dividers_moved) {
+        ASSERT_LE(step, 1) << "person " << i << " step " << t;
+      }
+      moves += step == 1 ? 1.0 : 0.0;
+      if ((before[i].x < layout.wall_x) != (c.x < layout.wall_x) && c.x != layout.wall_x) ++crossings;
+    }
+    before = layout.people;
+    // Every occupied cell is either structure or a person, never both.
+    std::size_t people_cells = 0;
+    for (std::int32_t y = 0; y < config.height_cells; ++y) {
+      for (std::int32_t x = 0; x < config.width_cells; ++x) {
+        ASSERT_EQ(simulation.world().occupied(x, y), simulation.isStructure(x, y) || simulation.isPerson(x, y));
+        ASSERT_FALSE(simulation.isStructure(x, y) && simulation.isPerson(x, y));
+        people_cells += simulation.isPerson(x, y) ? 1 : 0;
+      }
+    }
+    ASSERT_EQ(people_cells, 6U);
+  }
+  // People are fast: they move on (almost) every step, and cross the wall now and then.
+  EXPECT_GT(moves / (5000.0 * 6.0), 0.95);
+  EXPECT_GT(crossings, 0);
+}
+
+TEST(Scenarios, DividersRunsReproducePerSeedAndPeopleHideFromTheLaserInTheirCell) {
+  const ScenarioConfig config = scenarioConfig("dividers");
+  Simulation a(config, 7, 8);
+  Simulation b(config, 7, 8);
+  Simulation c(config, 7, 9);
+  bool differs = false;
+  for (int t = 0; t < 2 * config.divider_period_steps + 10; ++t) {
+    ASSERT_EQ(a.world().occupancy(), b.world().occupancy());
+    ASSERT_EQ(a.dividersLayout().closed, b.dividersLayout().closed);
+    differs = differs || a.world().occupancy() != c.world().occupancy();
+    a.advance();
+    b.advance();
+    c.advance();
+  }
+  EXPECT_TRUE(differs);
+  // A laser in a person's cell reads as if the cell were free (no range_min hits).
+  const CellXY person = a.dividersLayout().people.front();
+  const double r = config.resolution_m;
+  const Scan scan = a.scanFrom(Pose2D{(person.x + 0.5) * r, (person.y + 0.5) * r, 0.0});
+  int short_readings = 0;
+  for (const float range : scan.ranges_m) short_readings += std::isfinite(range) && range < 0.5 * r ? 1 : 0;
+  EXPECT_EQ(short_readings, 0);
+  EXPECT_TRUE(a.world().occupied(person.x, person.y));  // restored after the scan
+  // The robot's places face each other across the middle passage.
+  const DividersLayout& layout = a.dividersLayout();
+  EXPECT_EQ(layout.a.y, layout.b.y);
+  EXPECT_EQ(layout.dividerAt(layout.wall_x, layout.a.y), 1);
+  EXPECT_LT(layout.a.x, layout.wall_x);
+  EXPECT_GT(layout.b.x, layout.wall_x);
+  EXPECT_THROW(Simulation(scenarioConfig("door"), 1, 2).dividersLayout(), std::logic_error);
+}
+
 }  // namespace
 }  // namespace core
 }  // namespace dynamic_occupancy_grid

@@ -14,7 +14,7 @@ EVALUATE = None
 PLOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "scripts", "plot_evaluation.py")
 METHODS = ["static", "static_unclamped", "online", "offline", "oracle"]
 SMALL = ["--scenarios", "dynamic_5_5,redraw_100", "--repetitions", "2", "--path-repetitions", "2",
-         "--path-runs", "4", "--mrf-repetitions", "2", "--threads", "2"]
+         "--path-runs", "4", "--mrf-repetitions", "2", "--memory-repetitions", "2", "--threads", "2"]
 MRF_WORLD = (46, 32)  # the mrf_squares scenario's cells (core/simulator.cpp)
 
 
@@ -37,7 +37,8 @@ class EvaluateTool(unittest.TestCase):
     def test_writes_the_tables_and_the_summary(self):
         self.assertEqual(self.rc, 0, self.stderr)
         for name in ["accuracy_dynamic_5_5.csv", "accuracy_redraw_100.csv", "parameter_error.csv",
-                     "path_planning.csv", "mrf_rmse.csv", "mrf_iterations.csv", "mrf_maps.csv", "summary.md"]:
+                     "path_planning.csv", "mrf_rmse.csv", "mrf_iterations.csv", "mrf_maps.csv",
+                     "memory_navigation.csv", "summary.md"]:
             self.assertTrue(os.path.isfile(os.path.join(self.out, name)), name)
         self.assertIn("## Targets", self.stdout)
         self.assertIn(self.out, self.stdout)
@@ -53,6 +54,27 @@ class EvaluateTool(unittest.TestCase):
         for target in ("MRF: sparse-cell RMSE ≥ 30 % lower than plain EM", "MRF: well-observed RMSE no higher",
                        "MRF: EM time ≤ 5× plain EM"):
             self.assertIn(f"| {target}", summary)
+
+    def test_memory_table_and_summary(self):
+        with open(os.path.join(self.out, "memory_navigation.csv")) as file:
+            rows = list(csv.DictReader(file))
+        self.assertEqual([row["method"] for row in rows], ["static", "hmm", "memory"])
+        for row in rows:
+            self.assertEqual(row["repetitions"], "2")
+            self.assertTrue(0.0 <= float(row["goal_reached_percent_mean"]) <= 100.0)
+            self.assertGreaterEqual(float(row["path_ratio_mean"]), 1.0)
+            self.assertGreaterEqual(float(row["replans_per_episode_mean"]), 0.0)
+        # Only the memory model has an LTM.
+        self.assertEqual(rows[0]["people_in_ltm_mean"], "")
+        self.assertGreaterEqual(float(rows[2]["people_in_ltm_mean"]), 0.0)
+        self.assertGreater(float(rows[2]["divider_cells_in_ltm_mean"]), 0.0)
+        with open(os.path.join(self.out, "summary.md")) as file:
+            summary = file.read()
+        self.assertIn("## Memory navigation", summary)
+        self.assertLess(summary.index("## Memory navigation"), summary.index("## Targets"))
+        for method in ("static", "hmm", "memory"):
+            self.assertIn(f"| {method} | ", summary)
+        self.assertIn("| memory: people in LTM: 0 |", summary)
 
     def test_mrf_tables(self):
         with open(os.path.join(self.out, "mrf_rmse.csv")) as file:
@@ -141,20 +163,22 @@ class EvaluateTool(unittest.TestCase):
     def test_same_seed_same_numbers(self):
         again = os.path.join(self.tmp.name, "again")
         rc, _, stderr = evaluate(["--out", again, "--scenarios", "dynamic_5_5", "--repetitions", "2",
-                                  "--path-repetitions", "0", "--mrf-repetitions", "0", "--threads", "1"])
+                                  "--path-repetitions", "0", "--mrf-repetitions", "0", "--memory-repetitions", "0",
+                                  "--threads", "1"])
         self.assertEqual(rc, 0, stderr)
         with open(os.path.join(self.out, "accuracy_dynamic_5_5.csv")) as a, \
                 open(os.path.join(again, "accuracy_dynamic_5_5.csv")) as b:
             self.assertEqual(a.read(), b.read())
         # --mrf-repetitions 0 skips the MRF experiment.
         self.assertFalse(os.path.exists(os.path.join(again, "mrf_rmse.csv")))
+        self.assertFalse(os.path.exists(os.path.join(again, "memory_navigation.csv")))
         with open(os.path.join(again, "summary.md")) as file:
             self.assertNotIn("MRF", file.read())
 
     def test_mrf_same_seed_same_numbers_on_any_threads(self):
         again = os.path.join(self.tmp.name, "mrf_again")
         rc, _, stderr = evaluate(["--out", again, "--scenarios", "none", "--path-repetitions", "0",
-                                  "--mrf-repetitions", "2", "--threads", "1"])
+                                  "--mrf-repetitions", "2", "--memory-repetitions", "0", "--threads", "1"])
         self.assertEqual(rc, 0, stderr)
         self.assertEqual(sorted(os.listdir(again)), ["mrf_iterations.csv", "mrf_maps.csv", "mrf_rmse.csv", "summary.md"])
         for name in ("mrf_maps.csv", "mrf_iterations.csv"):
@@ -167,6 +191,18 @@ class EvaluateTool(unittest.TestCase):
                 tables.append([{k: v for k, v in row.items() if k != "em_seconds"} for row in csv.DictReader(file)])
         self.assertEqual(tables[0], tables[1])
 
+    def test_memory_same_seed_same_numbers_on_any_threads(self):
+        again = os.path.join(self.tmp.name, "memory_again")
+        rc, _, stderr = evaluate(["--out", again, "--scenarios", "none", "--path-repetitions", "0",
+                                  "--mrf-repetitions", "0", "--memory-repetitions", "2", "--threads", "1"])
+        self.assertEqual(rc, 0, stderr)
+        self.assertEqual(sorted(os.listdir(again)), ["memory_navigation.csv", "summary.md"])
+        tables = []
+        for directory in (self.out, again):
+            with open(os.path.join(directory, "memory_navigation.csv")) as file:
+                tables.append([{k: v for k, v in row.items() if k != "seconds"} for row in csv.DictReader(file)])
+        self.assertEqual(tables[0], tables[1])
+
     def test_errors(self):
         rc, _, stderr = evaluate(["--scenarios", "nope"])
         self.assertEqual(rc, 2)
@@ -174,7 +210,9 @@ class EvaluateTool(unittest.TestCase):
         for args in (["--repetitions", "0"], ["--repetitions", "3000000000"], ["--scenarios", "door"],
                      ["--scenarios", "mrf_squares"], ["--mrf-repetitions", "-1"], ["--mrf-repetitions", "x"],
                      ["--scenarios", "dynamic_5_5,dynamic_5_5"],
-                     ["--scenarios", "none", "--path-repetitions", "0", "--mrf-repetitions", "0"],
+                     ["--scenarios", "dividers"], ["--memory-repetitions", "-1"],
+                     ["--scenarios", "none", "--path-repetitions", "0", "--mrf-repetitions", "0",
+                      "--memory-repetitions", "0"],
                      ["--no-such-option", "1"], ["--out"]):
             rc, _, stderr = evaluate(args)
             self.assertEqual(rc, 2, args)

@@ -38,7 +38,7 @@ sys.path.insert(0, os.path.join(rospkg.RosPack().get_path(PKG), "scripts"))
 from read_model import load_model  # noqa: E402 (scripts/ is on the path only now)
 
 START_TIME_S = 1.0e9  # simulation time 0 in ROS time (simulate.cpp)
-SCENARIOS = ("dynamic_5_5", "dynamic_25_25", "redraw_100", "redraw_300", "parking_lot", "door")
+SCENARIOS = ("dynamic_5_5", "dynamic_25_25", "redraw_100", "redraw_300", "parking_lot", "door", "mrf_squares", "dividers")
 # dynamic_5_5's configuration (core/simulator.cpp, scenarioConfig): what the data must show.
 CHANGE_PROBABILITY = 0.05
 DYNAMIC_FRACTION = 0.05

@@ -167,6 +167,7 @@ enum class ScenarioKind {
   kParkingLot,     ///< bays whose cars change every "hour"
   kDoor,           ///< a door on the short path between A and B, and a long detour
   kMrfSquares,     ///< Li, Barão & Rato's simulation: walls, four squares with fixed hold times
+  kDividers,       ///< Morris et al.'s office: passages blocked by slow dividers, fast people
 };
 
 /// A named configuration of a simulated world (scenarioConfig(name)).
@@ -213,6 +214,14 @@ struct ScenarioConfig {
   /// occupied and free); must be positive for this kind.
   std::array<std::int64_t, 4> square_hold_steps{};
 
+  // kDividers (see DividersLayout for the geometry and the rules)
+  /// Steps between the dividers' moves; the memory experiment's episodes are this long, so
+  /// the dividers move between episodes, never while the robot drives.
+  std::int64_t divider_period_steps = 150;
+  /// At every move each divider toggles (open <-> closed) with this probability.
+  double divider_toggle_probability = 0.2;
+  int people = 3;  ///< people walking at one cell per step
+
   /// Throws std::invalid_argument naming the first bad field.
   void validate() const;
 };
@@ -238,6 +247,52 @@ struct MrfSquaresLayout {
   std::int32_t square_side_cells = 0;
   /// Delta t of the paper's hold times: the steps of one loop of the robot's path.
   std::int64_t loop_steps = 0;
+};
+
+/// The dividers scenario's places and its moving parts (scenarioConfig("dividers"); Morris
+/// et al., Sec. IV: an office whose paths are blocked by office dividers that move much more
+/// slowly than the people walking around).
+///
+/// Geometry: border walls and an internal wall (column wall_x, one cell thick) splitting the
+/// office into a left and a right half, crossed by passages (each passage_height cells of
+/// that column). A divider is a passage's cells of the wall column, closed (occupied) or
+/// open (free). The robot's two places a and b face each other across the middle passage:
+/// through it the way is shortest, the others are detours.
+///
+/// Dividers move slowly: at steps that are multiples of divider_period_steps (never at
+/// step 0) each toggles with divider_toggle_probability; if that leaves every passage
+/// closed, one of the ones that just closed, picked at random, stays open. At step 0 each is
+/// closed with probability 1/2, under the same rule. So at least one passage is always open.
+///
+/// People move fast: one cell per step (4-connected) towards a waypoint (a random free
+/// cell that is not in the wall column), each step picking at random among the moves that
+/// shorten the Manhattan distance to it and lead into a cell free of structure and of the
+/// other people; when there is none (arrived, or stuck at the wall), a new waypoint is drawn
+/// and the person takes a random free step (it stands still only when boxed in). People
+/// walk through open passages; a divider closing on a person pushes that person to the
+/// nearest free cell. People do not know about the robot: the world's dynamics must not
+/// depend on what a robot does (the memory experiment drives three robots through the same
+/// world timeline); the robot must not step into a person (a move into an occupied cell
+/// fails), and a person passing through the robot's cell is not seen by its laser (too
+/// close). All moves draw from the run seed's dynamics stream.
+///
+/// Ground truth: World::occupied = structure (walls, closed dividers) or a person; the
+/// Simulation tells them apart at every step (isStructure, isPerson).
+struct DividersLayout {
+  std::int32_t wall_x = 0;
+  std::int32_t passage_height = 0;
+  std::vector<std::int32_t> passage_min_y;  ///< the lowest cell row of each passage, ascending
+  CellXY a;  ///< left half
+  CellXY b;  ///< right half
+  std::vector<std::uint8_t> closed;  ///< now, per passage (1 = its divider is closed)
+  std::vector<CellXY> people;        ///< now
+
+  /// Whether (x, y) is a cell of passage p's divider (open or closed).
+  bool inDivider(std::size_t p, std::int32_t x, std::int32_t y) const {
+    return x == wall_x && y >= passage_min_y[p] && y < passage_min_y[p] + passage_height;
+  }
+  /// The passage whose divider holds (x, y), or -1.
+  int dividerAt(std::int32_t x, std::int32_t y) const;
 };
 
 /// A run of a scenario: the world with its scheduled events, the scripted robot, the laser.
@@ -272,6 +327,13 @@ class Simulation {
   const DoorLayout& doorLayout() const;
   /// The MRF scenario's places; throws std::logic_error for another scenario.
   const MrfSquaresLayout& mrfSquaresLayout() const;
+  /// The dividers scenario's places, dividers and people now; throws std::logic_error for
+  /// another scenario.
+  const DividersLayout& dividersLayout() const;
+  /// Dividers scenario: (x, y) is occupied now by a wall or a closed divider / by a person
+  /// (never both). Other scenarios: isStructure = World::occupied, isPerson = false.
+  bool isStructure(std::int32_t x, std::int32_t y) const;
+  bool isPerson(std::int32_t x, std::int32_t y) const;
 
  private:
   void buildRandomDynamic();
@@ -283,6 +345,11 @@ class Simulation {
   void toggleSquares();
   void drawPathNoise();
   void addBorderWalls();
+  void buildDividers();
+  void moveDividers(bool initial);
+  void movePeople();
+  bool freeForPerson(std::int32_t x, std::int32_t y) const;
+  CellXY randomFreeCell(Rng& rng) const;
 
   ScenarioConfig config_;
   World world_;
@@ -300,6 +367,8 @@ class Simulation {
   DoorLayout door_;
   MrfSquaresLayout squares_;
   std::array<std::int64_t, 4> square_next_toggle_{};  ///< the step at which each square toggles next
+  DividersLayout dividers_;
+  std::vector<CellXY> waypoints_;                      ///< dividers: each person's waypoint
 };
 
 }  // namespace core
