@@ -20,6 +20,8 @@
 #include "dynamic_occupancy_grid/core/online_em.h"
 #include "dynamic_occupancy_grid/core/traversal.h"
 
+#include "scan_fixtures.h"
+
 #ifdef DOG_BENCHMARK_OCTOMAP
 #include <octomap/OcTree.h>
 #endif
@@ -28,35 +30,12 @@ namespace dog = dynamic_occupancy_grid::core;
 
 namespace {
 
-constexpr int kBeams = 1081;
-constexpr double kFieldOfView = 1.5 * M_PI;
-constexpr double kRange = 29.97;
-constexpr double kResolution = 0.05;
+using dog_benchmark::fixedMapConfig;
+using dog_benchmark::kBeams;
+using dog_benchmark::kResolution;
 
-dog::Scan makeScan(double stamp_s, double range_m = kRange) {
-  dog::Scan scan;
-  scan.stamp_s = stamp_s;
-  scan.laser_pose = dog::Pose2D{0.013, -0.021, 0.1};
-  scan.angle_min_rad = -kFieldOfView / 2.0;
-  scan.angle_increment_rad = kFieldOfView / (kBeams - 1);
-  scan.range_min_m = 0.1;
-  scan.range_max_m = 30.0;
-  scan.ranges_m.assign(kBeams, static_cast<float>(range_m));
-  return scan;
-}
-
-// A fixed map of side x side cells centred on the world origin (the scan's sensor is at
-// the origin, so it sits in the middle of the map).
-dog::MapperConfig fixedMapConfig(std::int64_t side_cells) {
-  dog::MapperConfig config;
-  config.resolution_m = kResolution;
-  config.fixed_bounds = true;
-  config.width_m = static_cast<double>(side_cells) * kResolution;
-  config.height_m = config.width_m;
-  config.origin_x_m = -config.width_m / 2.0;
-  config.origin_y_m = -config.height_m / 2.0;
-  config.max_map_size_m = std::max(config.max_map_size_m, config.width_m);
-  return config;
+dog::Scan makeScan(double stamp_s, double range_m = dog_benchmark::kRange) {
+  return dog_benchmark::benchmarkScan(stamp_s, range_m);
 }
 
 dog::MapperConfig benchmarkConfig() {
@@ -72,19 +51,10 @@ void BM_ScanTraversal(benchmark::State& state) {
   std::int64_t visits = 0;
   for (auto _ : state) {
     std::int64_t sum = 0;
-    for (int i = 0; i < kBeams; ++i) {
-      const double angle = scan.laser_pose.yaw_rad + scan.angle_min_rad + i * scan.angle_increment_rad;
-      const double u0 = scan.laser_pose.x_m / kResolution;
-      const double v0 = scan.laser_pose.y_m / kResolution;
-      const dog::CellXY end = dog::traverseSegment(
-          u0, v0, u0 + std::cos(angle) * kRange / kResolution, v0 + std::sin(angle) * kRange / kResolution,
-          [&sum, &visits](std::int32_t x, std::int32_t y) {
-            sum += x ^ y;
-            ++visits;
-          });
-      sum += end.x;
+    dog_benchmark::traverseBeams(scan, [&sum, &visits](std::int32_t x, std::int32_t y) {
+      sum += x ^ y;
       ++visits;
-    }
+    });
     benchmark::DoNotOptimize(sum);
   }
   state.SetItemsProcessed(visits);  // cell visits per second
@@ -182,12 +152,7 @@ void BM_OctoMapInsertScan(benchmark::State& state) {
   const dog::Scan scan = makeScan(0.0);
   const octomap::point3d origin(static_cast<float>(scan.laser_pose.x_m), static_cast<float>(scan.laser_pose.y_m),
                                 0.0f);
-  octomap::Pointcloud cloud;
-  for (int i = 0; i < kBeams; ++i) {
-    const double angle = scan.laser_pose.yaw_rad + scan.angle_min_rad + i * scan.angle_increment_rad;
-    cloud.push_back(static_cast<float>(scan.laser_pose.x_m + std::cos(angle) * kRange),
-                    static_cast<float>(scan.laser_pose.y_m + std::sin(angle) * kRange), 0.0f);
-  }
+  const octomap::Pointcloud cloud = dog_benchmark::octomapCloud(scan);
   octomap::OcTree tree(kResolution);
   tree.insertPointCloud(cloud, origin, scan.range_max_m);
   for (auto _ : state) {

@@ -26,6 +26,8 @@
 #include "dynamic_occupancy_grid/core/mapper.h"
 #include "dynamic_occupancy_grid/core/traversal.h"
 
+#include "scan_fixtures.h"
+
 #ifdef DOG_BENCHMARK_OCTOMAP
 #include <octomap/OcTree.h>
 #endif
@@ -34,37 +36,9 @@ namespace dog = dynamic_occupancy_grid::core;
 
 namespace {
 
-constexpr int kBeams = 1081;
-constexpr double kFieldOfView = 1.5 * M_PI;
-constexpr double kRange = 29.97;
-constexpr double kResolution = 0.05;
-
-dog::Scan makeScan(double stamp_s, const dog::Pose2D& pose, int beams, double field_of_view, double range_m) {
-  dog::Scan scan;
-  scan.stamp_s = stamp_s;
-  scan.laser_pose = pose;
-  scan.angle_min_rad = -field_of_view / 2.0;
-  scan.angle_increment_rad = field_of_view / (beams - 1);
-  scan.range_min_m = 0.1;
-  scan.range_max_m = 30.0;
-  scan.ranges_m.assign(beams, static_cast<float>(range_m));
-  return scan;
-}
-
-dog::Scan benchmarkScan(double stamp_s) {
-  return makeScan(stamp_s, dog::Pose2D{0.013, -0.021, 0.1}, kBeams, kFieldOfView, kRange);
-}
-
-dog::MapperConfig fixed4000() {
-  dog::MapperConfig config;
-  config.resolution_m = kResolution;
-  config.fixed_bounds = true;
-  config.width_m = 4000 * kResolution;
-  config.height_m = config.width_m;
-  config.origin_x_m = -config.width_m / 2.0;
-  config.origin_y_m = -config.height_m / 2.0;
-  return config;
-}
+using dog_benchmark::benchmarkScan;
+using dog_benchmark::kResolution;
+using dog_benchmark::makeScan;
 
 long peakRssKiB() {
   std::ifstream status("/proc/self/status");
@@ -173,21 +147,13 @@ int main(int argc, char** argv) {
     // As BM_ScanTraversal: every cell of every beam visited once, nothing stored.
     std::int64_t sum = 0;
     for (int k = 0; k < n; ++k) {
-      for (int i = 0; i < kBeams; ++i) {
-        const double angle = scan.laser_pose.yaw_rad + scan.angle_min_rad + i * scan.angle_increment_rad;
-        const double u0 = scan.laser_pose.x_m / kResolution;
-        const double v0 = scan.laser_pose.y_m / kResolution;
-        const dog::CellXY end = dog::traverseSegment(
-            u0, v0, u0 + std::cos(angle) * kRange / kResolution, v0 + std::sin(angle) * kRange / kResolution,
-            [&sum](std::int32_t x, std::int32_t y) { sum += x ^ y; });
-        sum += end.x;
-      }
+      dog_benchmark::traverseBeams(scan, [&sum](std::int32_t x, std::int32_t y) { sum += x ^ y; });
     }
     std::printf("%lld\n", static_cast<long long>(sum));
     return 0;
   }
   if (mode == "integrate" || mode == "scanstep") {
-    dog::Mapper mapper(fixed4000());
+    dog::Mapper mapper(dog_benchmark::fixedMapConfig(4000));
     mapper.integrate(scan);
     if (mode == "scanstep") mapper.finishStep();
     dog::Scan next = scan;
@@ -204,12 +170,7 @@ int main(int argc, char** argv) {
   if (mode == "octomap") {
     const octomap::point3d origin(static_cast<float>(scan.laser_pose.x_m), static_cast<float>(scan.laser_pose.y_m),
                                   0.0f);
-    octomap::Pointcloud cloud;
-    for (int i = 0; i < kBeams; ++i) {
-      const double angle = scan.laser_pose.yaw_rad + scan.angle_min_rad + i * scan.angle_increment_rad;
-      cloud.push_back(static_cast<float>(scan.laser_pose.x_m + std::cos(angle) * kRange),
-                      static_cast<float>(scan.laser_pose.y_m + std::sin(angle) * kRange), 0.0f);
-    }
+    const octomap::Pointcloud cloud = dog_benchmark::octomapCloud(scan);
     octomap::OcTree tree(kResolution);
     tree.insertPointCloud(cloud, origin, scan.range_max_m);
     for (int k = 0; k < n; ++k) tree.insertPointCloud(cloud, origin, scan.range_max_m);

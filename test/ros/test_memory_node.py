@@ -14,7 +14,6 @@ for each update's ~hypotheses before sending the next scan."""
 
 import math
 import os
-import subprocess
 import sys
 import threading
 import time
@@ -316,22 +315,7 @@ class TestMemoryNode(unittest.TestCase):
             ('memory/max_published_hypotheses', '_model:=memory _memory/max_published_hypotheses:=0'),
             ('model_file', '_model:=memory _model_file:=/tmp/model.dogm'),
         ]
-        processes = []
-        for i, (name, argument) in enumerate(cases):
-            command = ['rosrun', wall_scene.PKG, 'mapping_node', '__name:=bad_memory_parameter_%d' % i] + \
-                argument.split()
-            processes.append((name, command, subprocess.Popen(
-                command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, universal_newlines=True)))
-        for name, command, process in processes:
-            try:
-                output, _ = process.communicate(timeout=30.0)
-            except subprocess.TimeoutExpired:
-                process.kill()
-                output, _ = process.communicate()
-                self.fail('%s did not exit: %s' % (' '.join(command), output))
-            self.assertEqual(process.returncode, 1, '%s exited with %d:\n%s' % (' '.join(command), process.returncode,
-                                                                               output))
-            self.assertIn(name, output, '%s: the error does not name %s:\n%s' % (' '.join(command), name, output))
+        wall_scene.assert_bad_parameters_stop_node(self, cases, 'bad_memory_parameter')
 
     def test_zz_reset(self):
         # Last (the tests run in name order): it clears the memory the others look at.

@@ -5,7 +5,6 @@ and mapping. The tests run in the order of their names and share the node."""
 
 import math
 import os
-import subprocess
 import sys
 import unittest
 
@@ -84,21 +83,7 @@ class TestRobustness(unittest.TestCase):
             ('time_jump_threshold', '_time_jump_threshold:=-1'),
             ('model_file', '_model_file:=/nonexistent/model.dogm'),
         ]
-        processes = []
-        for i, (name, argument) in enumerate(cases):
-            command = ['rosrun', wall_scene.PKG, 'mapping_node', '__name:=bad_parameter_%d' % i] + argument.split()
-            processes.append((name, command, subprocess.Popen(
-                command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, universal_newlines=True)))
-        for name, command, process in processes:
-            try:
-                output, _ = process.communicate(timeout=30.0)
-            except subprocess.TimeoutExpired:
-                process.kill()
-                output, _ = process.communicate()
-                self.fail('%s did not exit: %s' % (' '.join(command), output))
-            self.assertEqual(process.returncode, 1, '%s exited with %d:\n%s' % (' '.join(command), process.returncode,
-                                                                               output))
-            self.assertIn(name, output, '%s: the error does not name %s:\n%s' % (' '.join(command), name, output))
+        wall_scene.assert_bad_parameters_stop_node(self, cases, 'bad_parameter')
         # The node under test is not disturbed.
         self.alive()
 

@@ -13,6 +13,7 @@ timer keeps running while the test waits for a message or a condition.
 """
 
 import math
+import subprocess
 import threading
 import time
 
@@ -91,6 +92,26 @@ def laser_transform(stamp, x=LASER_X, y=LASER_Y, yaw=0.0, roll=0.0, child=LASER_
     rotation = transform.transform.rotation
     rotation.w, rotation.x, rotation.y, rotation.z = cz * cx, cz * sx, sz * sx, sz * cx
     return transform
+
+
+def assert_bad_parameters_stop_node(test, cases, node_prefix):
+    """Starts mapping_node once per (name, arguments) of `cases`, all at once, and checks that
+    each exits with 1 and names the parameter `name` in its output."""
+    processes = []
+    for i, (name, argument) in enumerate(cases):
+        command = ['rosrun', PKG, 'mapping_node', '__name:=%s_%d' % (node_prefix, i)] + argument.split()
+        processes.append((name, command, subprocess.Popen(
+            command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, universal_newlines=True)))
+    for name, command, process in processes:
+        try:
+            output, _ = process.communicate(timeout=30.0)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            output, _ = process.communicate()
+            test.fail('%s did not exit: %s' % (' '.join(command), output))
+        test.assertEqual(process.returncode, 1, '%s exited with %d:\n%s' % (' '.join(command), process.returncode,
+                                                                          output))
+        test.assertIn(name, output, '%s: the error does not name %s:\n%s' % (' '.join(command), name, output))
 
 
 def grid_value(grid, x, y):
