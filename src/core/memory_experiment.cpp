@@ -6,6 +6,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <limits>
 #include <memory>
 #include <numeric>
 #include <optional>
@@ -13,6 +14,7 @@
 
 #include "dynamic_occupancy_grid/core/evaluation.h"
 #include "dynamic_occupancy_grid/core/mapper.h"
+#include "dynamic_occupancy_grid/core/scan_beams.h"
 
 namespace dynamic_occupancy_grid {
 namespace core {
@@ -376,21 +378,25 @@ LiveLayer LiveLayer::fromScan(const Scan& scan, double resolution_m, std::int32_
   const auto inside = [&](std::int32_t x, std::int32_t y) { return x >= 0 && y >= 0 && x < width && y < height; };
   const double u0 = scan.laser_pose.x_m / resolution_m;
   const double v0 = scan.laser_pose.y_m / resolution_m;
+  // The reading rules of every map (scan_beams.h); a beam without return clears up to range_max.
+  BeamRules rules;
+  rules.cells_per_m = 1.0 / resolution_m;
+  rules.max_free_range_m = scan.range_max_m;
+  rules.max_beam_m = std::numeric_limits<double>::infinity();
+  std::vector<BeamEnd> beams;
+  BeamCounts counts;
+  CellBox box;
+  if (beamEnds(scan, u0, v0, rules, beams, counts, box)) {
+    throw std::invalid_argument("LiveLayer: a beam ends too far from the origin");
+  }
   std::vector<CellXY> ends;
-  for (std::size_t i = 0; i < scan.ranges_m.size(); ++i) {
-    const double range = scan.ranges_m[i];
-    if (std::isnan(range) || range < scan.range_min_m) continue;
-    const bool hit = std::isfinite(range) && range < scan.range_max_m;
-    const double length = hit ? range : scan.range_max_m;
-    const double angle = scan.laser_pose.yaw_rad + scan.angle_min_rad + static_cast<double>(i) * scan.angle_increment_rad;
-    const double u1 = u0 + length * std::cos(angle) / resolution_m;
-    const double v1 = v0 + length * std::sin(angle) / resolution_m;
-    const CellXY end = traverseSegment(u0, v0, u1, v1, [&](std::int32_t x, std::int32_t y) {
+  for (const BeamEnd& beam : beams) {
+    const CellXY end = traverseSegment(u0, v0, beam.u1, beam.v1, [&](std::int32_t x, std::int32_t y) {
       if (!inside(x, y) || seen.blocked(x, y)) return;
       seen.setBlocked(x, y, true);
       layer.free.push_back(CellXY{x, y});
     });
-    if (hit && inside(end.x, end.y) && !contains(ends, end)) ends.push_back(end);
+    if (beam.hit && inside(end.x, end.y) && !contains(ends, end)) ends.push_back(end);
   }
   layer.occupied = std::move(ends);
   return layer;
