@@ -161,8 +161,12 @@ double mrfMapObjectiveChange(const MrfMapProblem& problem, const std::vector<dou
   return change - problem.inverse_temperature * pairs;
 }
 
-int maximizeMrfMap(const MrfMapProblem& problem, std::vector<double>& logits, int max_newton_iterations) {
+int maximizeMrfMap(const MrfMapProblem& problem, std::vector<double>& logits, int max_newton_iterations,
+                   double gain_tolerance) {
   check(problem, logits);
+  if (!(gain_tolerance >= 0.0) || std::isinf(gain_tolerance)) {
+    throw std::invalid_argument("MRF: the gain tolerance must be finite and >= 0");
+  }
   const std::size_t n = logits.size();
   if (n == 0) return 0;
   for (double& l : logits) l = std::clamp(l, problem.lo, problem.hi);
@@ -241,9 +245,13 @@ int maximizeMrfMap(const MrfMapProblem& problem, std::vector<double>& logits, in
     // last step is still taken, which with Newton's quadratic convergence leaves an error
     // far below it. An M-step inside EM needs no more: the next E-step moves the counts.
     double largest_step = 0.0;
-    for (std::size_t i = 0; i < n; ++i) largest_step = std::max(largest_step, std::abs(step[i]));
+    double predicted_gain = 0.0;  // of the full Newton step on the quadratic model: g.s / 2
+    for (std::size_t i = 0; i < n; ++i) {
+      largest_step = std::max(largest_step, std::abs(step[i]));
+      predicted_gain += 0.5 * gradient[i] * step[i];
+    }
     if (largest_step <= 1e-13) break;
-    const bool last = largest_step <= 1e-6;
+    const bool last = largest_step <= 1e-6 || predicted_gain <= gain_tolerance;
     forcing = std::min(0.1, largest_step);
     ++iteration;
     if (last) {

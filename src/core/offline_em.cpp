@@ -42,6 +42,30 @@ struct Prepared {
 // closed form's transcendental functions); longer ones in closed form, O(1).
 constexpr std::int64_t kShortRun = 16;
 
+// The forward pass multiplies normalisers down to this before taking a log (far from
+// underflow: a factor below it is logged on its own).
+constexpr double kSmallProduct = 1e-150;
+
+// An observation's likelihoods scaled by the larger one, which becomes exactly 1.
+struct ScaledLikelihood {
+  double smaller;    // exp(smaller log-likelihood - larger)
+  double log_scale;  // the larger log-likelihood
+  bool occ_larger;
+};
+
+ScaledLikelihood scaledLikelihood(std::uint32_t hits, std::uint32_t misses, const double log_hit[2],
+                                  const double log_miss[2]) {
+  const double log_b_occ = hits * log_hit[0] + misses * log_miss[0];
+  const double log_b_free = hits * log_hit[1] + misses * log_miss[1];
+  const bool occ_larger = log_b_occ >= log_b_free;
+  const double scale = occ_larger ? log_b_occ : log_b_free;
+  return ScaledLikelihood{std::exp((occ_larger ? log_b_free : log_b_occ) - scale), scale, occ_larger};
+}
+
+// The likelihoods of small counts are tabulated as they are met: a cell's observations repeat
+// a few (hits, misses) pairs, and MRF EM prepares every cell in every iteration.
+constexpr std::uint32_t kTabulatedCounts = 32;
+
 // Per-thread buffers, reused from cell to cell.
 struct Scratch {
   std::vector<Prepared> observations;
@@ -49,19 +73,39 @@ struct Scratch {
   std::vector<double> normaliser;            // c_k of the scaled forward pass
   std::vector<double> lambda_before;         // lambda^(L_k - 1) of each run
   std::vector<double> objective;             // per iteration, of the cell being run
+  // scaledLikelihood(hits, misses) at [hits * kTabulatedCounts + misses] for the sensor
+  // table_sensor (p_hit_given_occ, p_hit_given_free), where table_filled.
+  std::array<double, 2> table_sensor{0.0, 0.0};
+  std::vector<ScaledLikelihood> table;
+  std::vector<char> table_filled;
 };
 
 void prepare(const StepObservation* begin, const StepObservation* end, const ObservationModel& sensor,
-             std::vector<Prepared>& out) {
+             Scratch& scratch) {
   const double log_hit[2] = {std::log(sensor.pHitGivenOcc()), std::log(sensor.pHitGivenFree())};
   const double log_miss[2] = {std::log1p(-sensor.pHitGivenOcc()), std::log1p(-sensor.pHitGivenFree())};
+  const std::array<double, 2> model{sensor.pHitGivenOcc(), sensor.pHitGivenFree()};
+  if (scratch.table.empty() || scratch.table_sensor != model) {
+    scratch.table.assign(kTabulatedCounts * kTabulatedCounts, ScaledLikelihood{});
+    scratch.table_filled.assign(kTabulatedCounts * kTabulatedCounts, 0);
+    scratch.table_sensor = model;
+  }
+  std::vector<Prepared>& out = scratch.observations;
   out.clear();
   std::int64_t previous = std::int64_t{begin->step} - 1;  // the chain starts the step before
   for (const StepObservation* it = begin; it != end; ++it) {
-    const double log_b_occ = it->hits * log_hit[0] + it->misses * log_miss[0];
-    const double log_b_free = it->hits * log_hit[1] + it->misses * log_miss[1];
-    const double scale = std::max(log_b_occ, log_b_free);
-    out.push_back(Prepared{std::exp(log_b_occ - scale), std::exp(log_b_free - scale), scale,
+    ScaledLikelihood b;
+    if (it->hits < kTabulatedCounts && it->misses < kTabulatedCounts) {
+      const std::size_t key = std::size_t{it->hits} * kTabulatedCounts + it->misses;
+      if (!scratch.table_filled[key]) {
+        scratch.table[key] = scaledLikelihood(it->hits, it->misses, log_hit, log_miss);
+        scratch.table_filled[key] = 1;
+      }
+      b = scratch.table[key];
+    } else {
+      b = scaledLikelihood(it->hits, it->misses, log_hit, log_miss);
+    }
+    out.push_back(Prepared{b.occ_larger ? 1.0 : b.smaller, b.occ_larger ? b.smaller : 1.0, b.log_scale,
                            std::int64_t{it->step} - previous});
     previous = it->step;
   }
@@ -122,6 +166,8 @@ ForwardBackwardResult forwardBackwardPrepared(Scratch& scratch, const Transition
   // Forward: alpha_k = (alpha_{k-1} A^L) o b_k / c_k, both components kept.
   std::array<double, 2> alpha = {initial_p_occ, 1.0 - initial_p_occ};
   scratch.alpha[0] = alpha;
+  double product = 1.0;     // of the c_k since the last log taken
+  double log_scales = 0.0;  // sum of the observations' log_scale
   for (std::size_t k = 0; k < n; ++k) {
     const Prepared& o = obs[k];
     double predicted[2];
@@ -149,8 +195,20 @@ ForwardBackwardResult forwardBackwardPrepared(Scratch& scratch, const Transition
     alpha = {u_occ / c, u_free / c};
     scratch.normaliser[k] = c;
     scratch.alpha[k + 1] = alpha;
-    result.log_likelihood += std::log(c) + o.log_scale;
+    // log p(z) = sum log c_k + log_scale_k: the c_k (at most 1) are multiplied and their
+    // product's log taken only when it gets small, one log per many observations.
+    log_scales += o.log_scale;
+    if (c < kSmallProduct) {
+      result.log_likelihood += std::log(c);
+    } else {
+      product *= c;
+      if (product < kSmallProduct) {
+        result.log_likelihood += std::log(product);
+        product = 1.0;
+      }
+    }
   }
+  result.log_likelihood += std::log(product) + log_scales;
   result.final_p_occ = alpha[0];
 
   // Backward with the expected transition counts of each run between observations.
@@ -288,7 +346,7 @@ ForwardBackwardResult forwardBackward(const StepObservation* begin, const StepOb
                                       const TransitionParams& params, double initial_p_occ) {
   if (begin == end) throw std::invalid_argument("forwardBackward: empty sequence");
   Scratch scratch;
-  prepare(begin, end, sensor, scratch.observations);
+  prepare(begin, end, sensor, scratch);
   return forwardBackwardPrepared(scratch, params, initial_p_occ);
 }
 
@@ -349,6 +407,8 @@ double finiteLogit(double p) {
 
 double sigmoid(double x) { return x >= 0.0 ? 1.0 / (1.0 + std::exp(-x)) : std::exp(x) / (1.0 + std::exp(x)); }
 
+constexpr int kMaxNewtonIterations = 100;  // per M-step and map; Newton needs about 5
+
 // EM whose M-step is the joint MRF problem of mrf.h, one for p(occ -> occ) and one for
 // p(free -> free). The E-step is the plain one, cell by cell in parallel.
 OfflineEmResult runOfflineEmMrf(const ObservationSequences& sequences, const ObservationModel& sensor,
@@ -388,7 +448,7 @@ OfflineEmResult runOfflineEmMrf(const ObservationSequences& sequences, const Obs
         for (std::size_t chunk = next_chunk++; chunk < chunks; chunk = next_chunk++) {
           const std::size_t last = std::min(cells, (chunk + 1) * chunk_cells);
           for (std::size_t c = chunk * chunk_cells; c < last; ++c) {
-            prepare(sequences.begin(c), sequences.end(c), sensor, scratch.observations);
+            prepare(sequences.begin(c), sequences.end(c), sensor, scratch);
             const ForwardBackwardResult pass = forwardBackwardPrepared(scratch, result.params[c], config.initial_p_occ);
             counts[c] = pass.counts;
             log_likelihood[c] = pass.log_likelihood;
@@ -426,6 +486,9 @@ OfflineEmResult runOfflineEmMrf(const ObservationSequences& sequences, const Obs
   std::size_t iteration = 0;
   bool converged = false;
   const double w = config.prior_weight;
+  // An M-step need not be exact, only gain (generalised EM): Newton stops once its next step
+  // would add less than 1 % of the gain at which EM itself stops. Tolerance 0 solves exactly.
+  const double newton_gain_tolerance = 0.01 * config.tolerance * static_cast<double>(cells);
   while (iteration < static_cast<std::size_t>(config.max_iterations)) {
     MrfMapProblem occ;
     MrfMapProblem free;
@@ -452,7 +515,7 @@ OfflineEmResult runOfflineEmMrf(const ObservationSequences& sequences, const Obs
       try {
         other.emplace([&]() {
           try {
-            newton[1] = maximizeMrfMap(free, logit_free);
+            newton[1] = maximizeMrfMap(free, logit_free, kMaxNewtonIterations, newton_gain_tolerance);
           } catch (...) {
             failure = std::current_exception();
           }
@@ -463,7 +526,7 @@ OfflineEmResult runOfflineEmMrf(const ObservationSequences& sequences, const Obs
     }
     if (other) {
       try {
-        newton[0] = maximizeMrfMap(occ, logit_occ);
+        newton[0] = maximizeMrfMap(occ, logit_occ, kMaxNewtonIterations, newton_gain_tolerance);
       } catch (...) {
         other->join();
         throw;
@@ -471,8 +534,8 @@ OfflineEmResult runOfflineEmMrf(const ObservationSequences& sequences, const Obs
       other->join();
       if (failure) std::rethrow_exception(failure);
     } else {
-      newton[0] = maximizeMrfMap(occ, logit_occ);
-      newton[1] = maximizeMrfMap(free, logit_free);
+      newton[0] = maximizeMrfMap(occ, logit_occ, kMaxNewtonIterations, newton_gain_tolerance);
+      newton[1] = maximizeMrfMap(free, logit_free, kMaxNewtonIterations, newton_gain_tolerance);
     }
     result.mrf_newton_iterations.push_back(newton);
     // The logit bounds are the probability bounds; the clamp only removes rounding.
@@ -537,7 +600,7 @@ OfflineEmResult runOfflineEm(const ObservationSequences& sequences, const Observ
     for (std::size_t cell = first; cell < last; ++cell) {
       const StepObservation* begin = sequences.begin(cell);
       const StepObservation* end = sequences.end(cell);
-      prepare(begin, end, sensor, scratch.observations);
+      prepare(begin, end, sensor, scratch);
       TransitionParams params = config.initial_params;
       ForwardBackwardResult pass = forwardBackwardPrepared(scratch, params, config.initial_p_occ);
       double objective = pass.log_likelihood + logPrior(params, config);

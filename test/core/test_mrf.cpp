@@ -213,6 +213,29 @@ TEST(MaximizeMrfMap, ACellWithoutEvidenceTakesItsNeighboursMean) {
   EXPECT_NEAR(sigmoid(l[2]), 0.5, 0.01);
 }
 
+// With a gain tolerance Newton stops once its next step would gain at most that much: fewer
+// iterations, and an objective within the tolerance of the exact maximum (the last step
+// predicted at most the tolerance and was taken). A solver that ignored the tolerance would
+// use as many iterations as the exact one; one that stopped before taking that step, or
+// measured the gain wrongly, would end further from the maximum.
+TEST(MaximizeMrfMap, GainToleranceStopsEarlyWithinTheTolerance) {
+  for (unsigned seed = 1; seed <= 5; ++seed) {
+    const RandomProblem p = randomProblem(seed, 1.0 / 50.0, 12, 9);
+    std::vector<double> exact(p.cells.size(), 0.0);
+    const int exact_iterations = dog::maximizeMrfMap(p.problem, exact);
+    const double best = dog::mrfMapObjective(p.problem, exact);
+    for (const double tolerance : {1e-2, 1.0}) {
+      std::vector<double> early(p.cells.size(), 0.0);
+      const int iterations = dog::maximizeMrfMap(p.problem, early, 100, tolerance);
+      EXPECT_LT(iterations, exact_iterations) << "seed " << seed << " tolerance " << tolerance;
+      EXPECT_GE(iterations, 1);
+      const double gap = best - dog::mrfMapObjective(p.problem, early);
+      EXPECT_GE(gap, -1e-9);
+      EXPECT_LE(gap, tolerance) << "seed " << seed;
+    }
+  }
+}
+
 TEST(MaximizeMrfMap, RejectsBadInput) {
   const RandomProblem p = randomProblem(1, 0.1);
   std::vector<double> wrong_size(2, 0.0);
@@ -224,6 +247,9 @@ TEST(MaximizeMrfMap, RejectsBadInput) {
   dog::MrfMapProblem unbounded = p.problem;
   unbounded.hi = std::numeric_limits<double>::infinity();
   EXPECT_THROW(dog::maximizeMrfMap(unbounded, l), std::invalid_argument);
+  EXPECT_THROW(dog::maximizeMrfMap(p.problem, l, 100, -1e-3), std::invalid_argument);
+  EXPECT_THROW(dog::maximizeMrfMap(p.problem, l, 100, std::numeric_limits<double>::infinity()), std::invalid_argument);
+  EXPECT_THROW(dog::maximizeMrfMap(p.problem, l, 100, std::numeric_limits<double>::quiet_NaN()), std::invalid_argument);
 }
 
 // ---- offline EM with the MRF ----------------------------------------------------------
