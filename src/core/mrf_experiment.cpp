@@ -56,6 +56,7 @@ MrfEmOutcome runEm(const ObservationSequences& sequences, const ObservationModel
   MrfEmOutcome outcome;
   outcome.em_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   outcome.rmse = transitionRmse(sequences, result.params, world, sparse_below);
+  outcome.rmse_by_kind = transitionRmseByKind(sequences, result.params, world, sparse_below);
   // objective holds the value before the first M-step and after each one.
   outcome.em_iterations = static_cast<int>(result.objective.size()) - 1;
   outcome.objective = std::move(result.objective);
@@ -116,10 +117,10 @@ Run runRepetition(const ScenarioConfig& scenario, const MrfExperimentConfig& con
   return run;
 }
 
-}  // namespace
-
-SplitRmse transitionRmse(const ObservationSequences& sequences, const std::vector<TransitionParams>& learned,
-                         const World& world, std::size_t sparse_below) {
+// The RMSE over the cells for which `include` holds, split by observed steps.
+template <typename Include>
+SplitRmse splitRmse(const ObservationSequences& sequences, const std::vector<TransitionParams>& learned,
+                    const World& world, std::size_t sparse_below, const Include& include) {
   if (learned.size() != sequences.cellCount()) {
     throw std::invalid_argument("transitionRmse: " + std::to_string(learned.size()) + " learned parameters for " +
                                 std::to_string(sequences.cellCount()) + " cells");
@@ -132,6 +133,7 @@ SplitRmse transitionRmse(const ObservationSequences& sequences, const std::vecto
       throw std::invalid_argument("transitionRmse: cell (" + std::to_string(xy.x) + ", " + std::to_string(xy.y) +
                                   ") is outside the world");
     }
+    if (!include(xy)) continue;
     const TransitionParams truth = world.truth(xy.x, xy.y);
     const auto observed = static_cast<std::size_t>(sequences.end(c) - sequences.begin(c));
     SquaredErrors& errors = observed < sparse_below ? sparse : well_observed;
@@ -142,6 +144,43 @@ SplitRmse transitionRmse(const ObservationSequences& sequences, const std::vecto
     ++errors.cells;
   }
   return SplitRmse{sparse.rmse(), well_observed.rmse()};
+}
+
+}  // namespace
+
+SplitRmse transitionRmse(const ObservationSequences& sequences, const std::vector<TransitionParams>& learned,
+                         const World& world, std::size_t sparse_below) {
+  return splitRmse(sequences, learned, world, sparse_below, [](const CellXY&) { return true; });
+}
+
+CellKind cellKind(const World& world, std::int32_t x, std::int32_t y) {
+  const TransitionParams truth = world.truth(x, y);
+  if (truth.p_occ_given_free != 0.0 || truth.p_free_given_occ != 0.0) return CellKind::kChanging;
+  return world.occupied(x, y) ? CellKind::kStaticOccupied : CellKind::kStaticFree;
+}
+
+const char* cellKindName(CellKind kind) {
+  switch (kind) {
+    case CellKind::kStaticFree:
+      return "static_free";
+    case CellKind::kStaticOccupied:
+      return "static_occupied";
+    case CellKind::kChanging:
+      return "changing";
+  }
+  return "unknown";
+}
+
+std::array<SplitRmse, kCellKinds> transitionRmseByKind(const ObservationSequences& sequences,
+                                                        const std::vector<TransitionParams>& learned,
+                                                        const World& world, std::size_t sparse_below) {
+  std::array<SplitRmse, kCellKinds> by_kind;
+  for (std::size_t k = 0; k < kCellKinds; ++k) {
+    by_kind[k] = splitRmse(sequences, learned, world, sparse_below, [&](const CellXY& xy) {
+      return static_cast<std::size_t>(cellKind(world, xy.x, xy.y)) == k;
+    });
+  }
+  return by_kind;
 }
 
 void MrfExperimentConfig::validate() const {

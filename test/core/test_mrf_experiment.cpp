@@ -54,6 +54,55 @@ TEST(TransitionRmse, SplitsBySampleCountAndAveragesSquares) {
   EXPECT_THROW(transitionRmse(sequences, learned, small, 3), std::invalid_argument);
 }
 
+TEST(TransitionRmse, PerKindOfCell) {
+  World world(4, 1, 1.0);
+  world.setScheduled(0, 0, TransitionParams{0.1, 0.2}, true);
+  world.setScheduled(1, 0, TransitionParams{0.3, 0.3}, false);
+  world.setStatic(2, 0, false);
+  world.setStatic(3, 0, true);
+  EXPECT_EQ(cellKind(world, 0, 0), CellKind::kChanging);
+  EXPECT_EQ(cellKind(world, 1, 0), CellKind::kChanging);
+  EXPECT_EQ(cellKind(world, 2, 0), CellKind::kStaticFree);
+  EXPECT_EQ(cellKind(world, 3, 0), CellKind::kStaticOccupied);
+  // A changing cell stays changing in either state.
+  world.setState(1, 0, true);
+  EXPECT_EQ(cellKind(world, 1, 0), CellKind::kChanging);
+  EXPECT_STREQ(cellKindName(CellKind::kStaticOccupied), "static_occupied");
+
+  SequenceBuilder builder;
+  for (const std::int32_t step : {0, 5}) {  // sparse (below 3)
+    builder.add(0, 0, step, 1, 0);
+    builder.add(2, 0, step, 0, 1);
+  }
+  for (const std::int32_t step : {1, 2, 7}) {  // well observed
+    builder.add(1, 0, step, 0, 1);
+    builder.add(3, 0, step, 1, 0);
+  }
+  const ObservationSequences sequences = builder.build();
+  // Order of first appearance: (0,0), (2,0), (1,0), (3,0).
+  const std::vector<TransitionParams> learned{{0.1, 0.5}, {0.03, 0.04}, {0.2, 0.3}, {0.02, 0.01}};
+  const std::array<SplitRmse, kCellKinds> by_kind = transitionRmseByKind(sequences, learned, world, 3);
+  const SplitRmse& changing = by_kind[static_cast<std::size_t>(CellKind::kChanging)];
+  EXPECT_EQ(changing.sparse.cells, 1U);
+  EXPECT_NEAR(changing.sparse.p_occ_given_free, 0.0, 1e-15);
+  EXPECT_NEAR(changing.sparse.p_free_given_occ, 0.3, 1e-15);
+  EXPECT_EQ(changing.well_observed.cells, 1U);
+  EXPECT_NEAR(changing.well_observed.p_occ_given_free, 0.1, 1e-15);
+  EXPECT_NEAR(changing.well_observed.p_free_given_occ, 0.0, 1e-15);
+  const SplitRmse& free = by_kind[static_cast<std::size_t>(CellKind::kStaticFree)];
+  EXPECT_EQ(free.sparse.cells, 1U);
+  EXPECT_NEAR(free.sparse.p_occ_given_free, 0.03, 1e-15);
+  EXPECT_NEAR(free.sparse.p_free_given_occ, 0.04, 1e-15);
+  EXPECT_EQ(free.well_observed.cells, 0U);
+  const SplitRmse& occupied = by_kind[static_cast<std::size_t>(CellKind::kStaticOccupied)];
+  EXPECT_EQ(occupied.sparse.cells, 0U);
+  EXPECT_EQ(occupied.well_observed.cells, 1U);
+  EXPECT_NEAR(occupied.well_observed.p_occ_given_free, 0.02, 1e-15);
+  EXPECT_NEAR(occupied.well_observed.p_free_given_occ, 0.01, 1e-15);
+
+  EXPECT_THROW(transitionRmseByKind(sequences, {learned[0]}, world, 3), std::invalid_argument);
+}
+
 // A short version of the scenario (5 of its 20 loops) keeps the tests quick.
 ScenarioConfig shortScenario() {
   ScenarioConfig scenario = scenarioConfig("mrf_squares");
@@ -68,6 +117,14 @@ void expectSameOutcome(const MrfEmOutcome& a, const MrfEmOutcome& b) {
   EXPECT_EQ(a.rmse.well_observed.cells, b.rmse.well_observed.cells);
   EXPECT_EQ(a.rmse.well_observed.p_occ_given_free, b.rmse.well_observed.p_occ_given_free);
   EXPECT_EQ(a.rmse.well_observed.p_free_given_occ, b.rmse.well_observed.p_free_given_occ);
+  for (std::size_t k = 0; k < kCellKinds; ++k) {
+    for (const auto& [x, y] : {std::make_pair(a.rmse_by_kind[k].sparse, b.rmse_by_kind[k].sparse),
+                               std::make_pair(a.rmse_by_kind[k].well_observed, b.rmse_by_kind[k].well_observed)}) {
+      EXPECT_EQ(x.cells, y.cells);
+      EXPECT_EQ(x.p_occ_given_free, y.p_occ_given_free);
+      EXPECT_EQ(x.p_free_given_occ, y.p_free_given_occ);
+    }
+  }
   EXPECT_EQ(a.em_iterations, b.em_iterations);
   EXPECT_EQ(a.objective, b.objective);
   EXPECT_EQ(a.newton_iterations, b.newton_iterations);

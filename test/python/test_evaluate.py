@@ -37,8 +37,8 @@ class EvaluateTool(unittest.TestCase):
     def test_writes_the_tables_and_the_summary(self):
         self.assertEqual(self.rc, 0, self.stderr)
         for name in ["accuracy_dynamic_5_5.csv", "accuracy_redraw_100.csv", "parameter_error.csv",
-                     "path_planning.csv", "mrf_rmse.csv", "mrf_iterations.csv", "mrf_maps.csv",
-                     "memory_navigation.csv", "summary.md"]:
+                     "path_planning.csv", "mrf_rmse.csv", "mrf_rmse_by_kind.csv", "mrf_iterations.csv",
+                     "mrf_maps.csv", "memory_navigation.csv", "summary.md"]:
             self.assertTrue(os.path.isfile(os.path.join(self.out, name)), name)
         self.assertIn("## Targets", self.stdout)
         self.assertIn(self.out, self.stdout)
@@ -51,6 +51,9 @@ class EvaluateTool(unittest.TestCase):
         for cells in ("sparse", "well observed"):
             for parameter in ("p_occ_given_free", "p_free_given_occ"):
                 self.assertIn(f"| {cells} | {parameter} |", summary)
+        for kind in ("static_free", "static_occupied", "changing"):
+            for cells in ("sparse", "well observed"):
+                self.assertIn(f"| {kind} | {cells} |", summary)
         for target in ("MRF: sparse-cell RMSE ≥ 30 % lower than plain EM", "MRF: well-observed RMSE no higher",
                        "MRF: EM time ≤ 5× plain EM"):
             self.assertIn(f"| {target}", summary)
@@ -98,6 +101,24 @@ class EvaluateTool(unittest.TestCase):
                         self.assertGreater(value, 0.0)
                         self.assertLess(value, 0.5)  # the EM's bound on the learned probabilities
         self.assertNotEqual(rows[0]["run_seed"], rows[2]["run_seed"])
+
+        # Per kind of cell: the kinds partition each run's cells, and their squared errors add
+        # up to the whole set's.
+        with open(os.path.join(self.out, "mrf_rmse_by_kind.csv")) as file:
+            by_kind = list(csv.DictReader(file))
+        self.assertEqual(len(by_kind), 2 * 2 * 3 * 2)
+        for row in rows:
+            for cells in ("sparse", "well_observed"):
+                mine = [k for k in by_kind if (k["repetition"], k["method"], k["observed"]) ==
+                        (row["repetition"], row["method"], cells)]
+                self.assertEqual(sorted(k["kind"] for k in mine), ["changing", "static_free", "static_occupied"])
+                total = int(row[f"{cells}_cells"])
+                self.assertEqual(sum(int(k["cells"]) for k in mine), total)
+                for parameter in ("p_occ_given_free", "p_free_given_occ"):
+                    squares = sum(int(k["cells"]) * float(k[f"{parameter}_rmse"]) ** 2 for k in mine)
+                    self.assertAlmostEqual(squares, total * float(row[f"{cells}_{parameter}_rmse"]) ** 2, places=5)
+        # The squares' cells are seen.
+        self.assertGreater(sum(int(k["cells"]) for k in by_kind if k["kind"] == "changing"), 0)
 
         with open(os.path.join(self.out, "mrf_iterations.csv")) as file:
             iterations = list(csv.DictReader(file))
@@ -180,7 +201,8 @@ class EvaluateTool(unittest.TestCase):
         rc, _, stderr = evaluate(["--out", again, "--scenarios", "none", "--path-repetitions", "0",
                                   "--mrf-repetitions", "2", "--memory-repetitions", "0", "--threads", "1"])
         self.assertEqual(rc, 0, stderr)
-        self.assertEqual(sorted(os.listdir(again)), ["mrf_iterations.csv", "mrf_maps.csv", "mrf_rmse.csv", "summary.md"])
+        self.assertEqual(sorted(os.listdir(again)), ["mrf_iterations.csv", "mrf_maps.csv", "mrf_rmse.csv",
+                                                     "mrf_rmse_by_kind.csv", "summary.md"])
         for name in ("mrf_maps.csv", "mrf_iterations.csv"):
             with open(os.path.join(self.out, name)) as a, open(os.path.join(again, name)) as b:
                 self.assertEqual(a.read(), b.read(), name)
@@ -190,6 +212,22 @@ class EvaluateTool(unittest.TestCase):
             with open(os.path.join(directory, "mrf_rmse.csv")) as file:
                 tables.append([{k: v for k, v in row.items() if k != "em_seconds"} for row in csv.DictReader(file)])
         self.assertEqual(tables[0], tables[1])
+
+    def test_mrf_temperature_option(self):
+        # Another T changes the MRF's maps only: plain EM's rows stay as they were.
+        again = os.path.join(self.tmp.name, "mrf_t5")
+        rc, _, stderr = evaluate(["--out", again, "--scenarios", "none", "--path-repetitions", "0",
+                                  "--mrf-repetitions", "2", "--mrf-temperature", "5", "--memory-repetitions", "0",
+                                  "--threads", "2"])
+        self.assertEqual(rc, 0, stderr)
+        with open(os.path.join(again, "summary.md")) as file:
+            self.assertIn("with the MRF prior at T = 5.", file.read())
+        tables = []
+        for directory in (self.out, again):
+            with open(os.path.join(directory, "mrf_rmse_by_kind.csv")) as file:
+                tables.append(list(csv.DictReader(file)))
+        self.assertEqual([r for r in tables[0] if r["method"] == "plain"], [r for r in tables[1] if r["method"] == "plain"])
+        self.assertNotEqual([r for r in tables[0] if r["method"] == "mrf"], [r for r in tables[1] if r["method"] == "mrf"])
 
     def test_memory_same_seed_same_numbers_on_any_threads(self):
         again = os.path.join(self.tmp.name, "memory_again")
@@ -209,6 +247,8 @@ class EvaluateTool(unittest.TestCase):
         self.assertIn("dynamic_5_5", stderr)  # lists the names
         for args in (["--repetitions", "0"], ["--repetitions", "3000000000"], ["--scenarios", "door"],
                      ["--scenarios", "mrf_squares"], ["--mrf-repetitions", "-1"], ["--mrf-repetitions", "x"],
+                     ["--mrf-temperature", "0"], ["--mrf-temperature", "-5"], ["--mrf-temperature", "nan"],
+                     ["--mrf-temperature", "inf"], ["--mrf-temperature", "5x"],
                      ["--scenarios", "dynamic_5_5,dynamic_5_5"],
                      ["--scenarios", "dividers"], ["--memory-repetitions", "-1"],
                      ["--scenarios", "none", "--path-repetitions", "0", "--mrf-repetitions", "0",

@@ -38,6 +38,22 @@ struct SplitRmse {
 SplitRmse transitionRmse(const ObservationSequences& sequences, const std::vector<TransitionParams>& learned,
                          const World& world, std::size_t sparse_below);
 
+/// What a cell of the world is, for scoring by kind: its parameters are identifiable from
+/// its data only where both states occur. A static free cell is never occupied, so its
+/// p_free_given_occ is not (its learned value is the prior's and the chain start's); a static
+/// occupied cell's p_occ_given_free likewise.
+enum class CellKind { kStaticFree = 0, kStaticOccupied = 1, kChanging = 2 };
+constexpr std::size_t kCellKinds = 3;
+/// kChanging where world.truth(x, y) is not {0, 0}, else the static cell's state.
+CellKind cellKind(const World& world, std::int32_t x, std::int32_t y);
+/// Short names: "static_free", "static_occupied", "changing".
+const char* cellKindName(CellKind kind);
+
+/// transitionRmse over the cells of each kind separately (index: CellKind).
+std::array<SplitRmse, kCellKinds> transitionRmseByKind(const ObservationSequences& sequences,
+                                                        const std::vector<TransitionParams>& learned,
+                                                        const World& world, std::size_t sparse_below);
+
 struct MrfExperimentConfig {
   int repetitions = 10;
   std::uint64_t seed = 1;   ///< repetition r's seeds are derived from (seed, r)
@@ -55,6 +71,7 @@ struct MrfExperimentConfig {
 /// One EM (plain or with the MRF) on one run.
 struct MrfEmOutcome {
   SplitRmse rmse;
+  std::array<SplitRmse, kCellKinds> rmse_by_kind;  ///< the same per CellKind
   double em_seconds = 0.0;   ///< wall time of runOfflineEm (single-threaded)
   int em_iterations = 0;     ///< M-steps (plain EM: the most any cell used)
   std::vector<double> objective;  ///< OfflineEmResult::objective
