@@ -164,7 +164,7 @@ double mrfMapObjectiveChange(const MrfMapProblem& problem, const std::vector<dou
 int maximizeMrfMap(const MrfMapProblem& problem, std::vector<double>& logits, int max_newton_iterations,
                    double gain_tolerance) {
   check(problem, logits);
-  if (!(gain_tolerance >= 0.0) || std::isinf(gain_tolerance)) {
+  if (!(std::isfinite(gain_tolerance) && gain_tolerance >= 0.0)) {
     throw std::invalid_argument("MRF: the gain tolerance must be finite and >= 0");
   }
   const std::size_t n = logits.size();
@@ -241,30 +241,31 @@ int maximizeMrfMap(const MrfMapProblem& problem, std::vector<double>& logits, in
       for (std::size_t i = 0; i < n; ++i) direction[i] = preconditioned[i] + beta * direction[i];
     }
     // Converged when the Newton step itself (coupling included, so a shift of all logits
-    // together, which costs no smoothing, is measured right) is below 1e-6 in logits; that
-    // last step is still taken, which with Newton's quadratic convergence leaves an error
-    // far below it. An M-step inside EM needs no more: the next E-step moves the counts.
+    // together, which costs no smoothing, is measured right) is below 1e-6 in logits, or when
+    // the gain it predicts is at most gain_tolerance; that last step is still taken, which
+    // with Newton's quadratic convergence leaves an error far below it. An M-step inside EM
+    // needs no more: the next E-step moves the counts.
     double largest_step = 0.0;
-    double predicted_gain = 0.0;  // of the full Newton step on the quadratic model: g.s / 2
+    // The step's gain on the quadratic model, g.s / 2 (= s.(-H)s / 2 on the free variables,
+    // CG starting from 0): for an inexact CG step a lower bound of the full Newton step's.
+    double predicted_gain = 0.0;
     for (std::size_t i = 0; i < n; ++i) {
       largest_step = std::max(largest_step, std::abs(step[i]));
       predicted_gain += 0.5 * gradient[i] * step[i];
     }
     if (largest_step <= 1e-13) break;
-    const bool last = largest_step <= 1e-6 || predicted_gain <= gain_tolerance;
+    const bool last = largest_step <= 1e-6 || (gain_tolerance > 0.0 && predicted_gain <= gain_tolerance);
     forcing = std::min(0.1, largest_step);
     ++iteration;
-    if (last) {
-      if (line_search(gradient)) logits.swap(trial);
-      break;
-    }
-    if (!line_search(gradient)) {
+    bool gained = line_search(gradient);
+    if (!gained) {
       // The Newton direction found no gain (rounding, or a degenerate system): fall back to
       // the preconditioned gradient once before giving up.
       precondition(gradient, step);
-      if (!line_search(gradient)) break;
+      gained = line_search(gradient);
     }
-    logits.swap(trial);
+    if (gained) logits.swap(trial);
+    if (!gained || last) break;
   }
   return iteration;
 }

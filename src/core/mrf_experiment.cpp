@@ -154,6 +154,10 @@ SplitRmse transitionRmse(const ObservationSequences& sequences, const std::vecto
 }
 
 CellKind cellKind(const World& world, std::int32_t x, std::int32_t y) {
+  if (!world.inside(x, y)) {
+    throw std::invalid_argument("cellKind: cell (" + std::to_string(x) + ", " + std::to_string(y) +
+                                ") is outside the world");
+  }
   const TransitionParams truth = world.truth(x, y);
   if (truth.p_occ_given_free != 0.0 || truth.p_free_given_occ != 0.0) return CellKind::kChanging;
   return world.occupied(x, y) ? CellKind::kStaticOccupied : CellKind::kStaticFree;
@@ -185,8 +189,8 @@ std::array<SplitRmse, kCellKinds> transitionRmseByKind(const ObservationSequence
 
 void MrfExperimentConfig::validate() const {
   if (repetitions <= 0) throw std::invalid_argument("runMrfExperiment: repetitions must be positive");
-  if (!(temperature > 0.0) || !std::isfinite(temperature)) {
-    throw std::invalid_argument("runMrfExperiment: temperature must be positive and finite");
+  if (!(temperature >= kMinMrfTemperature) || !std::isfinite(temperature)) {
+    throw std::invalid_argument("runMrfExperiment: temperature must be finite and >= 1e-9 (as offline EM's)");
   }
   if (sparse_below == 0) throw std::invalid_argument("runMrfExperiment: sparse_below must be positive");
   if (max_iterations <= 0 || max_iterations > std::numeric_limits<std::uint16_t>::max()) {

@@ -66,30 +66,27 @@ ScaledLikelihood scaledLikelihood(std::uint32_t hits, std::uint32_t misses, cons
 // a few (hits, misses) pairs, and MRF EM prepares every cell in every iteration.
 constexpr std::uint32_t kTabulatedCounts = 32;
 
-// Per-thread buffers, reused from cell to cell.
+// Per-thread buffers for one sensor, reused from cell to cell.
 struct Scratch {
+  explicit Scratch(const ObservationModel& sensor)
+      : log_hit{std::log(sensor.pHitGivenOcc()), std::log(sensor.pHitGivenFree())},
+        log_miss{std::log1p(-sensor.pHitGivenOcc()), std::log1p(-sensor.pHitGivenFree())},
+        table(kTabulatedCounts * kTabulatedCounts),
+        table_filled(kTabulatedCounts * kTabulatedCounts, 0) {}
+
   std::vector<Prepared> observations;
   std::vector<std::array<double, 2>> alpha;  // filtered (p(occ), p(free)) after observation k (0: start)
   std::vector<double> normaliser;            // c_k of the scaled forward pass
   std::vector<double> lambda_before;         // lambda^(L_k - 1) of each run
   std::vector<double> objective;             // per iteration, of the cell being run
-  // scaledLikelihood(hits, misses) at [hits * kTabulatedCounts + misses] for the sensor
-  // table_sensor (p_hit_given_occ, p_hit_given_free), where table_filled.
-  std::array<double, 2> table_sensor{0.0, 0.0};
+  double log_hit[2];                         // log p(hit | occ), log p(hit | free)
+  double log_miss[2];
+  // scaledLikelihood(hits, misses) at [hits * kTabulatedCounts + misses], where table_filled.
   std::vector<ScaledLikelihood> table;
   std::vector<char> table_filled;
 };
 
-void prepare(const StepObservation* begin, const StepObservation* end, const ObservationModel& sensor,
-             Scratch& scratch) {
-  const double log_hit[2] = {std::log(sensor.pHitGivenOcc()), std::log(sensor.pHitGivenFree())};
-  const double log_miss[2] = {std::log1p(-sensor.pHitGivenOcc()), std::log1p(-sensor.pHitGivenFree())};
-  const std::array<double, 2> model{sensor.pHitGivenOcc(), sensor.pHitGivenFree()};
-  if (scratch.table.empty() || scratch.table_sensor != model) {
-    scratch.table.assign(kTabulatedCounts * kTabulatedCounts, ScaledLikelihood{});
-    scratch.table_filled.assign(kTabulatedCounts * kTabulatedCounts, 0);
-    scratch.table_sensor = model;
-  }
+void prepare(const StepObservation* begin, const StepObservation* end, Scratch& scratch) {
   std::vector<Prepared>& out = scratch.observations;
   out.clear();
   std::int64_t previous = std::int64_t{begin->step} - 1;  // the chain starts the step before
@@ -98,12 +95,12 @@ void prepare(const StepObservation* begin, const StepObservation* end, const Obs
     if (it->hits < kTabulatedCounts && it->misses < kTabulatedCounts) {
       const std::size_t key = std::size_t{it->hits} * kTabulatedCounts + it->misses;
       if (!scratch.table_filled[key]) {
-        scratch.table[key] = scaledLikelihood(it->hits, it->misses, log_hit, log_miss);
+        scratch.table[key] = scaledLikelihood(it->hits, it->misses, scratch.log_hit, scratch.log_miss);
         scratch.table_filled[key] = 1;
       }
       b = scratch.table[key];
     } else {
-      b = scaledLikelihood(it->hits, it->misses, log_hit, log_miss);
+      b = scaledLikelihood(it->hits, it->misses, scratch.log_hit, scratch.log_miss);
     }
     out.push_back(Prepared{b.occ_larger ? 1.0 : b.smaller, b.occ_larger ? b.smaller : 1.0, b.log_scale,
                            std::int64_t{it->step} - previous});
@@ -345,8 +342,8 @@ ForwardBackwardResult forwardBackward(const StepObservation* begin, const StepOb
                                       const ObservationModel& sensor,
                                       const TransitionParams& params, double initial_p_occ) {
   if (begin == end) throw std::invalid_argument("forwardBackward: empty sequence");
-  Scratch scratch;
-  prepare(begin, end, sensor, scratch);
+  Scratch scratch(sensor);
+  prepare(begin, end, scratch);
   return forwardBackwardPrepared(scratch, params, initial_p_occ);
 }
 
@@ -366,7 +363,7 @@ void OfflineEmConfig::validate() const {
           "offline_em tolerance must be >= 0, got " + std::to_string(tolerance));
   // Below 1e-9 the coupling (2 / T per pair) swamps any evidence by 1e9 and more: the maps
   // are flat to rounding, and the solver's arithmetic degrades.
-  require(std::isfinite(mrf_temperature) && (mrf_temperature == 0.0 || mrf_temperature >= 1e-9),
+  require(std::isfinite(mrf_temperature) && (mrf_temperature == 0.0 || mrf_temperature >= kMinMrfTemperature),
           "offline_em mrf_temperature must be 0 (off) or >= 1e-9, got " + std::to_string(mrf_temperature));
   require(!(symmetric && mrf_temperature > 0.0),
           "offline_em mrf_temperature > 0 does not combine with symmetric: the MRF smooths p(occ -> occ) and "
@@ -407,7 +404,7 @@ double finiteLogit(double p) {
 
 double sigmoid(double x) { return x >= 0.0 ? 1.0 / (1.0 + std::exp(-x)) : std::exp(x) / (1.0 + std::exp(x)); }
 
-constexpr int kMaxNewtonIterations = 100;  // per M-step and map; Newton needs about 5
+constexpr int kMaxNewtonIterations = 100;  // per M-step and map; Newton needs 2 to 10
 
 // EM whose M-step is the joint MRF problem of mrf.h, one for p(occ -> occ) and one for
 // p(free -> free). The E-step is the plain one, cell by cell in parallel.
@@ -443,12 +440,12 @@ OfflineEmResult runOfflineEmMrf(const ObservationSequences& sequences, const Obs
     std::mutex failure_mutex;
     std::exception_ptr failure;
     const auto worker = [&]() {
-      Scratch scratch;
+      Scratch scratch(sensor);
       try {
         for (std::size_t chunk = next_chunk++; chunk < chunks; chunk = next_chunk++) {
           const std::size_t last = std::min(cells, (chunk + 1) * chunk_cells);
           for (std::size_t c = chunk * chunk_cells; c < last; ++c) {
-            prepare(sequences.begin(c), sequences.end(c), sensor, scratch);
+            prepare(sequences.begin(c), sequences.end(c), scratch);
             const ForwardBackwardResult pass = forwardBackwardPrepared(scratch, result.params[c], config.initial_p_occ);
             counts[c] = pass.counts;
             log_likelihood[c] = pass.log_likelihood;
@@ -486,9 +483,11 @@ OfflineEmResult runOfflineEmMrf(const ObservationSequences& sequences, const Obs
   std::size_t iteration = 0;
   bool converged = false;
   const double w = config.prior_weight;
-  // An M-step need not be exact, only gain (generalised EM): Newton stops once its next step
-  // would add less than 1 % of the gain at which EM itself stops. Tolerance 0 solves exactly.
-  const double newton_gain_tolerance = 0.01 * config.tolerance * static_cast<double>(cells);
+  // An M-step need not be exact, only gain (generalised EM): each map's Newton takes a step
+  // predicted to add less than 1 % of the gain at which EM itself stops, and stops there.
+  // Tolerance 0 solves every M-step exactly.
+  const double newton_gain_tolerance =
+      std::min(0.01 * config.tolerance * static_cast<double>(cells), std::numeric_limits<double>::max());
   while (iteration < static_cast<std::size_t>(config.max_iterations)) {
     MrfMapProblem occ;
     MrfMapProblem free;
@@ -600,7 +599,7 @@ OfflineEmResult runOfflineEm(const ObservationSequences& sequences, const Observ
     for (std::size_t cell = first; cell < last; ++cell) {
       const StepObservation* begin = sequences.begin(cell);
       const StepObservation* end = sequences.end(cell);
-      prepare(begin, end, sensor, scratch);
+      prepare(begin, end, scratch);
       TransitionParams params = config.initial_params;
       ForwardBackwardResult pass = forwardBackwardPrepared(scratch, params, config.initial_p_occ);
       double objective = pass.log_likelihood + logPrior(params, config);
@@ -641,7 +640,7 @@ OfflineEmResult runOfflineEm(const ObservationSequences& sequences, const Observ
   };
 
   const auto worker = [&]() {
-    Scratch scratch;
+    Scratch scratch(sensor);
     try {
       for (std::size_t chunk = next_chunk++; chunk < chunks && !cancelled; chunk = next_chunk++) {
         run_chunk(chunk, scratch);

@@ -42,7 +42,7 @@ const char* const kUsage =
     "                        scenario mrf_squares: offline EM with and without the MRF;\n"
     "                        default 10; 0 skips it)\n"
     "  --mrf-temperature T   the MRF's temperature T in that experiment (default 50, the\n"
-    "                        paper's; > 0, the lower the smoother)\n"
+    "                        paper's value; >= 1e-9, the lower the smoother)\n"
     "  --memory-repetitions N  seeds of the memory navigation experiment (Morris et al.,\n"
     "                        scenario dividers: static map, HMM grid, STM/LTM hypotheses;\n"
     "                        default 10; 0 skips it)\n"
@@ -82,7 +82,7 @@ long long parseInteger(const std::string& option, const std::string& text, long 
   return value;
 }
 
-double parsePositive(const std::string& option, const std::string& text) {
+double parseTemperature(const std::string& option, const std::string& text) {
   std::size_t used = 0;
   double value = 0.0;
   try {
@@ -90,8 +90,8 @@ double parsePositive(const std::string& option, const std::string& text) {
   } catch (const std::exception&) {
     used = 0;
   }
-  if (used != text.size() || text.empty() || !std::isfinite(value) || !(value > 0.0)) {
-    usageError(option + " needs a finite number > 0, got '" + text + "'");
+  if (used != text.size() || text.empty() || !std::isfinite(value) || !(value >= core::kMinMrfTemperature)) {
+    usageError(option + " needs a finite number >= 1e-9, got '" + text + "'");
   }
   return value;
 }
@@ -137,7 +137,7 @@ Options parseOptions(int argc, char** argv) {
     } else if (arg == "--mrf-repetitions") {
       options.mrf_repetitions = static_cast<int>(parseInteger(arg, value, 0, 100000));
     } else if (arg == "--mrf-temperature") {
-      options.mrf_temperature = parsePositive(arg, value);
+      options.mrf_temperature = parseTemperature(arg, value);
     } else if (arg == "--memory-repetitions") {
       options.memory_repetitions = static_cast<int>(parseInteger(arg, value, 0, 100000));
     } else if (arg == "--seed") {
@@ -415,13 +415,14 @@ std::string mrfSummary(const core::ScenarioConfig& scenario, const core::MrfExpe
       rows.push_back(row);
     }
   }
-  // Where the error is: per kind of cell. The sums of squares add up to the table above's;
-  // a parameter a kind never exercises is marked: its truth (0) is a convention.
-  text << "\nThe same per kind of cell (mrf_rmse_by_kind.csv). A static free cell is never occupied, so its "
-          "p_free_given_occ cannot be learned from its data (the prior and the chain's start set it); a static "
-          "occupied cell's p_occ_given_free likewise (marked *). Inside a square the cells are hidden behind its "
-          "faces while it is occupied, so they are observed only free: their data say \"static\" whatever the "
-          "square does.\n\n"
+  // Where the error is: per kind of cell, pooled over the seeds (a seed without cells of a
+  // kind adds nothing). A parameter a kind never exercises is marked: its truth (0) is a
+  // convention.
+  text << "\nThe same per kind of cell, pooled over the seeds (per seed in mrf_rmse_by_kind.csv). A static free "
+          "cell is never occupied, so its p_free_given_occ cannot be learned from its data (the prior and the "
+          "chain's start set it); a static occupied cell's p_occ_given_free likewise (marked *). While a square "
+          "is occupied its front face hides the rest of it: those cells are seen almost only free, and their data "
+          "say \"static\" whatever the square does.\n\n"
        << "| kind | cells | cells per run | p_occ_given_free plain | MRF | change | p_free_given_occ plain | MRF | "
           "change |\n|---|---|---|---|---|---|---|---|---|\n";
   for (std::size_t k = 0; k < core::kCellKinds; ++k) {
@@ -430,19 +431,27 @@ std::string mrfSummary(const core::ScenarioConfig& scenario, const core::MrfExpe
       const auto part = [k, sparse](const core::MrfEmOutcome& outcome) -> const core::TransitionRmse& {
         return sparse ? outcome.rmse_by_kind[k].sparse : outcome.rmse_by_kind[k].well_observed;
       };
-      const MeanStd cells = meanStd(values([&](const core::MrfRepetition& run) { return static_cast<double>(part(run.mrf).cells); }));
+      double cells = 0.0;
+      for (const core::MrfRepetition& run : result.repetitions) cells += static_cast<double>(part(run.mrf).cells);
       text << "| " << core::cellKindName(kind) << " | " << (sparse ? "sparse" : "well observed") << " | "
-           << fixed(cells.mean, 1);
+           << fixed(cells / static_cast<double>(result.repetitions.size()), 1);
       for (const bool occ_given_free : {true, false}) {
-        const auto of = [&](const core::MrfEmOutcome& outcome) {
-          return occ_given_free ? part(outcome).p_occ_given_free : part(outcome).p_free_given_occ;
+        // sqrt(sum over seeds of cells * rmse^2 / all cells); 0 without cells.
+        const auto pooled = [&](const core::MrfEmOutcome core::MrfRepetition::*method) {
+          double squares = 0.0;
+          for (const core::MrfRepetition& run : result.repetitions) {
+            const core::TransitionRmse& e = part(run.*method);
+            const double rmse = occ_given_free ? e.p_occ_given_free : e.p_free_given_occ;
+            squares += static_cast<double>(e.cells) * rmse * rmse;
+          }
+          return cells > 0.0 ? std::sqrt(squares / cells) : 0.0;
         };
-        const MeanStd plain = meanStd(values([&](const core::MrfRepetition& run) { return of(run.plain); }));
-        const MeanStd mrf = meanStd(values([&](const core::MrfRepetition& run) { return of(run.mrf); }));
-        const bool identifiable = occ_given_free ? kind != core::CellKind::kStaticOccupied : kind != core::CellKind::kStaticFree;
+        const double plain = pooled(&core::MrfRepetition::plain);
+        const double mrf = pooled(&core::MrfRepetition::mrf);
+        const bool identifiable =
+            occ_given_free ? kind != core::CellKind::kStaticOccupied : kind != core::CellKind::kStaticFree;
         const char* mark = identifiable ? "" : " *";
-        text << " | " << fixed(plain.mean, 4) << mark << " | " << fixed(mrf.mean, 4) << mark << " | "
-             << signedPercent(plain.mean, mrf.mean);
+        text << " | " << fixed(plain, 4) << mark << " | " << fixed(mrf, 4) << mark << " | " << signedPercent(plain, mrf);
       }
       text << " |\n";
     }

@@ -8,6 +8,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <limits>
 #include <stdexcept>
 
 namespace dynamic_occupancy_grid {
@@ -68,6 +69,8 @@ TEST(TransitionRmse, PerKindOfCell) {
   world.setState(1, 0, true);
   EXPECT_EQ(cellKind(world, 1, 0), CellKind::kChanging);
   EXPECT_STREQ(cellKindName(CellKind::kStaticOccupied), "static_occupied");
+  EXPECT_THROW(cellKind(world, 4, 0), std::invalid_argument);
+  EXPECT_THROW(cellKind(world, 0, -1), std::invalid_argument);
 
   SequenceBuilder builder;
   for (const std::int32_t step : {0, 5}) {  // sparse (below 3)
@@ -254,7 +257,8 @@ TEST(MrfExperiment, RejectsBadSettings) {
   config.repetitions = 0;
   EXPECT_THROW(runMrfExperiment(shortScenario(), config), std::invalid_argument);
   config.repetitions = 1;
-  for (const double temperature : {0.0, -1.0, std::nan("")}) {
+  // Offline EM's own lower bound: a temperature it would refuse is refused up front.
+  for (const double temperature : {0.0, -1.0, 1e-10, std::nan(""), std::numeric_limits<double>::infinity()}) {
     MrfExperimentConfig bad = config;
     bad.temperature = temperature;
     EXPECT_THROW(bad.validate(), std::invalid_argument) << temperature;

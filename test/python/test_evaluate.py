@@ -247,7 +247,8 @@ class EvaluateTool(unittest.TestCase):
         self.assertIn("dynamic_5_5", stderr)  # lists the names
         for args in (["--repetitions", "0"], ["--repetitions", "3000000000"], ["--scenarios", "door"],
                      ["--scenarios", "mrf_squares"], ["--mrf-repetitions", "-1"], ["--mrf-repetitions", "x"],
-                     ["--mrf-temperature", "0"], ["--mrf-temperature", "-5"], ["--mrf-temperature", "nan"],
+                     ["--mrf-temperature", "0"], ["--mrf-temperature", "1e-10"], ["--mrf-temperature", "-5"],
+                     ["--mrf-temperature", "nan"],
                      ["--mrf-temperature", "inf"], ["--mrf-temperature", "5x"],
                      ["--scenarios", "dynamic_5_5,dynamic_5_5"],
                      ["--scenarios", "dividers"], ["--memory-repetitions", "-1"],

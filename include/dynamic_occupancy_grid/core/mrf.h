@@ -54,12 +54,13 @@ double mrfMapObjectiveChange(const MrfMapProblem& problem, const std::vector<dou
 
 /// Maximises F from `logits` (clamped to the bounds first) and leaves the maximiser there;
 /// returns the Newton iterations used (at most max_newton_iterations). Stops after taking a
-/// Newton step below 1e-6 in logits (quadratic convergence leaves far less), or one whose
-/// predicted gain (the Newton decrement, gradient . step / 2) is at most `gain_tolerance`
-/// nats (0: never; EM's M-step needs no more than a fraction of EM's own tolerance), or when
-/// neither it nor the preconditioned gradient gains any more (rounding). Throws
+/// Newton step below 1e-6 in logits (quadratic convergence leaves far less), or, with
+/// gain_tolerance > 0, one whose predicted gain on the quadratic model (gradient . step / 2,
+/// for the inexact CG step a lower bound of the full Newton step's) is at most
+/// gain_tolerance nats (EM's M-step needs no more than a fraction of EM's own tolerance), or
+/// when neither it nor the preconditioned gradient gains any more (rounding). Throws
 /// std::invalid_argument for inconsistent sizes, negative counts, bounds that are not finite
-/// and ordered, or a negative or infinite gain tolerance.
+/// and ordered, or a gain tolerance that is negative or not finite.
 int maximizeMrfMap(const MrfMapProblem& problem, std::vector<double>& logits, int max_newton_iterations = 100,
                    double gain_tolerance = 0.0);
 

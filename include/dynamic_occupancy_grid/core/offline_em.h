@@ -96,6 +96,9 @@ ForwardBackwardResult forwardBackward(const StepObservation* begin, const StepOb
                                       const ObservationModel& sensor,
                                       const TransitionParams& params, double initial_p_occ);
 
+/// The lowest MRF temperature accepted (OfflineEmConfig::mrf_temperature, other than 0 = off).
+constexpr double kMinMrfTemperature = 1e-9;
+
 struct OfflineEmConfig {
   /// p(occ) the step before a cell's first observation (as the Mapper's initial_p_occ).
   double initial_p_occ = 0.5;
