@@ -1,5 +1,7 @@
 #include "dynamic_occupancy_grid/core/offline_em.h"
 
+#include "repetitions.h"
+
 #include "dynamic_occupancy_grid/core/mrf.h"
 
 #include <algorithm>
@@ -440,8 +442,8 @@ OfflineEmResult runOfflineEmMrf(const ObservationSequences& sequences, const Obs
     std::mutex failure_mutex;
     std::exception_ptr failure;
     const auto worker = [&]() {
-      Scratch scratch(sensor);
       try {
+        Scratch scratch(sensor);
         for (std::size_t chunk = next_chunk++; chunk < chunks; chunk = next_chunk++) {
           const std::size_t last = std::min(cells, (chunk + 1) * chunk_cells);
           for (std::size_t c = chunk * chunk_cells; c < last; ++c) {
@@ -458,14 +460,7 @@ OfflineEmResult runOfflineEmMrf(const ObservationSequences& sequences, const Obs
         next_chunk = chunks;
       }
     };
-    std::vector<std::thread> threads;
-    try {
-      for (std::size_t t = 1; t < thread_count; ++t) threads.emplace_back(worker);
-    } catch (const std::system_error&) {
-      // No more threads to be had: the ones started and this one share the work.
-    }
-    worker();
-    for (std::thread& thread : threads) thread.join();
+    runOnThreads(thread_count, worker);
     if (failure) std::rethrow_exception(failure);
     // Summed in cell order: the same objective for any number of threads.
     double objective = 0.0;
@@ -640,8 +635,8 @@ OfflineEmResult runOfflineEm(const ObservationSequences& sequences, const Observ
   };
 
   const auto worker = [&]() {
-    Scratch scratch(sensor);
     try {
+      Scratch scratch(sensor);
       for (std::size_t chunk = next_chunk++; chunk < chunks && !cancelled; chunk = next_chunk++) {
         run_chunk(chunk, scratch);
       }
@@ -654,14 +649,7 @@ OfflineEmResult runOfflineEm(const ObservationSequences& sequences, const Observ
 
   const unsigned hardware = std::max(1U, std::thread::hardware_concurrency());
   const std::size_t thread_count = std::min<std::size_t>(config.threads == 0 ? hardware : config.threads, chunks);
-  std::vector<std::thread> threads;
-  try {
-    for (std::size_t t = 1; t < thread_count; ++t) threads.emplace_back(worker);
-  } catch (const std::system_error&) {
-    // No more threads to be had: the ones started and this one share the work.
-  }
-  worker();
-  for (std::thread& thread : threads) thread.join();
+  runOnThreads(thread_count, worker);
   if (failure) std::rethrow_exception(failure);
 
   result.cancelled = cancelled;

@@ -1,7 +1,7 @@
 #pragma once
-// Independent repetitions of an experiment on several threads (private to the core's
-// evaluation and path planning). Each repetition writes only its own slot, so results do
-// not depend on the number of threads.
+// Work on several threads, private to the core: runOnThreads (offline EM's workers) and
+// independent repetitions of an experiment (evaluation, path planning), where each
+// repetition writes only its own slot, so results do not depend on the number of threads.
 
 #include <algorithm>
 #include <atomic>
@@ -14,6 +14,20 @@
 
 namespace dynamic_occupancy_grid {
 namespace core {
+
+/// Runs worker() on this thread and on threads - 1 more (fewer if the system has no more to
+/// give), and returns when all have finished. The worker must not throw: it keeps its own
+/// first failure.
+inline void runOnThreads(std::size_t threads, const std::function<void()>& worker) {
+  std::vector<std::thread> pool;
+  try {
+    for (std::size_t i = 1; i < threads; ++i) pool.emplace_back(worker);
+  } catch (...) {
+    // No more threads to be had: the ones started and this one do the work.
+  }
+  worker();
+  for (std::thread& thread : pool) thread.join();
+}
 
 /// Runs job(r) for every r in [0, count) on `threads` threads (0 = one per core), calling
 /// progress(done) (optional) after each finished repetition, never concurrently. The first
@@ -42,14 +56,7 @@ inline void runRepetitions(std::size_t count, unsigned threads, const std::funct
   };
   if (threads == 0) threads = std::max(1U, std::thread::hardware_concurrency());
   threads = static_cast<unsigned>(std::min<std::size_t>(threads, count));
-  std::vector<std::thread> pool;
-  try {
-    for (unsigned i = 1; i < threads; ++i) pool.emplace_back(worker);
-  } catch (...) {
-    // No more threads to be had: the ones started and this one do the work.
-  }
-  worker();
-  for (std::thread& thread : pool) thread.join();
+  runOnThreads(threads, worker);
   if (first_error) std::rethrow_exception(first_error);
 }
 
