@@ -34,7 +34,7 @@ mkdir -p "$out_dir/example" "$out_dir/evaluation" "$out_dir/real"
 start=$(date +%s)
 
 # 1. The example: a simulated parking lot, mapped like any recording. The sensor model is
-# the scenario's (core/simulator.cpp: no more certain than the simulated laser).
+# the scenario's (evaluation/simulator.cpp: no more certain than the simulated laser).
 echo "demo: simulating the parking lot example ..."
 rosrun dynamic_occupancy_grid simulate --scenario parking_lot --seed 1 --out "$out_dir/example/parking_lot.bag"
 rosrun dynamic_occupancy_grid process_bag "$out_dir/example/parking_lot.bag" --out "$out_dir/example" \

@@ -37,7 +37,7 @@ matplotlib.use("Agg")  # files only: no display needed
 import matplotlib.pyplot as plt  # noqa: E402 (after the backend is chosen)
 from matplotlib.colors import LogNorm  # noqa: E402
 
-# The evaluation's methods (core/evaluation.h) and baselines, each with one colour in every plot.
+# The evaluation's methods (evaluation/evaluation.h) and baselines, each with one colour in every plot.
 ACCURACY_METHODS = (("static", "static"), ("static_unclamped", "static (unclamped)"), ("online", "online"),
                     ("offline", "offline"), ("oracle", "oracle"))
 PLANNING_METHODS = (("static", "static"), ("online", "online"), ("offline", "offline"), ("random", "random"),
@@ -60,7 +60,7 @@ PANEL_FIGURES = (
     ("fig4", "Fig. 4: accuracy for different configurations of dynamic cells", ("dynamic_5_5", "dynamic_25_25")),
     ("fig5", "Fig. 5: accuracy when the dynamics of the environment change", ("redraw_100", "redraw_300")),
 )
-PARKING_STEPS_PER_HOUR = 108  # the parking lot's cars change every 108 steps (core/simulator.cpp)
+PARKING_STEPS_PER_HOUR = 108  # the parking lot's cars change every 108 steps (evaluation/simulator.cpp)
 
 ACCURACY_COLUMNS = ("step",) + tuple(f"{name}_{stat}" for name, _ in ACCURACY_METHODS for stat in ("mean", "std"))
 PARAMETER_ERROR_TEXT = ("scenario", "method")

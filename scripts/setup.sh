@@ -22,6 +22,7 @@ export PATH=/usr/bin:/bin:$PATH
 # Xvfb, tf2 tools).
 common_packages=(
   build-essential cmake libeigen3-dev libgtest-dev googletest libbenchmark-dev liboctomap-dev
+  zlib1g-dev libboost-program-options-dev
   python3-numpy python3-matplotlib python3-pomegranate xvfb
 )
 debian_ros_packages=(
@@ -33,6 +34,8 @@ debian_ros_packages=(
   python3-sensor-msgs python3-nav-msgs python3-map-msgs python3-tf2-msgs python3-geometry-msgs
   python3-std-srvs python3-rospy python3-rosgraph-msgs python3-tf2-ros python3-roslib python3-rospkg
   python3-yaml libnodeletlib-tools rosbash rviz tf2-tools
+  libdiagnostic-updater-dev libdiagnostic-msgs-dev python3-diagnostic-msgs
+  libdynamic-reconfigure-config-init-mutex-dev python3-dynamic-reconfigure
 )
 noetic_ros_packages=(
   ros-noetic-catkin ros-noetic-roscpp ros-noetic-rosbag ros-noetic-tf2 ros-noetic-tf2-ros
@@ -40,6 +43,7 @@ noetic_ros_packages=(
   ros-noetic-map-msgs ros-noetic-geometry-msgs ros-noetic-std-srvs ros-noetic-nodelet
   ros-noetic-pluginlib ros-noetic-rostest ros-noetic-rosbash ros-noetic-rviz
   ros-noetic-message-generation ros-noetic-message-runtime ros-noetic-rospy ros-noetic-rosgraph-msgs
+  ros-noetic-diagnostic-updater ros-noetic-diagnostic-msgs ros-noetic-dynamic-reconfigure
   python3-catkin-pkg python3-yaml
 )
 

@@ -32,6 +32,12 @@ done
 
 # The core alone, built by plain CMake with no ROS anywhere, plus its include audit.
 standalone="$workspace/build/core_standalone"
+# A build made from another checkout (the workspace outlives clones) names that source tree
+# in its cache, and CMake refuses it: start that build afresh.
+if [ -f "$standalone/CMakeCache.txt" ] &&
+   ! grep -qxF "CMAKE_HOME_DIRECTORY:INTERNAL=$package_dir/test/core_standalone" "$standalone/CMakeCache.txt"; then
+  rm -rf "$standalone"
+fi
 if cmake -S "$package_dir/test/core_standalone" -B "$standalone" -DCMAKE_BUILD_TYPE=Release >/dev/null &&
    cmake --build "$standalone" -j2 >/dev/null; then
   (cd "$standalone" && ctest --output-on-failure --output-junit "$results_dir/core_standalone.xml") || status=1

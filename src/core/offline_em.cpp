@@ -1,6 +1,6 @@
 #include "dynamic_occupancy_grid/core/offline_em.h"
 
-#include "repetitions.h"
+#include "dynamic_occupancy_grid/core/parallel.h"
 
 #include "dynamic_occupancy_grid/core/mrf.h"
 

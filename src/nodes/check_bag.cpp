@@ -2,7 +2,7 @@
 // horizon h, how well the map after each time step predicts the hits and misses of the scans
 // h later: the dynamic model (beliefs predicted in closed form) against the static
 // occupancy grid of the same mapper. Reads the bag twice (labels, then maps and scores;
-// core/prediction_check.h). See docs/self_check.md.
+// evaluation/prediction_check.h). See docs/self_check.md.
 
 #include <unistd.h>
 
@@ -23,7 +23,7 @@
 #include "bag_tools.h"
 #include "dynamic_occupancy_grid/core/map_export.h"
 #include "dynamic_occupancy_grid/core/mapper.h"
-#include "dynamic_occupancy_grid/core/prediction_check.h"
+#include "dynamic_occupancy_grid/evaluation/prediction_check.h"
 #include "dynamic_occupancy_grid/ros/bag_offline_em.h"
 #include "dynamic_occupancy_grid/ros/bag_scan_source.h"
 

@@ -1,5 +1,5 @@
-// evaluate: the papers' experiments on simulated changing worlds (core/evaluation.h,
-// core/path_planning.h, core/mrf_experiment.h), written as CSV tables and a summary into one directory;
+// evaluate: the papers' experiments on simulated changing worlds (evaluation/evaluation.h,
+// evaluation/path_planning.h, evaluation/mrf_experiment.h), written as CSV tables and a summary into one directory;
 // scripts/plot_evaluation.py turns them into the papers' figures.
 #include <algorithm>
 #include <cerrno>
@@ -17,11 +17,11 @@
 #include <unistd.h>
 #include <vector>
 
-#include "dynamic_occupancy_grid/core/evaluation.h"
+#include "dynamic_occupancy_grid/evaluation/evaluation.h"
 #include "dynamic_occupancy_grid/core/map_export.h"
-#include "dynamic_occupancy_grid/core/memory_experiment.h"
-#include "dynamic_occupancy_grid/core/mrf_experiment.h"
-#include "dynamic_occupancy_grid/core/path_planning.h"
+#include "dynamic_occupancy_grid/evaluation/memory_experiment.h"
+#include "dynamic_occupancy_grid/evaluation/mrf_experiment.h"
+#include "dynamic_occupancy_grid/evaluation/path_planning.h"
 
 namespace core = dynamic_occupancy_grid::core;
 

@@ -1,4 +1,4 @@
-// simulate: writes a simulated run of one of the evaluation's scenarios (core/simulator.h)
+// simulate: writes a simulated run of one of the evaluation's scenarios (evaluation/simulator.h)
 // to a bag, as a robot would have recorded it, with the true state of the world next to the
 // scans, so that the bag tools and the mapping node can be run and checked on a world whose
 // truth is known. See README.md, "simulate".
@@ -33,7 +33,7 @@
 #include <tf2_msgs/TFMessage.h>
 
 #include "bag_tools.h"
-#include "dynamic_occupancy_grid/core/simulator.h"
+#include "dynamic_occupancy_grid/evaluation/simulator.h"
 
 namespace dog = dynamic_occupancy_grid;
 

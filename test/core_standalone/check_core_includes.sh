@@ -1,13 +1,24 @@
 #!/usr/bin/env bash
-# Usage: check_core_includes.sh CXX INCLUDE_DIR EIGEN_DIR FILE...
+# Usage: check_core_includes.sh CXX INCLUDE_DIR EIGEN_DIR LIBRARIES FILE...
 # Preprocesses each FILE with -H and fails if any header it includes, directly or
-# transitively, is something other than the core's own headers (public ones under
-# INCLUDE_DIR, private ones beside the sources in src/core), Eigen, or the C/C++
-# standard library (libc, libstdc++, Linux UAPI headers).
+# transitively, is something other than the headers of LIBRARIES (a comma-separated list of
+# folders under INCLUDE_DIR/dynamic_occupancy_grid, e.g. "core" or "core,evaluation", and
+# their private headers beside the sources in src/<folder>), Eigen, or the C/C++ standard
+# library (libc, libstdc++, Linux UAPI headers).
 set -euo pipefail
 cxx=$1 include_dir=$(realpath "$2") eigen_dir=$(realpath "$3")
-private_dir=$(realpath -m "$include_dir/../src/core")
-shift 3
+IFS=, read -r -a libraries <<<"$4"
+shift 4
+allowed() {  # is $1 a public or private header of one of the libraries?
+  local library
+  for library in "${libraries[@]}"; do
+    case "$1" in
+      "$include_dir"/dynamic_occupancy_grid/"$library"/*) return 0 ;;
+      "$(realpath -m "$include_dir/../src/$library")"/*.h) return 0 ;;
+    esac
+  done
+  return 1
+}
 status=0
 for file in "$@"; do
   if ! headers=$("$cxx" -std=c++17 -fsyntax-only -H -I"$include_dir" -I"$eigen_dir" -x c++ "$file" 2>&1 >/dev/null); then
@@ -15,9 +26,8 @@ for file in "$@"; do
   fi
   while read -r header; do
     path=$(realpath -m "$header")
+    allowed "$path" && continue                              # the libraries themselves
     case "$path" in
-      "$include_dir"/dynamic_occupancy_grid/core/*) ;;      # the core itself
-      "$private_dir"/*.h) ;;                                 # the core's private headers
       "$eigen_dir"/*) ;;                                     # Eigen
       /usr/include/c++/*|/usr/include/x86_64-linux-gnu/*|/usr/include/aarch64-linux-gnu/*) ;;
       /usr/lib/gcc/*|/usr/include/linux/*|/usr/include/asm-generic/*|/usr/include/asm/*) ;;
@@ -29,5 +39,5 @@ for file in "$@"; do
     esac
   done < <(printf '%s\n' "$headers" | sed -n 's/^\.\+ //p')
 done
-[ "$status" -eq 0 ] && echo "core includes: only the core, Eigen and the standard library ($# files)"
+[ "$status" -eq 0 ] && echo "includes: only ${libraries[*]}, Eigen and the standard library ($# files)"
 exit "$status"

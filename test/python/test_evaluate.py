@@ -15,7 +15,7 @@ PLOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "scr
 METHODS = ["static", "static_unclamped", "online", "offline", "oracle"]
 SMALL = ["--scenarios", "dynamic_5_5,redraw_100", "--repetitions", "2", "--path-repetitions", "2",
          "--path-runs", "4", "--mrf-repetitions", "2", "--memory-repetitions", "2", "--threads", "2"]
-MRF_WORLD = (46, 32)  # the mrf_squares scenario's cells (core/simulator.cpp)
+MRF_WORLD = (46, 32)  # the mrf_squares scenario's cells (evaluation/simulator.cpp)
 
 
 def evaluate(args):

@@ -39,7 +39,7 @@ from read_model import load_model  # noqa: E402 (scripts/ is on the path only no
 
 START_TIME_S = 1.0e9  # simulation time 0 in ROS time (simulate.cpp)
 SCENARIOS = ("dynamic_5_5", "dynamic_25_25", "redraw_100", "redraw_300", "parking_lot", "door", "mrf_squares", "dividers")
-# dynamic_5_5's configuration (core/simulator.cpp, scenarioConfig): what the data must show.
+# dynamic_5_5's configuration (evaluation/simulator.cpp, scenarioConfig): what the data must show.
 CHANGE_PROBABILITY = 0.05
 DYNAMIC_FRACTION = 0.05
 TIME_STEP_S = 1.0

@@ -1,4 +1,4 @@
-#include "dynamic_occupancy_grid/core/prediction_check.h"
+#include "dynamic_occupancy_grid/evaluation/prediction_check.h"
 
 #include <algorithm>
 #include <limits>

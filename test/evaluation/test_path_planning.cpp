@@ -1,9 +1,9 @@
-// Tests of the path planning experiment (core/path_planning.h): the hindsight classification
+// Tests of the path planning experiment (evaluation/path_planning.h): the hindsight classification
 // on hand-made door trajectories, the policies' behaviour where the right answer is known
 // (a door that never changes), the random policy's coin, the paper's table, and the
 // reproducibility the experiment promises (seeds, thread count, the other policies run).
 
-#include "dynamic_occupancy_grid/core/path_planning.h"
+#include "dynamic_occupancy_grid/evaluation/path_planning.h"
 
 #include <gtest/gtest.h>
 

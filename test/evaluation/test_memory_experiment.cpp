@@ -1,6 +1,6 @@
 // The memory experiment (memory_experiment.h): hypothesis re-weighting after a blocked plan,
 // the live layer, and small runs of the protocol on the dividers office.
-#include "dynamic_occupancy_grid/core/memory_experiment.h"
+#include "dynamic_occupancy_grid/evaluation/memory_experiment.h"
 
 #include <gtest/gtest.h>
 

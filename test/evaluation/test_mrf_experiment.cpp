@@ -3,7 +3,7 @@
 // run is the smoothed one. Whether the MRF meets the targets is what `evaluate`
 // measures and reports; it is not asserted here (on this scenario it does not hold for both
 // parameters, see the evaluation's summary).
-#include "dynamic_occupancy_grid/core/mrf_experiment.h"
+#include "dynamic_occupancy_grid/evaluation/mrf_experiment.h"
 
 #include <gtest/gtest.h>
 

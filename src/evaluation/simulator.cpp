@@ -1,4 +1,4 @@
-#include "dynamic_occupancy_grid/core/simulator.h"
+#include "dynamic_occupancy_grid/evaluation/simulator.h"
 
 #include <algorithm>
 #include <cmath>

@@ -14,7 +14,7 @@
 #include <vector>
 
 #include "dynamic_occupancy_grid/core/offline_em.h"
-#include "dynamic_occupancy_grid/core/simulator.h"
+#include "dynamic_occupancy_grid/evaluation/simulator.h"
 
 namespace dynamic_occupancy_grid {
 namespace core {

@@ -1,8 +1,8 @@
-// Tests of the A* grid planner (core/planner.h). The reference is a plain breadth-first
+// Tests of the A* grid planner (evaluation/planner.h). The reference is a plain breadth-first
 // search (every move costs 1, so BFS distances are the shortest path lengths), written
 // from the header's promises and sharing no code with the planner.
 
-#include "dynamic_occupancy_grid/core/planner.h"
+#include "dynamic_occupancy_grid/evaluation/planner.h"
 
 #include <gtest/gtest.h>
 

@@ -1,4 +1,4 @@
-// Tests of the self-supervised prediction check (core/prediction_check.h).
+// Tests of the self-supervised prediction check (evaluation/prediction_check.h).
 //
 // The reference is deliberately naive and independent of the code under test's bookkeeping:
 //   - labels by its own ray tracing: scans have four beams along the axes, so the cells a
@@ -13,7 +13,7 @@
 // coordinate 0.5 + k + 0.25), away from every cell edge; range_max 3 m: a beam without
 // return clears cells 0..12 (it ends at lattice 12.5).
 
-#include "dynamic_occupancy_grid/core/prediction_check.h"
+#include "dynamic_occupancy_grid/evaluation/prediction_check.h"
 
 #include <gtest/gtest.h>
 

@@ -1,6 +1,6 @@
-#include "dynamic_occupancy_grid/core/path_planning.h"
+#include "dynamic_occupancy_grid/evaluation/path_planning.h"
 
-#include "repetitions.h"
+#include "dynamic_occupancy_grid/core/parallel.h"
 
 #include <algorithm>
 #include <chrono>
@@ -10,8 +10,8 @@
 #include <memory>
 #include <stdexcept>
 
-#include "dynamic_occupancy_grid/core/evaluation.h"
-#include "dynamic_occupancy_grid/core/planner.h"
+#include "dynamic_occupancy_grid/evaluation/evaluation.h"
+#include "dynamic_occupancy_grid/evaluation/planner.h"
 
 namespace dynamic_occupancy_grid {
 namespace core {

@@ -69,7 +69,7 @@
 #include <vector>
 
 #include "dynamic_occupancy_grid/core/cell_model.h"
-#include "dynamic_occupancy_grid/core/simulator.h"
+#include "dynamic_occupancy_grid/evaluation/simulator.h"
 
 namespace dynamic_occupancy_grid {
 namespace core {

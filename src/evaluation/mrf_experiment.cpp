@@ -1,6 +1,6 @@
-#include "dynamic_occupancy_grid/core/mrf_experiment.h"
+#include "dynamic_occupancy_grid/evaluation/mrf_experiment.h"
 
-#include "repetitions.h"
+#include "dynamic_occupancy_grid/core/parallel.h"
 
 #include <chrono>
 #include <cmath>
@@ -9,7 +9,7 @@
 #include <string>
 #include <utility>
 
-#include "dynamic_occupancy_grid/core/evaluation.h"
+#include "dynamic_occupancy_grid/evaluation/evaluation.h"
 #include "dynamic_occupancy_grid/core/mapper.h"
 
 namespace dynamic_occupancy_grid {

@@ -1,4 +1,4 @@
-#include "dynamic_occupancy_grid/core/planner.h"
+#include "dynamic_occupancy_grid/evaluation/planner.h"
 
 #include <algorithm>
 #include <cstdlib>

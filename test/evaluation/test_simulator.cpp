@@ -1,6 +1,6 @@
 // The simulator's statistics: random numbers, change rates of dynamic cells, scheduled
 // events, the laser's geometry and noise, and the scenarios' layouts.
-#include "dynamic_occupancy_grid/core/simulator.h"
+#include "dynamic_occupancy_grid/evaluation/simulator.h"
 
 #include <gtest/gtest.h>
 

@@ -1,7 +1,7 @@
 #pragma once
-// Work on several threads, private to the core: runOnThreads (offline EM's workers) and
-// independent repetitions of an experiment (evaluation, path planning), where each
-// repetition writes only its own slot, so results do not depend on the number of threads.
+// Work on several threads: runOnThreads (offline EM's workers) and independent
+// repetitions of an experiment (the evaluation library), where each repetition writes only
+// its own slot, so results do not depend on the number of threads.
 
 #include <algorithm>
 #include <atomic>

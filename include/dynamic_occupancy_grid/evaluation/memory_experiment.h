@@ -63,9 +63,9 @@
 #include <vector>
 
 #include "dynamic_occupancy_grid/core/memory_model.h"
-#include "dynamic_occupancy_grid/core/path_planning.h"
-#include "dynamic_occupancy_grid/core/planner.h"
-#include "dynamic_occupancy_grid/core/simulator.h"
+#include "dynamic_occupancy_grid/evaluation/path_planning.h"
+#include "dynamic_occupancy_grid/evaluation/planner.h"
+#include "dynamic_occupancy_grid/evaluation/simulator.h"
 
 namespace dynamic_occupancy_grid {
 namespace core {

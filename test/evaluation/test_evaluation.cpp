@@ -1,6 +1,6 @@
 // The evaluation: methods side by side, accuracy, parameter errors, offline training, and
 // the experiment runner.
-#include "dynamic_occupancy_grid/core/evaluation.h"
+#include "dynamic_occupancy_grid/evaluation/evaluation.h"
 
 #include <gtest/gtest.h>
 

@@ -1,6 +1,6 @@
-#include "dynamic_occupancy_grid/core/memory_experiment.h"
+#include "dynamic_occupancy_grid/evaluation/memory_experiment.h"
 
-#include "repetitions.h"
+#include "dynamic_occupancy_grid/core/parallel.h"
 
 #include <algorithm>
 #include <chrono>
@@ -12,7 +12,7 @@
 #include <optional>
 #include <stdexcept>
 
-#include "dynamic_occupancy_grid/core/evaluation.h"
+#include "dynamic_occupancy_grid/evaluation/evaluation.h"
 #include "dynamic_occupancy_grid/core/mapper.h"
 #include "dynamic_occupancy_grid/core/scan_beams.h"
 
