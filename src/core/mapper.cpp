@@ -71,6 +71,8 @@ void MapperConfig::validate() const {
             "fixed width and height must not exceed max_map_size");
   }
   online_em.validate();
+  require(std::isfinite(prior_population_weight) && prior_population_weight > 0.0,
+          "prior_population_weight must be > 0, got " + std::to_string(prior_population_weight));
   require(online_em.min_observed_steps <= std::numeric_limits<std::uint16_t>::max(),
           "online_em min_observed_steps must be <= 65535 (the grid counts up to that), got " +
               std::to_string(online_em.min_observed_steps));
@@ -85,7 +87,8 @@ Mapper::Mapper(const MapperConfig& config)
       grid_(config.resolution_m, config.origin_x_m, config.origin_y_m, fixedCells(config),
             maxCellsPerSide(config),
             CellGrid::CellDefaults{static_cast<float>(config.prior_transitions.p_occ_given_free),
-                                   static_cast<float>(config.prior_transitions.p_free_given_occ)}) {}
+                                   static_cast<float>(config.prior_transitions.p_free_given_occ)}),
+      current_prior_(config.prior_transitions) {}
 
 ScanResult Mapper::integrate(const Scan& scan) {
   ScanResult result;
@@ -249,6 +252,36 @@ void Mapper::applyGatheredStep() {
   }
   touched_.clear();
   last_applied_step_ = gathering_step_;
+  updatePrior();
+}
+
+void Mapper::updatePrior() {
+  if (!config_.learn_transitions || !config_.learn_prior) return;
+  // Pooled over cells: the maximum-likelihood shared transitions of the population, with
+  // the configured prior as prior_population_weight cells' worth of pseudo-transitions
+  // (one from-state weighs initialWeight() in a cell's statistics).
+  const TransitionParams& guess = config_.prior_transitions;
+  const double w = config_.prior_population_weight * config_.online_em.initialWeight();
+  const double from_occ = population_[0][0] + population_[0][1];
+  const double from_free = population_[1][0] + population_[1][1];
+  const auto bounded = [&](double p) { return std::clamp(p, config_.online_em.p_min, config_.online_em.p_max); };
+  current_prior_.p_free_given_occ =
+      bounded((std::max(population_[0][1], 0.0) + w * guess.p_free_given_occ) / (std::max(from_occ, 0.0) + w));
+  current_prior_.p_occ_given_free =
+      bounded((std::max(population_[1][0], 0.0) + w * guess.p_occ_given_free) / (std::max(from_free, 0.0) + w));
+}
+
+void Mapper::storeStats(CellGrid::Tile& tile, int i, const TransitionStats& stats) {
+  for (int from = 0; from < 2; ++from) {
+    for (int to = 0; to < 2; ++to) {
+      const int k0 = TransitionStats::index(from, to, 0);
+      const int k1 = TransitionStats::index(from, to, 1);
+      // The float values the grid keeps, so that the sums stay those of the cells.
+      const double now = static_cast<double>(static_cast<float>(stats.s[k0])) + static_cast<float>(stats.s[k1]);
+      population_[from][to] += now - (static_cast<double>(tile.em_stats[k0][i]) + tile.em_stats[k1][i]);
+    }
+  }
+  for (std::size_t k = 0; k < stats.s.size(); ++k) tile.em_stats[k][i] = static_cast<float>(stats.s[k]);
 }
 
 void Mapper::learnStep(CellGrid::Tile& tile, int i, std::int32_t step, double evidence) {
@@ -257,8 +290,9 @@ void Mapper::learnStep(CellGrid::Tile& tile, int i, std::int32_t step, double ev
   OnlineCell cell;
   const std::int32_t last = tile.last_step[i];
   std::int64_t gap = 0;
+  const TransitionParams prior = current_prior_;
   if (last == kNeverObserved) {
-    cell = newOnlineCell(config_.prior_transitions, config_.initial_p_occ, config_.online_em);
+    cell = newOnlineCell(prior, config_.initial_p_occ, config_.online_em);
   } else {
     cell.p_occ = tile.p_occ[i];
     for (std::size_t k = 0; k < cell.stats.s.size(); ++k) cell.stats.s[k] = tile.em_stats[k][i];
@@ -266,9 +300,9 @@ void Mapper::learnStep(CellGrid::Tile& tile, int i, std::int32_t step, double ev
     cell.params = TransitionParams{tile.p_occ_given_free[i], tile.p_free_given_occ[i]};
     gap = std::int64_t{step} - 1 - last;
   }
-  onlineLearnStep(cell, gap, evidence, config_.prior_transitions, config_.online_em);
+  onlineLearnStep(cell, gap, evidence, prior, config_.online_em);
   tile.p_occ[i] = static_cast<float>(cell.p_occ);
-  for (std::size_t k = 0; k < cell.stats.s.size(); ++k) tile.em_stats[k][i] = static_cast<float>(cell.stats.s[k]);
+  storeStats(tile, i, cell.stats);
   tile.observed_steps[i] = static_cast<std::uint16_t>(
       std::min<std::uint32_t>(cell.observed_steps, std::numeric_limits<std::uint16_t>::max()));
   tile.p_occ_given_free[i] = static_cast<float>(cell.params.p_occ_given_free);
@@ -317,18 +351,25 @@ OfflineEmApplied Mapper::applyOfflineEm(const ObservationSequences& sequences, c
       tile->p_occ[i] = static_cast<float>(result.final_p_occ[c]);
       tile->last_step[i] = result.final_step[c];
     }
-    // The steps the result saw, split over the two from-states.
+    // The steps the result saw, split over the two from-states (kHarmonic); kRobbinsMonro's
+    // normalised statistics weigh 1 per from-state, and its step size goes on as if the
+    // cell had been observed in as many steps as the result.
     const double span = static_cast<double>(sequences.end(c)[-1].step) - sequences.begin(c)->step + 1.0;
-    const TransitionStats stats = priorStats(params, 0.5 * std::min(span, memory), tile->p_occ[i]);
-    for (std::size_t k = 0; k < stats.s.size(); ++k) tile->em_stats[k][i] = static_cast<float>(stats.s[k]);
+    const bool harmonic = config_.online_em.schedule == StepSchedule::kHarmonic;
+    const TransitionStats stats =
+        priorStats(params, harmonic ? 0.5 * std::min(span, memory) : 1.0, tile->p_occ[i]);
+    storeStats(*tile, i, stats);
     // The learned transitions are used from now on, not the prior.
+    const auto observations = static_cast<std::uint32_t>(std::min<std::ptrdiff_t>(
+        sequences.end(c) - sequences.begin(c), std::numeric_limits<std::uint16_t>::max()));
     tile->observed_steps[i] = static_cast<std::uint16_t>(std::max<std::uint32_t>(
-        tile->observed_steps[i], config_.online_em.min_observed_steps));
+        {tile->observed_steps[i], config_.online_em.min_observed_steps, harmonic ? 0U : observations}));
     tile->p_occ_given_free[i] = static_cast<float>(params.p_occ_given_free);
     tile->p_free_given_occ[i] = static_cast<float>(params.p_free_given_occ);
     changed_cells_.include(xy.x, xy.y);
     ++applied.cells_applied;
   }
+  updatePrior();
   return applied;
 }
 
@@ -377,9 +418,12 @@ void Mapper::restoreCell(std::int32_t x, std::int32_t y, const CellState& state)
   tile->log_odds[i] = state.log_odds;
   tile->p_occ_given_free[i] = state.p_occ_given_free;
   tile->p_free_given_occ[i] = state.p_free_given_occ;
-  for (std::size_t k = 0; k < state.em_stats.size(); ++k) tile->em_stats[k][i] = state.em_stats[k];
+  TransitionStats stats;
+  for (std::size_t k = 0; k < state.em_stats.size(); ++k) stats.s[k] = state.em_stats[k];
+  storeStats(*tile, i, stats);
   tile->observed_steps[i] = state.observed_steps;
   changed_cells_.include(x, y);
+  updatePrior();
 }
 
 void Mapper::setCellTransitions(std::int32_t x, std::int32_t y, const TransitionParams& params) {
