@@ -356,7 +356,7 @@ void ScenarioConfig::validate() const {
 
 std::vector<std::string> scenarioNames() {
   return {"dynamic_5_5", "dynamic_25_25", "redraw_100", "redraw_300", "parking_lot", "door", "mrf_squares",
-          "dividers"};
+          "dividers", "patrol", "patrol_long"};
 }
 
 ScenarioConfig scenarioConfig(const std::string& name) {
@@ -488,6 +488,25 @@ ScenarioConfig scenarioConfig(const std::string& name) {
                          "each), 3 people walking one cell per step";
     return config;
   }
+  if (name == "patrol" || name == "patrol_long") {
+    // A robot on patrol (PatrolLayout): each place is seen for about ten steps every 112;
+    // 1800 steps are 16 loops (half an hour at one step per second), patrol_long 3600.
+    config.kind = ScenarioKind::kPatrol;
+    config.width_cells = 240;
+    config.height_cells = 140;
+    config.resolution_m = 0.1;
+    config.steps = name == "patrol" ? 1800 : 3600;
+    config.scans_per_step = 2;
+    config.laser.beams = 360;
+    config.laser.range_max_m = 3.0;
+    config.laser.noise_sigma_m = 0.01;
+    config.laser.dropout_probability = 0.01;
+    config.laser_mount = Pose2D{0.0, 0.0, 0.0};
+    config.robot_speed_m_per_step = 0.5;
+    config.description = "a robot patrolling a 56 m loop around two rooms (112 steps a loop, 3 m laser): doors "
+                         "(0.025 / 0.05 per step), carts (0.004 / 0.012), people (0.12 / 0.25)";
+    return config;
+  }
   std::string names;
   for (const std::string& known : scenarioNames()) names += (names.empty() ? "" : ", ") + known;
   throw std::invalid_argument("unknown scenario '" + name + "' (known: " + names + ")");
@@ -517,6 +536,9 @@ Simulation::Simulation(const ScenarioConfig& config, std::uint64_t world_seed, s
       break;
     case ScenarioKind::kDividers:
       buildDividers();
+      break;
+    case ScenarioKind::kPatrol:
+      buildPatrol();
       break;
   }
   path_.emplace(route_, config_.robot_speed_m_per_step);
@@ -752,7 +774,72 @@ void Simulation::advance() {
     if (step_ % config_.divider_period_steps == 0) moveDividers(false);
     movePeople();
   }
+  if (config_.kind == ScenarioKind::kPatrol) stepPatrolParts();
   drawPathNoise();
+}
+
+void Simulation::buildPatrol() {
+  addBorderWalls();
+  const double r = world_.resolution();
+  const auto cell = [r](double m) { return static_cast<std::int32_t>(std::floor(m / r + 1e-9)); };
+  // The block of rooms, x in [5, 19) m, y in [5, 9) m: 0.2 m walls, split in two rooms.
+  const std::int32_t bx0 = cell(5.0), bx1 = cell(19.0) - 1, by0 = cell(5.0), by1 = cell(9.0) - 1;
+  const std::int32_t split = cell(12.0);
+  for (std::int32_t x = bx0; x <= bx1; ++x) {
+    for (std::int32_t y = by0; y <= by1; ++y) {
+      const bool wall = x < bx0 + 2 || x > bx1 - 2 || y < by0 + 2 || y > by1 - 2 || (x >= split && x < split + 2);
+      if (wall) world_.setStatic(x, y, true);
+    }
+  }
+  const auto add_part = [&](const std::string& kind, const TransitionParams& truth, std::int32_t x0, std::int32_t y0,
+                            std::int32_t w, std::int32_t h) {
+    PatrolLayout::Part part{kind, {}, truth};
+    for (std::int32_t y = y0; y < y0 + h; ++y) {
+      for (std::int32_t x = x0; x < x0 + w; ++x) part.cells.push_back(CellXY{x, y});
+    }
+    patrol_.parts.push_back(std::move(part));
+  };
+  // Doors: 1 m gaps in the block's long walls, two per room, one facing each corridor.
+  for (const double door_x : {7.0, 15.0}) {
+    add_part("door", config_.patrol_door, cell(door_x), by0, 10, 2);
+  }
+  for (const double door_x : {9.5, 16.5}) {
+    add_part("door", config_.patrol_door, cell(door_x), by1 - 1, 10, 2);
+  }
+  // Carts: in bays along the outer walls, against the wall (0.1 m clear of it).
+  for (const double cart_x : {4.0, 12.0, 20.0}) {
+    add_part("cart", config_.patrol_cart, cell(cart_x), 2, 12, 6);
+  }
+  add_part("cart", config_.patrol_cart, world_.width() - 8, cell(6.0), 6, 12);
+  // People: 0.3 m spots between the robot's lane and the walls, on both sides of the loop.
+  const std::array<std::array<double, 2>, 6> spots{{{6.0, 1.2}, {14.5, 3.8}, {22.8, 4.0}, {17.0, 12.8},
+                                                    {9.0, 10.2}, {1.1, 9.0}}};
+  for (const auto& spot : spots) add_part("person", config_.patrol_person, cell(spot[0]), cell(spot[1]), 3, 3);
+  // Each part starts in its stationary distribution.
+  for (const PatrolLayout::Part& part : patrol_.parts) {
+    const std::optional<double> pi = stationaryOccupancy(part.truth);
+    const bool occupied = dynamics_rng_.bernoulli(pi.value_or(0.0));
+    part_occupied_.push_back(occupied ? 1 : 0);
+    for (const CellXY& c : part.cells) world_.setScheduled(c.x, c.y, part.truth, occupied);
+  }
+  // The loop in the corridor, 2.5 m from the outer walls: 19 m + 9 m, twice.
+  route_ = {{2.5, 2.5}, {21.5, 2.5}, {21.5, 11.5}, {2.5, 11.5}};
+}
+
+void Simulation::stepPatrolParts() {
+  for (std::size_t k = 0; k < patrol_.parts.size(); ++k) {
+    const PatrolLayout::Part& part = patrol_.parts[k];
+    const bool occupied = part_occupied_[k] != 0;
+    const double p_change = occupied ? part.truth.p_free_given_occ : part.truth.p_occ_given_free;
+    if (!dynamics_rng_.bernoulli(p_change)) continue;
+    part_occupied_[k] = occupied ? 0 : 1;
+    for (const CellXY& c : part.cells) world_.setState(c.x, c.y, !occupied);
+  }
+}
+
+const PatrolLayout& Simulation::patrolLayout() const {
+  if (config_.kind != ScenarioKind::kPatrol) throw std::logic_error("patrolLayout: not the patrol scenario");
+  return patrol_;
 }
 
 const DoorLayout& Simulation::doorLayout() const {

@@ -168,6 +168,7 @@ enum class ScenarioKind {
   kDoor,           ///< a door on the short path between A and B, and a long detour
   kMrfSquares,     ///< Li, Barão & Rato's simulation: walls, four squares with fixed hold times
   kDividers,       ///< Morris et al.'s office: passages blocked by slow dividers, fast people
+  kPatrol,         ///< a robot patrolling a loop: each place seen seconds every two minutes
 };
 
 /// A named configuration of a simulated world (scenarioConfig(name)).
@@ -221,6 +222,11 @@ struct ScenarioConfig {
   /// At every move each divider toggles (open <-> closed) with this probability.
   double divider_toggle_probability = 0.2;
   int people = 3;  ///< people walking at one cell per step
+
+  // kPatrol (see PatrolLayout): the true per-step rates of its three kinds of moving parts.
+  TransitionParams patrol_door{0.025, 0.05};      ///< doors in the rooms' walls
+  TransitionParams patrol_cart{0.004, 0.012};     ///< carts parked in bays along the outer walls
+  TransitionParams patrol_person{0.12, 0.25};     ///< spots where people stand and leave
 
   /// Throws std::invalid_argument naming the first bad field.
   void validate() const;
@@ -295,6 +301,23 @@ struct DividersLayout {
   int dividerAt(std::int32_t x, std::int32_t y) const;
 };
 
+/// The patrol scenario's places (scenarioConfig("patrol")): a 24 m x 14 m floor, a block of
+/// two rooms in the middle, a corridor around it that the robot drives as a 56 m loop
+/// (112 steps at 0.5 m per step), a 360° laser of 3 m: every place is in view for about ten
+/// steps per loop. Each moving part is a group of cells that changes as one, a two-state
+/// Markov chain with its kind's rates (ScenarioConfig::patrol_*), started from its
+/// stationary distribution: doors (1 m gaps in the rooms' walls, through which the robot
+/// sees the rooms), carts (0.6 m x 1.2 m in bays along the outer walls), people (0.3 m
+/// spots beside the corridor). The groups draw from the run seed's dynamics stream.
+struct PatrolLayout {
+  struct Part {
+    std::string kind;           ///< "door", "cart" or "person"
+    std::vector<CellXY> cells;
+    TransitionParams truth;
+  };
+  std::vector<Part> parts;
+};
+
 /// A run of a scenario: the world with its scheduled events, the scripted robot, the laser.
 class Simulation {
  public:
@@ -330,6 +353,8 @@ class Simulation {
   /// The dividers scenario's places, dividers and people now; throws std::logic_error for
   /// another scenario.
   const DividersLayout& dividersLayout() const;
+  /// The patrol scenario's places; throws std::logic_error for another scenario.
+  const PatrolLayout& patrolLayout() const;
   /// Dividers scenario: (x, y) is occupied now by a wall or a closed divider / by a person
   /// (never both). Other scenarios: isStructure = World::occupied, isPerson = false.
   bool isStructure(std::int32_t x, std::int32_t y) const;
@@ -346,6 +371,8 @@ class Simulation {
   void drawPathNoise();
   void addBorderWalls();
   void buildDividers();
+  void buildPatrol();
+  void stepPatrolParts();
   void moveDividers(bool initial);
   void movePeople();
   bool freeForPerson(std::int32_t x, std::int32_t y) const;
@@ -368,6 +395,8 @@ class Simulation {
   MrfSquaresLayout squares_;
   std::array<std::int64_t, 4> square_next_toggle_{};  ///< the step at which each square toggles next
   DividersLayout dividers_;
+  PatrolLayout patrol_;
+  std::vector<std::uint8_t> part_occupied_;            ///< patrol: per part, now
   std::vector<CellXY> waypoints_;                      ///< dividers: each person's waypoint
 };
 
