@@ -391,7 +391,7 @@ void MappingNode::diagnoseTf(diagnostic_updater::DiagnosticStatusWrapper& status
   tf_reported_dropped_ = dropped;
   tf_reported_integrated_ = integrated;
   if (new_drops == 0) {
-    status.summary(diagnostic_msgs::DiagnosticStatus::OK, "transforms found");
+    status.summary(diagnostic_msgs::DiagnosticStatus::OK, "no scan lacked its transform since the last report");
   } else if (new_integrated == 0) {
     status.summaryf(diagnostic_msgs::DiagnosticStatus::ERROR,
                     "no transform to '%s' for any scan since the last report (%llu dropped)",
