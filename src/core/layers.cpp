@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <stdexcept>
+#include <string>
 
 #include "dynamic_occupancy_grid/core/cell_model.h"
 
@@ -87,6 +89,39 @@ void toOccupancyValues(const std::vector<float>& values, float full_scale,
     occupancy->at(i) = std::isnan(value)
                            ? std::int8_t{-1}
                            : static_cast<std::int8_t>(std::lround(std::clamp(value * scale, 0.0f, 100.0f)));
+  }
+}
+
+void OccupancyThresholds::validate() const {
+  if (!(std::isfinite(free_thresh) && std::isfinite(occupied_thresh) && free_thresh >= 0.0 &&
+        free_thresh < occupied_thresh && occupied_thresh <= 1.0)) {
+    throw std::invalid_argument("occupancy thresholds need 0 <= free_thresh < occupied_thresh <= 1, got free_thresh " +
+                                std::to_string(free_thresh) + ", occupied_thresh " + std::to_string(occupied_thresh));
+  }
+}
+
+void toThresholdedOccupancyValues(const std::vector<float>& values, const OccupancyThresholds& thresholds,
+                                  std::vector<std::int8_t>* occupancy) {
+  if (thresholds.mode == ThresholdMode::kRaw) {
+    toOccupancyValues(values, 1.0f, occupancy);
+    return;
+  }
+  occupancy->resize(values.size());
+  const double span = thresholds.occupied_thresh - thresholds.free_thresh;
+  for (std::size_t i = 0; i < values.size(); ++i) {
+    const double p = values[i];
+    std::int8_t value = -1;
+    if (std::isnan(p)) {
+      value = -1;
+    } else if (p > thresholds.occupied_thresh) {
+      value = 100;
+    } else if (p < thresholds.free_thresh) {
+      value = 0;
+    } else if (thresholds.mode == ThresholdMode::kScale) {
+      // map_server's image_loader: value = 1 + 98 * ratio, assigned to an int (truncated).
+      value = static_cast<std::int8_t>(1.0 + 98.0 * (p - thresholds.free_thresh) / span);
+    }
+    (*occupancy)[i] = value;
   }
 }
 

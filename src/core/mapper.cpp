@@ -448,6 +448,13 @@ void Mapper::setCellTransitions(std::int32_t x, std::int32_t y, const Transition
   if (last != kNeverObserved) changed_cells_.include(x, y);
 }
 
+void Mapper::setSensorModel(double p_hit_given_occ, double p_hit_given_free) {
+  const ObservationModel sensor(p_hit_given_occ, p_hit_given_free);  // throws for a bad model
+  sensor_ = sensor;
+  config_.p_hit_given_occ = p_hit_given_occ;
+  config_.p_hit_given_free = p_hit_given_free;
+}
+
 CellBox Mapper::takeChangedCells() {
   const CellBox changed = changed_cells_;
   changed_cells_ = CellBox{};

@@ -11,7 +11,11 @@ std::vector<std::int8_t> layerValues(const core::CellGrid& grid, const LayerView
   std::vector<float> values;
   core::evaluateLayer(grid, view.layer, step, view.horizon_steps, box, &values);
   std::vector<std::int8_t> occupancy;
-  core::toOccupancyValues(values, view.full_scale, &occupancy);
+  if (view.thresholds) {
+    core::toThresholdedOccupancyValues(values, *view.thresholds, &occupancy);
+  } else {
+    core::toOccupancyValues(values, view.full_scale, &occupancy);
+  }
   return occupancy;
 }
 

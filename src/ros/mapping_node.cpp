@@ -13,9 +13,12 @@
 #include <filesystem>
 #include <iomanip>
 #include <limits>
+#include <stdexcept>
+#include <string>
 #include <sstream>
 #include <utility>
 
+#include "dynamic_occupancy_grid/core/cell_grid.h"
 #include "dynamic_occupancy_grid/core/cell_model.h"
 #include "dynamic_occupancy_grid/core/map_export.h"
 #include "dynamic_occupancy_grid/core/model_io.h"
@@ -110,6 +113,7 @@ bool MappingNode::start() {
 
   if (mapper_) advertiseHmm();
   if (memory_) advertiseMemory();
+  startDiagnostics();
   services_.push_back(private_nh_.advertiseService("reset", &MappingNode::reset, this));
 
   tf_listener_ = std::make_unique<tf2_ros::TransformListener>(tf_buffer_, nh_);
@@ -122,8 +126,12 @@ bool MappingNode::start() {
     scan_filters_.back()->registerCallback(boost::bind(&MappingNode::scanCallback, this, boost::placeholders::_1));
     scan_filters_.back()->registerFailureCallback(
         boost::bind(&MappingNode::scanDropped, this, boost::placeholders::_1, boost::placeholders::_2));
+    // After the tf filter's own connection: every scan that arrives, for its rate.
+    scan_subscribers_.back()->registerCallback(
+        boost::bind(&MappingNode::scanArrived, this, boost::placeholders::_1, scan_subscribers_.size() - 1));
   }
   publish_timer_ = private_nh_.createTimer(ros::Duration(parameters_.publish_period_s), &MappingNode::publishTimer, this);
+  startReconfigure();
 
   std::ostringstream topics;
   for (const std::string& topic : parameters_.scan_topics) topics << " " << nh_.resolveName(topic);
@@ -158,19 +166,25 @@ void MappingNode::advertiseHmm() {
                                                         ros::VoidConstPtr(), true);
     output.updates = nh.advertise<map_msgs::OccupancyGridUpdate>(name + "_updates", 10);
   };
-  const auto probability = [](core::Layer layer) { return LayerView{layer, 1.0f, 0}; };
+  const auto probability = [](core::Layer layer) { return LayerView{layer, 1.0f, 0, std::nullopt}; };
   const auto transition = [this](core::Layer layer) {
-    return LayerView{layer, static_cast<float>(parameters_.transition_scale), 0};
+    return LayerView{layer, static_cast<float>(parameters_.transition_scale), 0, std::nullopt};
   };
   outputs_.reserve(7);
   add_output(private_nh_, "belief", probability(core::Layer::kBelief));
   const std::int64_t horizon_steps = horizonSteps(parameters_.prediction_horizon_s, mapper_->config().time_step_s);
-  add_output(private_nh_, "predicted", LayerView{core::Layer::kPredicted, 1.0f, horizon_steps});
+  add_output(private_nh_, "predicted", LayerView{core::Layer::kPredicted, 1.0f, horizon_steps, std::nullopt});
   add_output(private_nh_, "stationary", probability(core::Layer::kStationary));
   add_output(private_nh_, "p_occ_given_free", transition(core::Layer::kOccGivenFree));
   add_output(private_nh_, "p_free_given_occ", transition(core::Layer::kFreeGivenOcc));
   add_output(private_nh_, "static_map", probability(core::Layer::kStatic));
-  if (parameters_.publish_map_topic) add_output(nh_, "map", probability(core::Layer::kBelief));
+  if (parameters_.publish_map_topic) {
+    // For map consumers (move_base's static layer, amcl): map_server's thresholds by default.
+    add_output(nh_, "map",
+               LayerView{parameters_.map_layer, 1.0f,
+                         parameters_.map_layer == core::Layer::kPredicted ? horizon_steps : std::int64_t{0},
+                         parameters_.map_thresholds});
+  }
 
   offline_em_progress_ = private_nh_.advertise<OfflineEmProgress>("offline_em_progress", 10, true);
   services_.push_back(private_nh_.advertiseService("run_offline_em", &MappingNode::runOfflineEm, this));
@@ -215,13 +229,31 @@ void MappingNode::scanDropped(const sensor_msgs::LaserScan::ConstPtr& msg, tf2_r
   }
   ROS_WARN_THROTTLE(kWarnPeriodS, "dropping scan from frame '%s' stamped %.3f: %s (transform to '%s')",
                     msg->header.frame_id.c_str(), msg->header.stamp.toSec(), why, parameters_.fixed_frame.c_str());
+  countTfDrop(std::string("scan from frame '") + msg->header.frame_id + "': " + why);
+}
+
+void MappingNode::countTfDrop(const std::string& error) {
+  ++scan_counts_.dropped_tf;
+  std::lock_guard<std::mutex> lock(diagnostics_mutex_);
+  last_tf_error_ = error;
+}
+
+void MappingNode::scanArrived(const sensor_msgs::LaserScan::ConstPtr&, std::size_t topic_index) {
+  ++scan_counts_.received;
+  scan_rates_[topic_index]->tick();
 }
 
 void MappingNode::scanCallback(const sensor_msgs::LaserScan::ConstPtr& msg) {
   std::string error;
-  const auto drop = [&msg](const std::string& why) {
+  const auto drop = [this, &msg](const std::string& why) {
+    ++scan_counts_.dropped_invalid;
     ROS_WARN_THROTTLE(kWarnPeriodS, "dropping scan from frame '%s' stamped %.3f: %s", msg->header.frame_id.c_str(),
                       msg->header.stamp.toSec(), why.c_str());
+  };
+  const auto drop_tf = [this, &msg](const std::string& why) {
+    ROS_WARN_THROTTLE(kWarnPeriodS, "dropping scan from frame '%s' stamped %.3f: %s", msg->header.frame_id.c_str(),
+                      msg->header.stamp.toSec(), why.c_str());
+    countTfDrop(std::string("scan from frame '") + msg->header.frame_id + "': " + why);
   };
   // A zero stamp means "no time" (tf2 even reads it as "latest"); as a time it would look
   // like time jumping back to 0 and restart the map's clock.
@@ -236,13 +268,13 @@ void MappingNode::scanCallback(const sensor_msgs::LaserScan::ConstPtr& msg) {
   try {
     transform = tf_buffer_.lookupTransform(parameters_.fixed_frame, msg->header.frame_id, msg->header.stamp);
   } catch (const tf2::LookupException& e) {
-    return drop(std::string("unknown frame: ") + e.what());
+    return drop_tf(std::string("unknown frame: ") + e.what());
   } catch (const tf2::ConnectivityException& e) {
-    return drop(std::string("frames not connected: ") + e.what());
+    return drop_tf(std::string("frames not connected: ") + e.what());
   } catch (const tf2::ExtrapolationException& e) {
-    return drop(std::string("no transform at the scan's stamp: ") + e.what());
+    return drop_tf(std::string("no transform at the scan's stamp: ") + e.what());
   } catch (const tf2::TransformException& e) {
-    return drop(std::string("transform failed: ") + e.what());
+    return drop_tf(std::string("transform failed: ") + e.what());
   }
   core::Pose2D pose;
   bool upside_down = false;
@@ -253,8 +285,11 @@ void MappingNode::scanCallback(const sensor_msgs::LaserScan::ConstPtr& msg) {
   scan.range_max_m = std::min(scan.range_max_m, parameters_.max_range_m);
 
   std::lock_guard<std::mutex> lock(mutex_);
-  if (memory_) integrateMemory(scan, msg->header.frame_id);
-  if (!mapper_) return;
+  const bool memory_integrated = memory_ && integrateMemory(scan, msg->header.frame_id);
+  if (!mapper_) {
+    if (memory_integrated) ++scan_counts_.integrated;
+    return;
+  }
   if (newest_stamp_s_ && scan.stamp_s < *newest_stamp_s_ - parameters_.time_jump_threshold_s) {
     // A bag played again or a simulator reset: keep the map, go on from the next step.
     ROS_WARN_THROTTLE(1.0, "time jumped back by %.1f s (bag restarted?): keeping the map, continuing it after step %lld",
@@ -265,24 +300,28 @@ void MappingNode::scanCallback(const sensor_msgs::LaserScan::ConstPtr& msg) {
   }
   const core::ScanResult result = mapper_->integrate(scan);
   if (result.status != core::ScanStatus::kIntegrated) {
+    ++(result.status == core::ScanStatus::kRejectedTimeBackwards ? scan_counts_.dropped_late
+                                                                  : scan_counts_.dropped_invalid);
     ROS_WARN_THROTTLE(kWarnPeriodS, "dropping scan from frame '%s' stamped %.3f: %s", msg->header.frame_id.c_str(),
                       scan.stamp_s, result.error.c_str());
     return;
   }
+  ++scan_counts_.integrated;
   newest_stamp_s_ = std::max(newest_stamp_s_.value_or(scan.stamp_s), scan.stamp_s);
   if (result.cells_outside > 0) {
     ROS_WARN_THROTTLE(30.0, "beams reach beyond the map's bounds (fixed_bounds / max_map_size); those cells are not mapped");
   }
 }
 
-void MappingNode::integrateMemory(const core::Scan& scan, const std::string& frame_id) {
+bool MappingNode::integrateMemory(const core::Scan& scan, const std::string& frame_id) {
   // Views gather scans by the laser's travel, not by time: a bag played again goes on
   // with the same memory.
   const core::MemoryScanResult result = memory_->integrate(scan);
   if (!result.integrated) {
+    ++scan_counts_.memory_rejected;
     ROS_WARN_THROTTLE(kWarnPeriodS, "memory model: dropping scan from frame '%s' stamped %.3f: %s", frame_id.c_str(),
                       scan.stamp_s, result.error.c_str());
-    return;
+    return false;
   }
   if (result.cells_outside > 0) {
     ROS_WARN_THROTTLE(30.0, "memory model: beams reach beyond max_map_size; those cells are not mapped");
@@ -294,6 +333,227 @@ void MappingNode::integrateMemory(const core::Scan& scan, const std::string& fra
               static_cast<long long>(result.update->index), result.update->view_hits, result.update->view_misses,
               result.update->migrated.size(), result.update->forgotten);
   }
+  return true;
+}
+
+void MappingNode::startDiagnostics() {
+  // Named after the node (the nodelet's name in a manager), as ros::this_node would be.
+  diagnostics_ = std::make_unique<diagnostic_updater::Updater>(nh_, private_nh_, private_nh_.getNamespace());
+  diagnostics_->setHardwareID("none");  // a mapping node, no device of its own
+  for (const std::string& topic : parameters_.scan_topics) {
+    // The rate over the last 5 reports, against [min, max] +- 10 % (diagnostic_updater's
+    // FrequencyStatus: ERROR without any scan in that window, WARN outside the range).
+    scan_rates_.push_back(std::make_unique<diagnostic_updater::HeaderlessTopicDiagnostic>(
+        "scans " + nh_.resolveName(topic), *diagnostics_,
+        diagnostic_updater::FrequencyStatusParam(&parameters_.min_scan_rate_hz, &parameters_.max_scan_rate_hz, 0.1,
+                                                 5)));
+  }
+  diagnostics_->add("scans dropped", this, &MappingNode::diagnoseScans);
+  diagnostics_->add("tf", this, &MappingNode::diagnoseTf);
+  diagnostics_->add("map", this, &MappingNode::diagnoseMap);
+  if (mapper_) diagnostics_->add("offline EM", this, &MappingNode::diagnoseOfflineEm);
+  diagnostics_timer_ = private_nh_.createTimer(ros::Duration(parameters_.diagnostics_period_s),
+                                               [this](const ros::TimerEvent&) { diagnostics_->force_update(); });
+}
+
+void MappingNode::diagnoseScans(diagnostic_updater::DiagnosticStatusWrapper& status) {
+  const std::uint64_t tf = scan_counts_.dropped_tf;
+  const std::uint64_t invalid = scan_counts_.dropped_invalid;
+  const std::uint64_t late = scan_counts_.dropped_late;
+  const std::uint64_t memory = scan_counts_.memory_rejected;
+  const std::uint64_t dropped = tf + invalid + late + memory;
+  std::uint64_t new_drops = 0;
+  {
+    std::lock_guard<std::mutex> lock(diagnostics_mutex_);
+    new_drops = dropped - scans_reported_dropped_;
+    scans_reported_dropped_ = dropped;
+  }
+  if (new_drops == 0) {
+    status.summary(diagnostic_msgs::DiagnosticStatus::OK, "no scan dropped since the last report");
+  } else {
+    status.summaryf(diagnostic_msgs::DiagnosticStatus::WARN, "%llu scans dropped since the last report (see the log)",
+                    static_cast<unsigned long long>(new_drops));
+  }
+  status.add("received", scan_counts_.received.load());
+  status.add("integrated", scan_counts_.integrated.load());
+  status.add("dropped: no transform (tf)", tf);
+  status.add("dropped: invalid (stamp, shape, laser pose)", invalid);
+  status.add("dropped: late (step already applied)", late);
+  if (memory_) status.add("refused by the memory model", memory);
+}
+
+void MappingNode::diagnoseTf(diagnostic_updater::DiagnosticStatusWrapper& status) {
+  const std::uint64_t dropped = scan_counts_.dropped_tf;
+  const std::uint64_t integrated = scan_counts_.integrated;
+  std::lock_guard<std::mutex> lock(diagnostics_mutex_);
+  const std::uint64_t new_drops = dropped - tf_reported_dropped_;
+  const std::uint64_t new_integrated = integrated - tf_reported_integrated_;
+  tf_reported_dropped_ = dropped;
+  tf_reported_integrated_ = integrated;
+  if (new_drops == 0) {
+    status.summary(diagnostic_msgs::DiagnosticStatus::OK, "no scan lacked its transform since the last report");
+  } else if (new_integrated == 0) {
+    status.summaryf(diagnostic_msgs::DiagnosticStatus::ERROR,
+                    "no transform to '%s' for any scan since the last report (%llu dropped)",
+                    parameters_.fixed_frame.c_str(), static_cast<unsigned long long>(new_drops));
+  } else {
+    status.summaryf(diagnostic_msgs::DiagnosticStatus::WARN, "%llu scans without a transform to '%s' since the last report",
+                    static_cast<unsigned long long>(new_drops), parameters_.fixed_frame.c_str());
+  }
+  status.add("fixed frame", parameters_.fixed_frame);
+  status.add("scans dropped for tf since the last report", new_drops);
+  status.add("tf failures", dropped);
+  status.add("last tf failure", last_tf_error_.empty() ? std::string("none") : last_tf_error_);
+}
+
+void MappingNode::diagnoseMap(diagnostic_updater::DiagnosticStatusWrapper& status) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  status.summary(diagnostic_msgs::DiagnosticStatus::OK, "mapping");
+  if (mapper_) {
+    const std::optional<std::int64_t> step = mapper_->lastAppliedStep();
+    const double cells = static_cast<double>(mapper_->grid().allocatedTiles()) * core::CellGrid::kTileCells;
+    status.add("cells allocated", static_cast<std::uint64_t>(cells));
+    status.addf("cell memory (MiB)", "%.1f", cells * core::CellGrid::bytesPerCell() / (1024.0 * 1024.0));
+    status.add("time step (s)", mapper_->config().time_step_s);
+    status.add("learn transitions", mapper_->config().learn_transitions);
+    if (!step) {
+      status.summary(diagnostic_msgs::DiagnosticStatus::OK, "no step applied yet");
+      status.add("last applied step", "none");
+    } else {
+      // The map's time is the end of its last applied step; how far ROS time is ahead of it.
+      const double lag_s = ros::Time::now().toSec() - mapper_->clock().stepStart(*step + 1);
+      status.add("last applied step", *step);
+      status.addf("step lag (s)", "%.3f", lag_s);
+      if (lag_s > parameters_.max_step_lag_s) {
+        status.summaryf(diagnostic_msgs::DiagnosticStatus::WARN,
+                        "the map is %.1f s behind ROS time (more than diagnostics/max_step_lag %.1f s)", lag_s,
+                        parameters_.max_step_lag_s);
+      } else {
+        status.summaryf(diagnostic_msgs::DiagnosticStatus::OK, "mapping, %.2f s behind ROS time", lag_s);
+      }
+    }
+    status.add("gathering step", mapper_->gatheringStep() ? std::to_string(*mapper_->gatheringStep()) : "none");
+  }
+  if (memory_) {
+    status.add("memory model updates", static_cast<std::uint64_t>(memory_->updates()));
+    status.add("memory model LTM cells", static_cast<std::uint64_t>(memory_->ltmCells()));
+    status.add("memory model STM cells", static_cast<std::uint64_t>(memory_->stmCells()));
+  }
+}
+
+void MappingNode::setOfflineEmState(const std::string& phase, double fraction, const std::string& message) {
+  std::lock_guard<std::mutex> lock(diagnostics_mutex_);
+  offline_em_phase_ = phase;
+  offline_em_fraction_ = fraction;
+  offline_em_message_ = message;
+}
+
+void MappingNode::diagnoseOfflineEm(diagnostic_updater::DiagnosticStatusWrapper& status) {
+  std::lock_guard<std::mutex> lock(diagnostics_mutex_);
+  if (offline_em_phase_ == "failed") {
+    status.summary(diagnostic_msgs::DiagnosticStatus::WARN, "the last run failed: " + offline_em_message_);
+  } else if (offline_em_running_) {
+    status.summaryf(diagnostic_msgs::DiagnosticStatus::OK, "running: %s, %.0f %%", offline_em_phase_.c_str(),
+                    100.0 * offline_em_fraction_);
+  } else {
+    status.summary(diagnostic_msgs::DiagnosticStatus::OK, offline_em_phase_ == "idle" ? "idle (never run)" : "idle");
+  }
+  status.add("running", static_cast<bool>(offline_em_running_));
+  status.add("phase", offline_em_phase_);
+  status.add("fraction", offline_em_fraction_);
+  status.add("message", offline_em_message_);
+}
+
+DynamicOccupancyGridConfig MappingNode::reconfigurableValues() const {
+  DynamicOccupancyGridConfig values;
+  // A loaded model's sensor model and learning flag are the ones in use.
+  const core::MapperConfig& mapper = mapper_ ? mapper_->config() : parameters_.mapper;
+  values.p_hit_given_occ = mapper.p_hit_given_occ;
+  values.p_hit_given_free = mapper.p_hit_given_free;
+  values.learn_transitions = mapper.learn_transitions;
+  values.max_range = parameters_.max_range_m;
+  values.publish_period = parameters_.publish_period_s;
+  values.full_map_period = parameters_.full_map_period_s;
+  values.prediction_horizon = parameters_.prediction_horizon_s;
+  values.transition_scale = parameters_.transition_scale;
+  return values;
+}
+
+void MappingNode::startReconfigure() {
+  DynamicOccupancyGridConfig values;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    values = reconfigurableValues();
+    reconfigured_ = values;
+  }
+  reconfigure_server_ =
+      std::make_unique<dynamic_reconfigure::Server<DynamicOccupancyGridConfig>>(reconfigure_mutex_, private_nh_);
+  // The server starts from its .cfg defaults and the parameter server; the values read (or
+  // a loaded model's) win.
+  reconfigure_server_->updateConfig(values);
+  reconfigure_server_->setCallback(
+      boost::bind(&MappingNode::reconfigure, this, boost::placeholders::_1, boost::placeholders::_2));
+}
+
+void MappingNode::reconfigure(DynamicOccupancyGridConfig& config, std::uint32_t) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  std::string refused;
+  if (!(config.p_hit_given_occ > config.p_hit_given_free)) {
+    refused = "p_hit_given_occ (" + std::to_string(config.p_hit_given_occ) + ") must be > p_hit_given_free (" +
+              std::to_string(config.p_hit_given_free) + ")";
+  } else if (!(config.publish_period > 0.0) || !(config.full_map_period >= 0.0) ||
+             !(config.prediction_horizon >= 0.0) || !(config.transition_scale > 0.0 && config.transition_scale <= 1.0) ||
+             !(config.max_range > 0.0)) {
+    refused = "a value is out of its range (publish_period > 0, full_map_period >= 0, prediction_horizon >= 0, "
+              "transition_scale in (0, 1], max_range > 0)";
+  } else {
+    try {
+      if (mapper_) {
+        mapper_->setSensorModel(config.p_hit_given_occ, config.p_hit_given_free);
+      } else {
+        static_cast<void>(core::ObservationModel(config.p_hit_given_occ, config.p_hit_given_free));
+      }
+    } catch (const std::invalid_argument& e) {
+      refused = e.what();
+    }
+  }
+  if (!refused.empty()) {
+    ROS_WARN("dynamic_reconfigure: refused, keeping the previous values: %s", refused.c_str());
+    config = reconfigured_;
+    return;
+  }
+  parameters_.mapper.p_hit_given_occ = config.p_hit_given_occ;
+  parameters_.mapper.p_hit_given_free = config.p_hit_given_free;
+  parameters_.mapper.learn_transitions = config.learn_transitions;
+  if (mapper_) mapper_->setLearnTransitions(config.learn_transitions);
+  parameters_.max_range_m = config.max_range;
+  parameters_.full_map_period_s = config.full_map_period;
+  if (config.publish_period != parameters_.publish_period_s) {
+    parameters_.publish_period_s = config.publish_period;
+    publish_timer_.setPeriod(ros::Duration(parameters_.publish_period_s));
+  }
+  const bool horizon_changed = config.prediction_horizon != parameters_.prediction_horizon_s;
+  const bool scale_changed = config.transition_scale != parameters_.transition_scale;
+  parameters_.prediction_horizon_s = config.prediction_horizon;
+  parameters_.transition_scale = config.transition_scale;
+  for (Output& output : outputs_) {
+    if (output.horizon_from_parameter && horizon_changed) {
+      output.view.horizon_steps = horizonSteps(parameters_.prediction_horizon_s, mapper_->config().time_step_s);
+      output.needs_full = true;
+    }
+    const bool transition = output.view.layer == core::Layer::kOccGivenFree ||
+                            output.view.layer == core::Layer::kFreeGivenOcc;
+    if (transition && scale_changed) {
+      output.view.full_scale = static_cast<float>(parameters_.transition_scale);
+      output.needs_full = true;
+    }
+  }
+  reconfigured_ = config;
+  ROS_INFO("dynamic_reconfigure: p_hit_given_occ %.3f, p_hit_given_free %.3f, learn_transitions %s, max_range %.2f m, "
+           "publish_period %.3f s, full_map_period %.3f s, prediction_horizon %.3f s, transition_scale %.4f",
+           config.p_hit_given_occ, config.p_hit_given_free, config.learn_transitions ? "true" : "false",
+           config.max_range, config.publish_period, config.full_map_period, config.prediction_horizon,
+           config.transition_scale);
 }
 
 void MappingNode::publishTimer(const ros::TimerEvent&) {
@@ -475,6 +735,7 @@ bool MappingNode::runOfflineEm(RunOfflineEm::Request& request, RunOfflineEm::Res
       progress.fraction = static_cast<float>(fraction);
       progress.message = message;
       offline_em_progress_.publish(progress);
+      setOfflineEmState(phase, fraction, message);
     };
     report("reading", 0.0, "reading the bag");
     ROS_INFO("offline EM: reading %s", options.source.bag_path.c_str());
@@ -578,8 +839,19 @@ bool MappingNode::loadModel(LoadModel::Request& request, LoadModel::Response& re
   message << "loaded " << request.path << ": " << loaded->config().resolution_m << " m cells, time step "
           << loaded->config().time_step_s << " s";
   if (loaded->lastAppliedStep()) message << ", steps up to " << *loaded->lastAppliedStep();
-  std::lock_guard<std::mutex> lock(mutex_);
-  replaceMapper(std::move(loaded));
+  DynamicOccupancyGridConfig values;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    replaceMapper(std::move(loaded));
+    // The model's sensor model and learning flag replace the reconfigured ones.
+    parameters_.mapper.p_hit_given_occ = mapper_->config().p_hit_given_occ;
+    parameters_.mapper.p_hit_given_free = mapper_->config().p_hit_given_free;
+    parameters_.mapper.learn_transitions = mapper_->config().learn_transitions;
+    values = reconfigurableValues();
+    reconfigured_ = values;
+  }
+  // Outside mutex_: the server's mutex is taken before mutex_ (reconfigure).
+  if (reconfigure_server_) reconfigure_server_->updateConfig(values);
   response.success = true;
   response.message = message.str();
   ROS_INFO("%s", response.message.c_str());
@@ -702,7 +974,8 @@ bool MappingNode::predictMap(PredictMap::Request& request, PredictMap::Response&
     response.message = "no map yet";
     return true;
   }
-  const LayerView view{core::Layer::kPredicted, 1.0f, horizonSteps(request.horizon, mapper_->config().time_step_s)};
+  const LayerView view{core::Layer::kPredicted, 1.0f, horizonSteps(request.horizon, mapper_->config().time_step_s),
+                       std::nullopt};
   const core::CellBox bounds = mapper_->grid().bounds();
   response.map = toOccupancyGrid(mapper_->grid().window(bounds), layerValues(mapper_->grid(), view, *step, bounds),
                                  parameters_.fixed_frame,

@@ -145,6 +145,35 @@ bool readParameters(const ros::NodeHandle& private_nh, NodeParameters* parameter
   read.number("prediction_horizon", &p.prediction_horizon_s);
   read.number("transition_scale", &p.transition_scale);
   read.boolean("publish_map_topic", &p.publish_map_topic);
+  std::string map_layer = "belief";
+  read.text("map_topic/layer", &map_layer);
+  bool map_layer_known = false;
+  for (const core::Layer layer : {core::Layer::kBelief, core::Layer::kPredicted, core::Layer::kStationary,
+                                  core::Layer::kStatic}) {
+    if (map_layer == core::layerName(layer)) {
+      p.map_layer = layer;
+      map_layer_known = true;
+    }
+  }
+  read.require(map_layer_known, "map_topic/layer",
+               "must be \"belief\", \"predicted\", \"stationary\" or \"static_map\", got \"" + map_layer + "\"");
+  std::string map_mode = "trinary";
+  read.text("map_topic/mode", &map_mode);
+  if (map_mode == "trinary") {
+    p.map_thresholds.mode = core::ThresholdMode::kTrinary;
+  } else if (map_mode == "scale") {
+    p.map_thresholds.mode = core::ThresholdMode::kScale;
+  } else if (map_mode == "raw") {
+    p.map_thresholds.mode = core::ThresholdMode::kRaw;
+  } else {
+    read.fail("map_topic/mode", "must be \"trinary\", \"scale\" or \"raw\", got \"" + map_mode + "\"");
+  }
+  read.number("map_topic/occupied_thresh", &p.map_thresholds.occupied_thresh);
+  read.number("map_topic/free_thresh", &p.map_thresholds.free_thresh);
+  read.number("diagnostics/period", &p.diagnostics_period_s);
+  read.number("diagnostics/min_scan_rate_hz", &p.min_scan_rate_hz);
+  read.number("diagnostics/max_scan_rate_hz", &p.max_scan_rate_hz);
+  read.number("diagnostics/max_step_lag", &p.max_step_lag_s);
   read.number("max_scan_latency", &p.max_scan_latency_s);
   read.number("time_jump_threshold", &p.time_jump_threshold_s);
   read.number("max_range", &p.max_range_m);
@@ -238,6 +267,15 @@ bool readParameters(const ros::NodeHandle& private_nh, NodeParameters* parameter
   read.require(p.max_scan_latency_s >= 0.0, "max_scan_latency", "must be >= 0 s");
   read.require(p.time_jump_threshold_s > 0.0, "time_jump_threshold", "must be > 0 s");
   read.require(p.max_range_m > 0.0, "max_range", "must be > 0 m");
+  read.require(p.map_thresholds.free_thresh >= 0.0 &&
+                   p.map_thresholds.free_thresh < p.map_thresholds.occupied_thresh &&
+                   p.map_thresholds.occupied_thresh <= 1.0,
+               "map_topic/free_thresh", "and map_topic/occupied_thresh need 0 <= free_thresh < occupied_thresh <= 1");
+  read.require(p.diagnostics_period_s > 0.0, "diagnostics/period", "must be > 0 s");
+  read.require(p.min_scan_rate_hz >= 0.0, "diagnostics/min_scan_rate_hz", "must be >= 0 Hz");
+  read.require(p.max_scan_rate_hz > p.min_scan_rate_hz, "diagnostics/max_scan_rate_hz",
+               "must be > diagnostics/min_scan_rate_hz");
+  read.require(p.max_step_lag_s > 0.0, "diagnostics/max_step_lag", "must be > 0 s");
   read.require(p.model != MapModel::kMemory || p.model_file.empty(), "model_file",
                "holds a cell HMM model: it needs ~model hmm or both, not memory");
   if (read.error().empty()) {

@@ -14,6 +14,7 @@
 #include <optional>
 #include <random>
 #include <set>
+#include <stdexcept>
 #include <string>
 #include <utility>
 #include <vector>
@@ -383,4 +384,36 @@ TEST(OccupancyValues, RandomValuesMatchRoundedScaling) {
       ASSERT_EQ(static_cast<int>(occupancy[i]), expected[i]) << "value " << values[i] << " scale " << full_scale;
     }
   }
+}
+
+TEST(OccupancyValues, ThresholdsLikeMapServer) {
+  // map_server's image_loader on the same probabilities (occupied_thresh 0.65, free_thresh 0.196).
+  const std::vector<float> values{kNaNF, 0.0f, 0.19f, 0.2f, 0.425f, 0.64f, 0.66f, 1.0f};
+  dog::OccupancyThresholds thresholds;
+  std::vector<std::int8_t> occupancy;
+  dog::toThresholdedOccupancyValues(values, thresholds, &occupancy);
+  EXPECT_EQ(occupancy, (std::vector<std::int8_t>{-1, 0, 0, -1, -1, -1, 100, 100}));
+  thresholds.mode = dog::ThresholdMode::kScale;
+  dog::toThresholdedOccupancyValues(values, thresholds, &occupancy);
+  const auto scaled = [](double p) { return static_cast<std::int8_t>(1.0 + 98.0 * (p - 0.196) / (0.65 - 0.196)); };
+  EXPECT_EQ(occupancy, (std::vector<std::int8_t>{-1, 0, 0, scaled(0.2f), scaled(0.425f), scaled(0.64f), 100, 100}));
+  EXPECT_EQ(static_cast<int>(scaled(0.2f)), 1);
+  EXPECT_EQ(static_cast<int>(scaled(0.64f)), 96);
+  thresholds.mode = dog::ThresholdMode::kRaw;
+  dog::toThresholdedOccupancyValues(values, thresholds, &occupancy);
+  std::vector<std::int8_t> raw;
+  dog::toOccupancyValues(values, 1.0f, &raw);
+  EXPECT_EQ(occupancy, raw);
+}
+
+TEST(OccupancyValues, ThresholdsAreChecked) {
+  dog::OccupancyThresholds thresholds;
+  EXPECT_NO_THROW(thresholds.validate());
+  thresholds.free_thresh = 0.7;
+  EXPECT_THROW(thresholds.validate(), std::invalid_argument);
+  thresholds.free_thresh = -0.1;
+  EXPECT_THROW(thresholds.validate(), std::invalid_argument);
+  thresholds.free_thresh = 0.1;
+  thresholds.occupied_thresh = 1.1;
+  EXPECT_THROW(thresholds.validate(), std::invalid_argument);
 }

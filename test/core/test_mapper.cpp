@@ -1511,3 +1511,60 @@ TEST(MapperSetCellTransitions, UsedFromTheFirstObservationAndOnlyFromNowOn) {
   EXPECT_THROW(bounded.setCellTransitions(4, 0, first), std::invalid_argument);
   EXPECT_NO_THROW(bounded.setCellTransitions(3, 3, first));
 }
+
+TEST(MapperReconfigure, NewSensorModelWeighsTheStepsAppliedFromNowOn) {
+  dog::Mapper mapper(testConfig());
+  ASSERT_EQ(mapper.integrate(makeScan(0.5, {0.3f})).status, dog::ScanStatus::kIntegrated);  // hit in (1, 0)
+  mapper.finishStep();
+  const dog::TransitionParams prior{kPOf, kPFo};
+  const double after_first = dog::filterStep(0.5, prior, mapper.sensor().logLikelihoodRatio(1, 0));
+  ASSERT_NEAR(mapper.grid().cell(1, 0)->p_occ, after_first, 1e-6);
+
+  // A scan of step 1 is gathered with the old model, the step applied with the new one.
+  ASSERT_EQ(mapper.integrate(makeScan(1.5, {0.3f})).status, dog::ScanStatus::kIntegrated);
+  mapper.setSensorModel(0.9, 0.05);
+  EXPECT_DOUBLE_EQ(mapper.config().p_hit_given_occ, 0.9);
+  EXPECT_DOUBLE_EQ(mapper.config().p_hit_given_free, 0.05);
+  const dog::ObservationModel strong(0.9, 0.05);
+  EXPECT_DOUBLE_EQ(mapper.sensor().hitLogOdds(), strong.hitLogOdds());
+  mapper.finishStep();
+  EXPECT_NEAR(mapper.grid().cell(1, 0)->p_occ, dog::filterStep(after_first, prior, strong.logLikelihoodRatio(1, 0)),
+              1e-6);
+
+  // A bad model is refused and changes nothing.
+  EXPECT_THROW(mapper.setSensorModel(0.3, 0.4), std::invalid_argument);
+  EXPECT_THROW(mapper.setSensorModel(1.0, 0.4), std::invalid_argument);
+  EXPECT_DOUBLE_EQ(mapper.config().p_hit_given_occ, 0.9);
+  EXPECT_DOUBLE_EQ(mapper.sensor().hitLogOdds(), strong.hitLogOdds());
+  // A reset (a new Mapper with config()) keeps the new model.
+  EXPECT_DOUBLE_EQ(dog::Mapper(mapper.config()).sensor().hitLogOdds(), strong.hitLogOdds());
+}
+
+TEST(MapperReconfigure, LearningTurnedOffKeepsTheLearnedTransitionsAndOnAgainResumes) {
+  dog::MapperConfig config = testConfig();
+  config.learn_transitions = true;
+  config.online_em.min_observed_steps = 0;
+  dog::Mapper mapper(config);
+  // Cell (1, 0) flickers: hit, miss (the beam ends beyond it), hit, ...
+  const auto scan_of = [](int step) { return makeScan(step + 0.5, {step % 2 == 0 ? 0.3f : 0.8f}); };
+  for (int step = 0; step < 10; ++step) ASSERT_EQ(mapper.integrate(scan_of(step)).status, dog::ScanStatus::kIntegrated);
+  mapper.finishStep();
+  const dog::CellState learned = *mapper.grid().cell(1, 0);
+  EXPECT_NE(learned.p_occ_given_free, static_cast<float>(kPOf));  // it learned
+
+  mapper.setLearnTransitions(false);
+  EXPECT_FALSE(mapper.config().learn_transitions);
+  for (int step = 10; step < 14; ++step) ASSERT_EQ(mapper.integrate(scan_of(step)).status, dog::ScanStatus::kIntegrated);
+  mapper.finishStep();
+  const dog::CellState fixed = *mapper.grid().cell(1, 0);
+  EXPECT_EQ(fixed.p_occ_given_free, learned.p_occ_given_free);
+  EXPECT_EQ(fixed.p_free_given_occ, learned.p_free_given_occ);
+  EXPECT_EQ(fixed.em_stats, learned.em_stats);
+  EXPECT_EQ(fixed.last_step, 13);
+
+  mapper.setLearnTransitions(true);
+  for (int step = 14; step < 18; ++step) ASSERT_EQ(mapper.integrate(scan_of(step)).status, dog::ScanStatus::kIntegrated);
+  mapper.finishStep();
+  EXPECT_NE(mapper.grid().cell(1, 0)->em_stats, learned.em_stats);
+  EXPECT_NE(mapper.grid().cell(1, 0)->p_occ_given_free, learned.p_occ_given_free);
+}

@@ -94,11 +94,20 @@ class TestMappingNode(unittest.TestCase):
         self.assertEqual(same_geometry_problems(grid, self.final_grid('belief')), [])
         self.assertEqual(wall_problems(grid), [])
 
-    def test_map_topic_is_belief(self):
+    def test_map_topic_is_trinary_belief(self):
+        # map_topic's defaults: the belief, thresholded as map_server's trinary mode reads an
+        # image (occupied_thresh 0.65, free_thresh 0.196), so that costmap_2d sees lethal cells.
         grid = self.final_grid('map')
         belief = self.final_grid('belief')
         self.assertEqual(same_geometry_problems(grid, belief), [])
-        self.assertEqual(list(grid.data), list(belief.data))
+        for value, raw in zip(grid.data, belief.data):
+            if raw == -1 or 20 <= raw <= 64:
+                self.assertEqual(value, -1, 'belief %d' % raw)
+            elif raw >= 66:
+                self.assertEqual(value, 100, 'belief %d' % raw)
+            elif raw <= 19:
+                self.assertEqual(value, 0, 'belief %d' % raw)
+        self.assertEqual(wall_problems(grid, occupied_above=99, free_below=1), [])
 
     def test_stationary_and_transition_layers(self):
         belief = self.final_grid('belief')

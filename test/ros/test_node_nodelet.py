@@ -6,8 +6,10 @@ import os
 import sys
 import unittest
 
+import dynamic_reconfigure.client
 import rospy
 import rostest
+from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import OccupancyGrid
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
@@ -21,6 +23,7 @@ class TestNodelet(unittest.TestCase):
 
     def test_nodelet_maps_wall(self):
         scene = wall_scene.WallScene(NODE)
+        diagnostics = wall_scene.TopicRecorder('/diagnostics', DiagnosticArray)
         belief = wall_scene.TopicRecorder(NODE + '/belief', OccupancyGrid)
         static_map = wall_scene.TopicRecorder(NODE + '/static_map', OccupancyGrid)
         scene.wait_for_node()
@@ -52,6 +55,18 @@ class TestNodelet(unittest.TestCase):
         self.assertTrue(now.success, now.message)
         self.assertEqual(list(now.map.data), list(grid.data))
         self.assertTrue(scene.get_cell(*WALL_POINTS[0]).observed)
+
+        # /diagnostics under the nodelet's name, with the map it made.
+        def mapping_status(array):
+            return any(s.name == 'mapper: map' and any(v.key == 'last applied step' and v.value != 'none'
+                                                       for v in s.values) for s in array.status)
+
+        self.assertIsNotNone(diagnostics.wait_for(mapping_status, clock=scene.clock),
+                             'no /diagnostics status "mapper: map" with an applied step')
+        # dynamic_reconfigure starts from the nodelet's parameters and applies a change.
+        client = dynamic_reconfigure.client.Client(NODE, timeout=15.0)
+        self.assertAlmostEqual(client.get_configuration(timeout=10.0)['publish_period'], 0.1)
+        self.assertAlmostEqual(client.update_configuration({'publish_period': 0.2})['publish_period'], 0.2)
 
 
 if __name__ == '__main__':

@@ -82,6 +82,11 @@ class TestRobustness(unittest.TestCase):
             ('symmetric', '_offline_em/mrf_temperature:=50 _offline_em/symmetric:=true'),
             ('time_jump_threshold', '_time_jump_threshold:=-1'),
             ('model_file', '_model_file:=/nonexistent/model.dogm'),
+            ('map_topic/layer', '_map_topic/layer:=p_occ_given_free'),
+            ('map_topic/mode', '_map_topic/mode:=binary'),
+            ('map_topic/free_thresh', '_map_topic/free_thresh:=0.8'),
+            ('diagnostics/max_scan_rate_hz', '_diagnostics/min_scan_rate_hz:=20 _diagnostics/max_scan_rate_hz:=10'),
+            ('diagnostics/period', '_diagnostics/period:=0'),
         ]
         wall_scene.assert_bad_parameters_stop_node(self, cases, 'bad_parameter')
         # The node under test is not disturbed.

@@ -35,5 +35,23 @@ void evaluateLayer(const CellGrid& grid, Layer layer, std::int64_t step,
 void toOccupancyValues(const std::vector<float>& values, float full_scale,
                        std::vector<std::int8_t>* occupancy);
 
+/// How probabilities become OccupancyGrid values for map consumers, as map_server reads an
+/// image (its `mode`): p > occupied_thresh -> 100, p < free_thresh -> 0, otherwise -1
+/// (kTrinary) or 1 + 98 (p - free_thresh) / (occupied_thresh - free_thresh) truncated
+/// (kScale); kRaw is toOccupancyValues' round(100 p). NaN (never observed) is -1 in all.
+enum class ThresholdMode { kTrinary, kScale, kRaw };
+
+struct OccupancyThresholds {
+  ThresholdMode mode = ThresholdMode::kTrinary;
+  double occupied_thresh = 0.65;  ///< map_server's default
+  double free_thresh = 0.196;     ///< map_server's default
+  /// Throws std::invalid_argument unless 0 <= free_thresh < occupied_thresh <= 1.
+  void validate() const;
+};
+
+/// Probabilities (NaN = unknown) to OccupancyGrid values by `thresholds`.
+void toThresholdedOccupancyValues(const std::vector<float>& values, const OccupancyThresholds& thresholds,
+                                  std::vector<std::int8_t>* occupancy);
+
 }  // namespace core
 }  // namespace dynamic_occupancy_grid

@@ -131,6 +131,16 @@ class Mapper {
   /// or a cell outside the map's limits.
   void setCellTransitions(std::int32_t x, std::int32_t y, const TransitionParams& params);
 
+  /// A new sensor model while mapping (dynamic_reconfigure): every step applied from now on,
+  /// the one being gathered included, weighs its hit and miss counts with it; cells keep
+  /// their beliefs. Throws std::invalid_argument (and changes nothing) unless both are in
+  /// (0, 1) with p_hit_given_occ > p_hit_given_free.
+  void setSensorModel(double p_hit_given_occ, double p_hit_given_free);
+  /// Turns online learning of the transitions on or off while mapping. Off: each cell goes
+  /// on with the transitions it has learned so far (fixed from now on); on again: learning
+  /// resumes from the cell's statistics as they were when it was turned off.
+  void setLearnTransitions(bool learn_transitions) { config_.learn_transitions = learn_transitions; }
+
   /// Model loading (model_io.h): the saved time, on a mapper that has integrated nothing.
   /// Throws std::logic_error otherwise, std::invalid_argument for inconsistent values.
   void restoreTime(std::optional<double> clock_origin_s, std::optional<std::int64_t> last_applied_step);

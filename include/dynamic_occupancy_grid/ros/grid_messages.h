@@ -8,6 +8,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -24,6 +25,9 @@ struct LayerView {
   core::Layer layer = core::Layer::kBelief;
   float full_scale = 1.0f;            ///< value shown as 100 (probabilities: 1)
   std::int64_t horizon_steps = 0;     ///< kPredicted only
+  /// Probability layers for map consumers (the `map` topic): map_server's thresholds
+  /// instead of the plain 0..100 scaling; full_scale is then unused.
+  std::optional<core::OccupancyThresholds> thresholds;
 };
 
 /// `view` over `box` at `step` as 0..100 / -1 values (row-major, OccupancyGrid order).

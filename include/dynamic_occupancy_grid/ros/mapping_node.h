@@ -2,9 +2,14 @@
 // The mapping node: LaserScans (through tf2_ros::MessageFilter on the fixed frame) into a
 // core::Mapper (the cell HMM) and/or a core::MemoryModel (Morris et al.'s STM/LTM, ~model),
 // the map layers out as latched OccupancyGrids plus their updates, the memory model's map
-// hypotheses, and the services. One class for the node (src/nodes/mapping_node.cpp) and the
-// nodelet (src/ros/mapping_nodelet.cpp). Topics, services and parameters: README.md.
+// hypotheses, and the services; its health on /diagnostics (diagnostic_updater) and the
+// parameters that may change while mapping through dynamic_reconfigure. One class for the
+// node (src/nodes/mapping_node.cpp) and the nodelet (src/ros/mapping_nodelet.cpp). Topics,
+// services and parameters: README.md.
 
+#include <diagnostic_updater/diagnostic_updater.h>
+#include <diagnostic_updater/publisher.h>
+#include <dynamic_reconfigure/server.h>
 #include <message_filters/subscriber.h>
 #include <ros/ros.h>
 #include <sensor_msgs/LaserScan.h>
@@ -12,6 +17,8 @@
 #include <tf2_ros/buffer.h>
 #include <tf2_ros/message_filter.h>
 #include <tf2_ros/transform_listener.h>
+
+#include <boost/thread/recursive_mutex.hpp>
 
 #include <atomic>
 #include <cstdint>
@@ -22,6 +29,7 @@
 #include <thread>
 #include <vector>
 
+#include "dynamic_occupancy_grid/DynamicOccupancyGridConfig.h"
 #include "dynamic_occupancy_grid/ExportLayers.h"
 #include "dynamic_occupancy_grid/GetCell.h"
 #include "dynamic_occupancy_grid/LoadModel.h"
@@ -71,9 +79,27 @@ class MappingNode {
   void advertiseHmm();
   /// ~ltm, ~stm (and their updates), ~hypotheses.
   void advertiseMemory();
+  /// /diagnostics: the scan rate of each topic, scans dropped by cause, tf, the map, offline EM.
+  void startDiagnostics();
+  /// The dynamic_reconfigure server, starting from the parameters read.
+  void startReconfigure();
+  /// The reconfigurable values in use; caller holds mutex_.
+  DynamicOccupancyGridConfig reconfigurableValues() const;
+  /// A dynamic_reconfigure request: applied under mutex_, or refused (`config` reverted).
+  void reconfigure(DynamicOccupancyGridConfig& config, std::uint32_t level);
+  void diagnoseScans(diagnostic_updater::DiagnosticStatusWrapper& status);
+  void diagnoseTf(diagnostic_updater::DiagnosticStatusWrapper& status);
+  void diagnoseMap(diagnostic_updater::DiagnosticStatusWrapper& status);
+  void diagnoseOfflineEm(diagnostic_updater::DiagnosticStatusWrapper& status);
+  /// Every scan as it arrives on topic `topic_index` (before tf): its rate.
+  void scanArrived(const sensor_msgs::LaserScan::ConstPtr& msg, std::size_t topic_index);
+  /// A scan dropped for want of a transform (tf2 filter or lookup), with tf's reason.
+  void countTfDrop(const std::string& error);
+  /// The offline EM run's state for the diagnostics.
+  void setOfflineEmState(const std::string& phase, double fraction, const std::string& message);
   void scanCallback(const sensor_msgs::LaserScan::ConstPtr& msg);
-  /// The scan into the memory model; caller holds mutex_.
-  void integrateMemory(const core::Scan& scan, const std::string& frame_id);
+  /// The scan into the memory model (false: refused); caller holds mutex_.
+  bool integrateMemory(const core::Scan& scan, const std::string& frame_id);
   void scanDropped(const sensor_msgs::LaserScan::ConstPtr& msg, tf2_ros::FilterFailureReason reason);
   void publishTimer(const ros::TimerEvent& event);
   void publishLayers(bool force_full);
@@ -101,6 +127,33 @@ class MappingNode {
   ros::NodeHandle private_nh_;
   NodeParameters parameters_;
 
+  // Diagnostics; declared before the subscriptions, which tick them, so they outlive them.
+  std::unique_ptr<diagnostic_updater::Updater> diagnostics_;
+  std::vector<std::unique_ptr<diagnostic_updater::HeaderlessTopicDiagnostic>> scan_rates_;  ///< per topic
+  /// Scans by fate since the start (counted where they are dropped).
+  struct ScanCounts {
+    std::atomic<std::uint64_t> received{0};
+    std::atomic<std::uint64_t> integrated{0};       ///< by the cell HMM (or the memory model alone)
+    std::atomic<std::uint64_t> dropped_tf{0};       ///< no transform (tf2 filter or lookup)
+    std::atomic<std::uint64_t> dropped_invalid{0};  ///< stamp, shape, laser pose, the model's checks
+    std::atomic<std::uint64_t> dropped_late{0};     ///< for a step already applied
+    std::atomic<std::uint64_t> memory_rejected{0};  ///< refused by the memory model
+  };
+  ScanCounts scan_counts_;
+  /// Guards the diagnostics' own state below (never held while taking mutex_).
+  std::mutex diagnostics_mutex_;
+  std::string last_tf_error_;
+  std::uint64_t tf_reported_dropped_ = 0;     ///< dropped_tf at the last tf report
+  std::uint64_t tf_reported_integrated_ = 0;  ///< integrated at the last tf report
+  std::uint64_t scans_reported_dropped_ = 0;  ///< all drops at the last scans report
+  std::string offline_em_phase_ = "idle";
+  double offline_em_fraction_ = 0.0;
+  std::string offline_em_message_;
+  ros::Timer diagnostics_timer_;
+
+  boost::recursive_mutex reconfigure_mutex_;  ///< the dynamic_reconfigure server's
+  std::unique_ptr<dynamic_reconfigure::Server<DynamicOccupancyGridConfig>> reconfigure_server_;
+
   tf2_ros::Buffer tf_buffer_;
   std::unique_ptr<tf2_ros::TransformListener> tf_listener_;
   std::vector<std::unique_ptr<message_filters::Subscriber<sensor_msgs::LaserScan>>> scan_subscribers_;
@@ -116,6 +169,7 @@ class MappingNode {
   /// Guards everything below (scans, services, the timer and the offline EM thread).
   std::mutex mutex_;
   std::unique_ptr<core::Mapper> mapper_;  ///< null with ~model memory
+  DynamicOccupancyGridConfig reconfigured_;  ///< the values applied last
   std::optional<double> newest_stamp_s_;  ///< newest scan stamp integrated
   core::CellBox published_bounds_;        ///< bounds of the last full grids
   ros::Time last_full_publish_;

@@ -8,6 +8,7 @@
 #include <string>
 #include <vector>
 
+#include "dynamic_occupancy_grid/core/layers.h"
 #include "dynamic_occupancy_grid/core/mapper.h"
 #include "dynamic_occupancy_grid/core/memory_model.h"
 #include "dynamic_occupancy_grid/core/offline_em.h"
@@ -27,11 +28,17 @@ struct NodeParameters {
   double full_map_period_s = 10.0;     ///< full layers also at least this often; 0 = every publish
   double prediction_horizon_s = 60.0;  ///< ~predicted shows p(occ) this far ahead
   double transition_scale = 0.1;       ///< p per step shown as 100 in the transition layers
-  bool publish_map_topic = false;      ///< belief also on `map` / `map_updates`
+  bool publish_map_topic = false;      ///< a layer also on `map` / `map_updates`
+  core::Layer map_layer = core::Layer::kBelief;  ///< ~map_topic/layer
+  core::OccupancyThresholds map_thresholds;      ///< ~map_topic/mode, occupied_thresh, free_thresh
   double max_scan_latency_s = 0.5;     ///< a step is applied this long after it ends
   double time_jump_threshold_s = 3.0;  ///< a scan this much older than the newest restarts time
   double max_range_m = 50.0;           ///< longer readings count as no return
   std::string model_file;              ///< loaded at start-up when set
+  double diagnostics_period_s = 1.0;   ///< ~diagnostics/period: /diagnostics this often
+  double min_scan_rate_hz = 1.0;       ///< ~diagnostics/min_scan_rate_hz, per scan topic
+  double max_scan_rate_hz = 100.0;     ///< ~diagnostics/max_scan_rate_hz, per scan topic
+  double max_step_lag_s = 5.0;         ///< ~diagnostics/max_step_lag: map older than this: WARN
   core::MapperConfig mapper;
   core::OfflineEmConfig offline_em;
   /// ~memory/*; its lattice, max_free_range and max_map_size are the mapper's.
