@@ -2,8 +2,10 @@
 
 #include <cerrno>
 #include <cstdio>
+#include <cstdint>
 #include <cstring>
 #include <iomanip>
+#include <limits>
 #include <sstream>
 #include <stdexcept>
 
@@ -30,6 +32,47 @@ void writeFileAtomically(const std::string& path, const std::string& contents) {
     std::remove(temporary.c_str());
     throw std::runtime_error("cannot rename " + temporary + " to " + path + ": " + std::strerror(error));
   }
+}
+
+std::string npyFloat32(const std::vector<float>& values, std::int64_t rows, std::int64_t cols) {
+  if (rows < 0 || cols < 0 || static_cast<std::int64_t>(values.size()) != rows * cols) {
+    throw std::invalid_argument("npy: " + std::to_string(values.size()) + " values for a " +
+                                std::to_string(rows) + " x " + std::to_string(cols) + " array");
+  }
+  // Format 1.0 (numpy.lib.format): magic, version, little-endian uint16 header length, then
+  // an ASCII dict padded with spaces and ended by '\n' so that the data starts at a multiple
+  // of 64 bytes.
+  std::string header = "{'descr': '<f4', 'fortran_order': False, 'shape': (" + std::to_string(rows) + ", " +
+                       std::to_string(cols) + "), }";
+  constexpr std::size_t kPreamble = 10;  // magic (6) + version (2) + header length (2)
+  const std::size_t total = (kPreamble + header.size() + 1 + 63) / 64 * 64;
+  header.append(total - kPreamble - header.size() - 1, ' ');
+  header.push_back('\n');
+  std::string bytes("\x93NUMPY\x01\x00", 8);
+  bytes.push_back(static_cast<char>(header.size() & 0xFF));
+  bytes.push_back(static_cast<char>((header.size() >> 8) & 0xFF));
+  bytes += header;
+  bytes.reserve(bytes.size() + 4 * values.size());
+  for (const float value : values) {
+    std::uint32_t word = 0;
+    static_assert(sizeof(word) == sizeof(value) && std::numeric_limits<float>::is_iec559,
+                  "'<f4' needs IEEE 754 binary32 floats");
+    std::memcpy(&word, &value, sizeof(word));
+    for (int shift = 0; shift < 32; shift += 8) bytes.push_back(static_cast<char>((word >> shift) & 0xFF));
+  }
+  return bytes;
+}
+
+void writeNpyLayer(const std::string& directory, const std::string& name, const MapWindow& window,
+                   const std::vector<float>& values) {
+  const std::int64_t width = window.cells.width();
+  const std::int64_t height = window.cells.height();
+  if (static_cast<std::int64_t>(values.size()) != width * height) {
+    throw std::invalid_argument("npy export of " + name + ": " + std::to_string(values.size()) +
+                                " values for a " + std::to_string(width) + " x " +
+                                std::to_string(height) + " window");
+  }
+  writeFileAtomically(directory + "/" + name + ".npy", npyFloat32(values, height, width));
 }
 
 void writeMapServerFiles(const std::string& directory, const std::string& name,

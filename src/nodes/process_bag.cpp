@@ -84,8 +84,8 @@ Options parseArguments(int argc, char** argv) {
   return options;
 }
 
-// All six layers at the mapper's last applied step into `directory`; with `report`, one
-// line per layer on stdout.
+// All six layers at the mapper's last applied step into `directory` (PGM + YAML + .npy);
+// with `report`, one line per layer on stdout.
 void exportLayers(const dog::core::Mapper& mapper, const Options& options, const std::string& directory, bool report) {
   using dog::core::Layer;
   std::filesystem::create_directories(directory);
@@ -103,6 +103,7 @@ void exportLayers(const dog::core::Mapper& mapper, const Options& options, const
                                  &occupancy);
     const std::string name = dog::core::layerName(layer);
     dog::core::writeMapServerFiles(directory, name, window, occupancy);
+    dog::core::writeNpyLayer(directory, name, window, values);
     if (!report) continue;
     std::size_t known = 0;
     std::size_t occupied = 0;
@@ -110,7 +111,7 @@ void exportLayers(const dog::core::Mapper& mapper, const Options& options, const
       known += value >= 0 ? 1 : 0;
       occupied += value >= 65 ? 1 : 0;
     }
-    std::printf("%-10s %lld x %lld cells, %zu observed, %zu occupied -> %s/%s.pgm\n", name.c_str(),
+    std::printf("%-10s %lld x %lld cells, %zu observed, %zu occupied -> %s/%s.pgm (.yaml, .npy)\n", name.c_str(),
                 static_cast<long long>(box.width()), static_cast<long long>(box.height()), known, occupied,
                 directory.c_str(), name.c_str());
   }

@@ -801,10 +801,29 @@ bool MappingNode::runOfflineEm(RunOfflineEm::Request& request, RunOfflineEm::Res
   return true;
 }
 
+namespace {
+
+// A service's path as the node resolves it: relative to the node's working directory (as
+// any file the node opens; ~/.ros under roslaunch), made absolute for the reply.
+std::string absoluteServicePath(const std::string& path) {
+  return std::filesystem::absolute(std::filesystem::path(path)).lexically_normal().string();
+}
+
+}  // namespace
+
 bool MappingNode::saveModel(SaveModel::Request& request, SaveModel::Response& response) {
   if (request.path.empty()) {
     response.success = false;
     response.message = "path is empty";
+    return true;
+  }
+  std::string path;
+  try {
+    path = absoluteServicePath(request.path);
+  } catch (const std::exception& e) {
+    response.success = false;
+    response.message = "cannot resolve " + request.path + ": " + e.what();
+    ROS_ERROR("save_model: %s", response.message.c_str());
     return true;
   }
   std::string bytes;
@@ -813,7 +832,7 @@ bool MappingNode::saveModel(SaveModel::Request& request, SaveModel::Response& re
     bytes = core::serializeModel(*mapper_);
   }
   try {
-    core::saveModelBytes(bytes, request.path);
+    core::saveModelBytes(bytes, path);
   } catch (const std::exception& e) {
     response.success = false;
     response.message = e.what();
@@ -821,7 +840,7 @@ bool MappingNode::saveModel(SaveModel::Request& request, SaveModel::Response& re
     return true;
   }
   response.success = true;
-  response.message = "saved " + std::to_string(bytes.size()) + " bytes to " + request.path;
+  response.message = "saved " + std::to_string(bytes.size()) + " bytes to " + path;
   return true;
 }
 
@@ -861,7 +880,8 @@ bool MappingNode::loadModel(LoadModel::Request& request, LoadModel::Response& re
 bool MappingNode::exportLayers(ExportLayers::Request& request, ExportLayers::Response& response) {
   struct Export {
     std::string name;
-    std::vector<std::int8_t> values;
+    std::vector<float> values;           // the layer's own values (.npy), NaN unknown
+    std::vector<std::int8_t> occupancy;  // as published (PGM)
   };
   std::vector<Export> exports;
   core::MapWindow window;
@@ -877,17 +897,24 @@ bool MappingNode::exportLayers(ExportLayers::Request& request, ExportLayers::Res
     window = mapper_->grid().window(bounds);
     // The six layers once each (the `map` output repeats the belief).
     for (std::size_t i = 0; i < 6 && i < outputs_.size(); ++i) {
-      exports.push_back(Export{core::layerName(outputs_[i].view.layer),
-                               layerValues(mapper_->grid(), outputs_[i].view, *step, bounds)});
+      const LayerView& view = outputs_[i].view;
+      Export layer{core::layerName(view.layer), {}, {}};
+      core::evaluateLayer(mapper_->grid(), view.layer, *step, view.horizon_steps, bounds, &layer.values);
+      core::toOccupancyValues(layer.values, view.full_scale, &layer.occupancy);
+      exports.push_back(std::move(layer));
     }
   }
+  std::string directory;
   try {
     if (request.directory.empty()) throw std::runtime_error("directory is empty");
-    std::filesystem::create_directories(request.directory);
+    directory = absoluteServicePath(request.directory);
+    std::filesystem::create_directories(directory);
     for (const Export& layer : exports) {
-      core::writeMapServerFiles(request.directory, layer.name, window, layer.values);
-      response.files.push_back(request.directory + "/" + layer.name + ".pgm");
-      response.files.push_back(request.directory + "/" + layer.name + ".yaml");
+      core::writeMapServerFiles(directory, layer.name, window, layer.occupancy);
+      core::writeNpyLayer(directory, layer.name, window, layer.values);
+      for (const char* extension : {".pgm", ".yaml", ".npy"}) {
+        response.files.push_back(directory + "/" + layer.name + extension);
+      }
     }
   } catch (const std::exception& e) {
     response.success = false;
@@ -896,7 +923,7 @@ bool MappingNode::exportLayers(ExportLayers::Request& request, ExportLayers::Res
     return true;
   }
   response.success = true;
-  response.message = "wrote " + std::to_string(exports.size()) + " layers to " + request.directory;
+  response.message = "wrote " + std::to_string(exports.size()) + " layers to " + directory;
   return true;
 }
 

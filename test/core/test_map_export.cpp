@@ -1,7 +1,8 @@
 // Tests of the map_server export (core/map_export.h): the binary PGM (P5) and its YAML,
 // pixel values (occupied 0, free 254, unknown 205), the north-up row flip, the YAML fields,
 // map_server's own reading of the pair, and the atomic-write guarantees (no temporary file
-// left, failures throw std::runtime_error and leave older files intact).
+// left, failures throw std::runtime_error and leave older files intact); the .npy values
+// (npyFloat32, writeNpyLayer): header, shape, exact values with NaN, row order, atomicity.
 //
 // Every test works in its own fresh directory under the system temporary directory.
 
@@ -13,9 +14,11 @@
 #include <cmath>
 #include <cstdint>
 #include <cstdlib>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <iterator>
+#include <limits>
 #include <map>
 #include <set>
 #include <sstream>
@@ -367,4 +370,114 @@ TEST(WriteFileAtomically, WritesReplacesAndCleansUp) {
     EXPECT_NE(std::string(e.what()).find("data.bin"), std::string::npos) << e.what();
   }
   EXPECT_EQ(listDir(dir.path()), (std::set<std::string>{"data.bin"}));
+}
+
+// --- the .npy values (npyFloat32, writeNpyLayer) ------------------------------------------------
+
+namespace {
+
+struct Npy {
+  std::string header;  ///< the dict, without padding and newline
+  std::vector<float> values;
+};
+
+// Parses a version 1.0 .npy file as numpy.lib.format documents it, checking every rule of the
+// preamble: magic, version, header length, padding to 64 bytes, the closing newline.
+Npy parseNpy(const std::string& data) {
+  Npy npy;
+  if (data.size() < 10 || data.compare(0, 6, "\x93NUMPY", 6) != 0) {
+    ADD_FAILURE() << "no .npy magic";
+    return npy;
+  }
+  EXPECT_EQ(static_cast<unsigned char>(data[6]), 1u) << "major version";
+  EXPECT_EQ(static_cast<unsigned char>(data[7]), 0u) << "minor version";
+  const std::size_t length =
+      static_cast<unsigned char>(data[8]) | (static_cast<std::size_t>(static_cast<unsigned char>(data[9])) << 8);
+  if (data.size() < 10 + length) {
+    ADD_FAILURE() << "header longer than the file";
+    return npy;
+  }
+  EXPECT_EQ((10 + length) % 64, 0u) << "data not aligned to 64 bytes";
+  std::string header = data.substr(10, length);
+  EXPECT_EQ(header.back(), '\n');
+  header.pop_back();
+  while (!header.empty() && header.back() == ' ') header.pop_back();
+  for (const char c : header) EXPECT_TRUE(c >= 0x20 && c < 0x7f) << "non-ASCII header";
+  npy.header = header;
+  const std::string body = data.substr(10 + length);
+  EXPECT_EQ(body.size() % 4, 0u);
+  for (std::size_t i = 0; i + 4 <= body.size(); i += 4) {
+    std::uint32_t word = 0;
+    for (int b = 0; b < 4; ++b) word |= std::uint32_t{static_cast<unsigned char>(body[i + b])} << (8 * b);
+    float value = 0.0f;
+    std::memcpy(&value, &word, sizeof(value));
+    npy.values.push_back(value);
+  }
+  return npy;
+}
+
+std::uint32_t bitsOf(float value) {
+  std::uint32_t word = 0;
+  std::memcpy(&word, &value, sizeof(word));
+  return word;
+}
+
+}  // namespace
+
+TEST(Npy, HeaderParsesAndValuesRoundTripWithNaN) {
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  const std::vector<float> values{0.0f, 0.01f, nan, 1.0f, -0.0f, 1e-30f, std::numeric_limits<float>::infinity(),
+                                  0.123456789f, nan, 1e-7f, 0.5f, 3.0e38f};
+  const std::string bytes = dog::npyFloat32(values, 3, 4);
+  const Npy npy = parseNpy(bytes);
+  EXPECT_EQ(npy.header, "{'descr': '<f4', 'fortran_order': False, 'shape': (3, 4), }");
+  ASSERT_EQ(npy.values.size(), values.size());
+  for (std::size_t i = 0; i < values.size(); ++i) {
+    if (std::isnan(values[i])) {
+      EXPECT_TRUE(std::isnan(npy.values[i])) << "element " << i;
+    } else {
+      EXPECT_EQ(bitsOf(npy.values[i]), bitsOf(values[i])) << "element " << i;  // exact, -0 included
+    }
+  }
+  // Little-endian whatever the host: 1.0f is 00 00 80 3f.
+  EXPECT_EQ(bytes.substr(bytes.size() - 4 * 9, 4), std::string("\x00\x00\x80\x3f", 4));
+}
+
+TEST(Npy, EmptyAndLargeShapes) {
+  const Npy empty = parseNpy(dog::npyFloat32({}, 0, 0));
+  EXPECT_EQ(empty.header, "{'descr': '<f4', 'fortran_order': False, 'shape': (0, 0), }");
+  EXPECT_TRUE(empty.values.empty());
+  const Npy tall = parseNpy(dog::npyFloat32(std::vector<float>(123456, 0.25f), 123456, 1));
+  EXPECT_EQ(tall.header, "{'descr': '<f4', 'fortran_order': False, 'shape': (123456, 1), }");
+  EXPECT_EQ(tall.values, std::vector<float>(123456, 0.25f));
+  EXPECT_THROW(dog::npyFloat32(std::vector<float>(5), 2, 3), std::invalid_argument);
+  EXPECT_THROW(dog::npyFloat32({}, -1, 0), std::invalid_argument);
+}
+
+TEST(Npy, LayerFileHasTheWindowShapeRowZeroAtTheBottomAndIsAtomic) {
+  TempDir dir;
+  // 3 columns x 2 rows; values row-major from the bottom row, as evaluateLayer gives them.
+  const dog::MapWindow window = makeWindow(-1, 4, 1, 5, 0.05, -0.05, 0.2);
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  const std::vector<float> values{0.1f, 0.2f, nan, 0.4f, 0.5f, 0.6f};
+  dog::writeNpyLayer(dir.str(), "p_occ_given_free", window, values);
+  EXPECT_EQ(listDir(dir.path()), (std::set<std::string>{"p_occ_given_free.npy"}));
+  const Npy npy = parseNpy(readFile(dir.path() / "p_occ_given_free.npy"));
+  EXPECT_EQ(npy.header, "{'descr': '<f4', 'fortran_order': False, 'shape': (2, 3), }");
+  ASSERT_EQ(npy.values.size(), 6u);
+  EXPECT_EQ(npy.values[0], 0.1f);  // [0][0]: the bottom-left cell, not flipped like the PGM
+  EXPECT_TRUE(std::isnan(npy.values[2]));
+  EXPECT_EQ(npy.values[3], 0.4f);  // [1][0]: the row above
+  // Rewriting replaces the file; a size mismatch throws before anything is written; a
+  // missing directory throws naming the file.
+  dog::writeNpyLayer(dir.str(), "p_occ_given_free", makeWindow(0, 0, 0, 0, 0.05, 0.0, 0.0), {0.75f});
+  EXPECT_EQ(parseNpy(readFile(dir.path() / "p_occ_given_free.npy")).values, std::vector<float>{0.75f});
+  EXPECT_THROW(dog::writeNpyLayer(dir.str(), "other", window, std::vector<float>(5)), std::invalid_argument);
+  try {
+    dog::writeNpyLayer((dir.path() / "missing").string(), "belief", window, values);
+    FAIL() << "no exception";
+  } catch (const std::runtime_error& e) {
+    EXPECT_NE(std::string(e.what()).find("belief.npy"), std::string::npos) << e.what();
+  }
+  EXPECT_EQ(listDir(dir.path()), (std::set<std::string>{"p_occ_given_free.npy"}));
 }

@@ -193,6 +193,16 @@ class TestBagTools(unittest.TestCase):
                 self.assertIn(f"image: {layer}.pgm", file.read())
             image = read_pgm(os.path.join(out, f"{layer}.pgm"))
             self.assertTrue((image != 205).any(), f"{layer}: no known cell")
+            # The values: float32, row 0 at the bottom (the PGM is north up), NaN unknown.
+            values = np.load(os.path.join(out, f"{layer}.npy"))
+            self.assertEqual((values.dtype, values.shape), (np.dtype("<f4"), image.shape), layer)
+            upright = values[::-1]
+            self.assertTrue((image[np.isnan(upright)] == 205).all(), f"{layer}: a NaN cell is not unknown")
+            known = upright[~np.isnan(upright)]
+            self.assertTrue(known.size > 0 and (known >= 0).all() and (known <= 1).all(), layer)
+            if not layer.startswith("p_"):  # probabilities: the PGM classes are thresholds of the values
+                self.assertTrue((upright[image == 0] >= 0.645).all(), layer)
+                self.assertTrue((upright[image == 254] <= 0.255).all(), layer)
         model = self.load(os.path.join(out, "model.dogm"))
         self.assertGreater(model.cell_count, 1000)
         self.assertIsNotNone(model.last_applied_step)

@@ -1,7 +1,9 @@
 #!/usr/bin/env python3
 """mapping_node's services on the wall scene: get_cell, predict_map, save_model, load_model,
-reset, export_layers and run_offline_em, each with its error cases. The tests run in the
-order of their names and share the node (save/reset/load change its map)."""
+reset, export_layers (map_server files and the .npy values) and run_offline_em, each with its
+error cases; relative paths of save_model / export_layers resolved against the node's working
+directory and answered as absolute paths. The tests run in the order of their names and share
+the node (save/reset/load change its map)."""
 
 import math
 import os
@@ -10,8 +12,11 @@ import sys
 import tempfile
 import time
 import unittest
+import xmlrpc.client
 
+import numpy as np
 import rosbag
+import rosgraph
 import rospy
 import rostest
 from nav_msgs.msg import OccupancyGrid
@@ -303,9 +308,11 @@ class TestServices(unittest.TestCase):
         directory = os.path.join(self.tmp, 'export', 'nested')
         response = self.call('export_layers', directory=directory)
         self.assertTrue(response.success, response.message)
+        self.assertTrue(response.message.endswith(' ' + directory), response.message)
         pgm = sorted(f for f in response.files if f.endswith('.pgm'))
         yaml = sorted(f for f in response.files if f.endswith('.yaml'))
-        self.assertEqual((len(pgm), len(yaml), len(response.files)), (6, 6, 12), response.files)
+        npy = sorted(f for f in response.files if f.endswith('.npy'))
+        self.assertEqual((len(pgm), len(yaml), len(npy), len(response.files)), (6, 6, 6, 18), response.files)
         self.assertEqual(sorted(os.listdir(directory)), sorted(os.path.basename(f) for f in response.files))
         belief = self.belief_grid()
         for f in pgm:
@@ -322,6 +329,18 @@ class TestServices(unittest.TestCase):
             self.assertIn('resolution', text)
             resolution = [line for line in text.splitlines() if line.startswith('resolution')][0]
             self.assertAlmostEqual(float(resolution.split(':')[1]), RESOLUTION, places=6)
+        # The values: float32 over the same window, rows in OccupancyGrid order (row 0 at the
+        # bottom), NaN where the published grid says -1; the belief is the published grid / 100.
+        for f in npy:
+            values = np.load(f, allow_pickle=False)
+            shape = (belief.info.height, belief.info.width)
+            self.assertEqual((values.dtype, values.shape), (np.dtype('<f4'), shape), f)
+            self.assertEqual(list(np.isnan(values).ravel()), [v == -1 for v in belief.data], f)
+            known = values[~np.isnan(values)]
+            self.assertTrue(known.size > 0 and (known >= 0).all() and (known <= 1).all(), f)
+        values = np.load(os.path.join(directory, 'belief.npy')).ravel()
+        published = np.where(np.isnan(values), -1, np.rint(100 * values.astype(np.float64)))
+        self.assertEqual(list(published.astype(int)), list(belief.data))
 
         blocker = os.path.join(self.tmp, 'export_blocker')
         with open(blocker, 'w') as f:
@@ -331,6 +350,44 @@ class TestServices(unittest.TestCase):
             self.assertFalse(response.success, 'export_layers(%r) succeeded' % bad)
             self.assertTrue(response.message)
         self.assertEqual(open(blocker).read(), 'x')
+
+    def node_working_directory(self):
+        """The mapper's working directory (it is on this machine: /proc/PID/cwd)."""
+        uri = rosgraph.Master('/test_services').lookupNode(NODE)
+        code, message, pid = xmlrpc.client.ServerProxy(uri).getPid('/test_services')
+        self.assertEqual(code, 1, message)
+        return os.readlink('/proc/%d/cwd' % pid)
+
+    def test_08b_relative_paths(self):
+        """save_model and export_layers resolve a relative path against the node's working
+        directory (as the OS does; ~/.ros under roslaunch) and answer with the absolute path.
+        The relative path here leads from there into this test's directory (with '..')."""
+        cwd = self.node_working_directory()
+        target = os.path.join(self.tmp, 'relative')
+        os.makedirs(target)
+        relative = os.path.relpath(target, cwd)
+        self.assertFalse(os.path.isabs(relative))
+        model = os.path.join(target, 'model.dogm')
+        response = self.call('save_model', path=os.path.join(relative, 'model.dogm'))
+        self.assertTrue(response.success, response.message)
+        self.assertTrue(response.message.endswith(' to ' + model), response.message)
+        self.assertTrue(os.path.isfile(model))
+
+        directory = os.path.join(target, 'layers')
+        response = self.call('export_layers', directory=os.path.join(relative, 'layers'))
+        self.assertTrue(response.success, response.message)
+        self.assertTrue(response.message.endswith(' ' + directory), response.message)
+        self.assertEqual(len(response.files), 18, response.files)
+        for f in response.files:
+            self.assertEqual(os.path.dirname(f), directory, f)
+            self.assertTrue(os.path.isfile(f), f)
+        # A failure names the absolute path too.
+        blocker = os.path.join(target, 'blocker')
+        with open(blocker, 'w') as f:
+            f.write('x')
+        response = self.call('export_layers', directory=os.path.join(relative, 'blocker', 'sub'))
+        self.assertFalse(response.success, response.message)
+        self.assertIn(os.path.join(target, 'blocker'), response.message)
 
     # --- run_offline_em -------------------------------------------------------------------------------
     def progress_of(self, bag, phases=None, after=0):

@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
 # Checks the rviz configuration in a real rviz under Xvfb, headless, and writes one JUnit
 # testcase per check:
-#   static/config               YAML readable; fixed frame map; a Map display per layer with
+#   static/config               YAML readable; fixed frame map, the default fixed_frame of
+#                               replay.launch and the config; a top-down view that fits the
+#                               map demo.launch builds; a Map display per layer with
 #                               its topic, _updates topic, color scheme and enabled state;
 #                               LaserScan /scan, TF, Grid; every class declared by a plugin
 #   rviz/loads_without_errors   rviz (own roscore on a free port) comes up with it, is still
@@ -155,5 +157,10 @@ sed 's#Topic: /dynamic_occupancy_grid/stationary$#Topic: /dynamic_occupancy_grid
   "$config" > "$broken/wrong_topic.rviz"
 expect_failure "negative_control/wrong_layer_topic/static" "stationnary" \
   python3 "$checks" static-rviz "$broken/wrong_topic.rviz"
+
+# A view zoomed in too far to show the map the demo builds.
+sed 's/^      Scale: [0-9.]*$/      Scale: 200/' "$config" > "$broken/zoomed_in.rviz"
+expect_failure "negative_control/view_misses_the_map/static" "does not show the demo map" \
+  python3 "$checks" static-rviz "$broken/zoomed_in.rviz"
 
 python3 "$checks" junit rviz_config "$results" "$output"

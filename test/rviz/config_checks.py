@@ -34,6 +34,12 @@ LAYERS = {
 }
 SCAN_TOPIC = "/scan"
 FIXED_FRAME = "map"
+PACKAGE_DIR = os.path.abspath(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", ".."))
+# The map demo.launch builds (the bundled example in the frame map, 0.05 m cells, the laser at
+# the origin): x -3.2..6.4 m, y -6.4..6.4 m. The view must show all of it in the render
+# panel of rviz's default window (about 540 x 680 px, measured under Xvfb).
+DEMO_MAP_BOX = (-3.2, 6.4, -6.4, 6.4)
+RENDER_PANEL_PX = (540, 680)
 # Panels are built into rviz, not declared as plugins.
 BUILTIN_PANELS = {"rviz/Displays", "rviz/Help", "rviz/Selection", "rviz/Time",
                   "rviz/Tool Properties", "rviz/Views"}
@@ -102,6 +108,7 @@ def static_rviz_problems(path):
     frame = (manager.get("Global Options") or {}).get("Fixed Frame")
     if frame != FIXED_FRAME:
         problems.append(f"Fixed Frame is {frame!r}, expected {FIXED_FRAME!r}")
+    problems += frame_and_view_problems(frame, manager.get("Views") or {})
     displays = list(all_displays(manager.get("Displays")))
     if not all(isinstance(display, dict) for display in displays):
         return problems + ["a display is not a mapping"]
@@ -143,6 +150,37 @@ def static_rviz_problems(path):
     for panel in config.get("Panels") or []:
         if panel.get("Class") not in BUILTIN_PANELS | declared:
             problems.append(f"panel class {panel.get('Class')!r} is unknown")
+    return problems
+
+
+def frame_and_view_problems(frame, views):
+    """The fixed frame is the default ~fixed_frame of the config and of replay.launch; the
+    view is top-down and fits the map demo.launch builds."""
+    problems = []
+    defaults = {}
+    for arg in ET.parse(os.path.join(PACKAGE_DIR, "launch", "replay.launch")).getroot().findall("arg"):
+        if arg.get("name") == "fixed_frame":
+            defaults["launch/replay.launch fixed_frame"] = arg.get("default")
+    with open(os.path.join(PACKAGE_DIR, "config", "dynamic_occupancy_grid.yaml")) as file:
+        defaults["config/dynamic_occupancy_grid.yaml fixed_frame"] = (yaml.safe_load(file) or {}).get("fixed_frame")
+    for where, default in defaults.items():
+        if default != frame:
+            problems.append(f"Fixed Frame is {frame!r}, but the default of {where} is {default!r}")
+    current = views.get("Current") or {}
+    if current.get("Class") != "rviz/TopDownOrtho":
+        return problems + [f"the view is {current.get('Class')!r}, expected rviz/TopDownOrtho"]
+    try:
+        scale, x, y = (float(current.get(key)) for key in ("Scale", "X", "Y"))
+    except (TypeError, ValueError):
+        return problems + ["the view has no numeric Scale, X, Y"]
+    min_x, max_x, min_y, max_y = DEMO_MAP_BOX
+    half_width, half_height = (px / 2.0 / scale if scale > 0 else 0.0 for px in RENDER_PANEL_PX)
+    if not (x - half_width <= min_x and max_x <= x + half_width and
+            y - half_height <= min_y and max_y <= y + half_height):
+        problems.append(f"the view (centre {x}, {y}, {scale} px/m) does not show the demo map "
+                        f"x {min_x}..{max_x}, y {min_y}..{max_y} in {RENDER_PANEL_PX[0]} x {RENDER_PANEL_PX[1]} px")
+    elif scale < 0.7 * min(RENDER_PANEL_PX[0] / (max_x - min_x), RENDER_PANEL_PX[1] / (max_y - min_y)):
+        problems.append(f"the view ({scale} px/m) shows the demo map smaller than 70 % of the panel")
     return problems
 
 

@@ -3,6 +3,12 @@
 // convention of map_saver (trinary: occupied 0, free 254, unknown 205). Both files are
 // written atomically (temporary file, then rename), so a failed export leaves any older
 // files intact.
+//
+// The values themselves: a NumPy .npy file per layer (format version 1.0, float32
+// little-endian '<f4', C order, shape (rows, cols)), NaN for unknown cells, row 0 the
+// bottom row (min y) as in nav_msgs/OccupancyGrid -- *not* flipped like the PGM; element
+// [r][c] is the cell whose lower-left corner is at origin + (c, r) * resolution of the
+// YAML written next to it.
 
 #include <cstdint>
 #include <string>
@@ -25,6 +31,17 @@ struct MapServerThresholds {
 void writeMapServerFiles(const std::string& directory, const std::string& name,
                          const MapWindow& window, const std::vector<std::int8_t>& occupancy,
                          const MapServerThresholds& thresholds = MapServerThresholds{});
+
+/// The bytes of a NumPy .npy file (version 1.0) holding `values` as a float32 array of
+/// shape (rows, cols) in C order ('<f4', little-endian on any host): element [r][c] =
+/// values[r * cols + c]. NaN stays NaN. Throws std::invalid_argument when the sizes differ.
+std::string npyFloat32(const std::vector<float>& values, std::int64_t rows, std::int64_t cols);
+
+/// Writes `<directory>/<name>.npy` (npyFloat32 of row-major `values` over `window`, row 0 =
+/// bottom row as in OccupancyGrid, NaN = unknown), atomically. Throws std::invalid_argument
+/// for a size mismatch, std::runtime_error naming the file on any I/O failure.
+void writeNpyLayer(const std::string& directory, const std::string& name, const MapWindow& window,
+                   const std::vector<float>& values);
 
 /// Writes `contents` to `path` through `path.tmp` + rename; throws std::runtime_error.
 void writeFileAtomically(const std::string& path, const std::string& contents);
