@@ -1,10 +1,12 @@
 # The ROS-free libraries, shared by the catkin build (CMakeLists.txt) and the plain CMake
 # build that proves the split (test/core_standalone):
-#   dynamic_occupancy_grid_core        the mapping library a user links (Eigen only)
+#   dynamic_occupancy_grid_core        the mapping library a user links (Eigen; zlib for the
+#                                      model file's CRC-32)
 #   dynamic_occupancy_grid_evaluation  the simulator and the papers' experiments, on top of
 #                                      the core; the core never depends on it
 find_package(Eigen3 3.3 REQUIRED NO_MODULE)
 find_package(Threads REQUIRED)
+find_package(ZLIB REQUIRED)
 
 set(DOG_ROOT ${CMAKE_CURRENT_LIST_DIR}/..)
 add_library(dynamic_occupancy_grid_core
@@ -26,6 +28,8 @@ add_library(dynamic_occupancy_grid_core
 )
 target_include_directories(dynamic_occupancy_grid_core PUBLIC ${DOG_ROOT}/include)
 target_link_libraries(dynamic_occupancy_grid_core PUBLIC Eigen3::Eigen Threads::Threads)
+# Only model_io.cpp includes zlib.h; no public header does, so users need not see it.
+target_link_libraries(dynamic_occupancy_grid_core PRIVATE ZLIB::ZLIB)
 target_compile_features(dynamic_occupancy_grid_core PUBLIC cxx_std_17)
 target_compile_options(dynamic_occupancy_grid_core PRIVATE -Wall -Wextra -Wpedantic)
 set_target_properties(dynamic_occupancy_grid_core PROPERTIES POSITION_INDEPENDENT_CODE ON)

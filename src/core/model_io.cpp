@@ -1,15 +1,15 @@
 // The model file (docs/model_format.md). Byte order is written out explicitly, so the file
 // is the same on any host; the file I/O uses POSIX (open, fsync, rename) for a durable,
-// atomic replace, which the C++17 standard library cannot express.
+// atomic replace, which the C++17 standard library cannot express; the checksum is zlib's.
 
 #include "dynamic_occupancy_grid/core/model_io.h"
 
 #include <fcntl.h>
 #include <sys/stat.h>
 #include <unistd.h>
+#include <zlib.h>
 
 #include <algorithm>
-#include <array>
 #include <cerrno>
 #include <cmath>
 #include <cstdio>
@@ -42,43 +42,12 @@ static_assert(kCellSize == 62, "docs/model_format.md documents 62-byte cell reco
 constexpr std::size_t kChecksumSize = 4;
 constexpr std::size_t kMinimumSize = kHeaderSize + kChecksumSize;
 
-// ---- CRC-32 (IEEE 802.3, reflected, as zlib.crc32), slicing by 8 -----------------------
+// ---- CRC-32: zlib's own, the one the format promises and Python's zlib.crc32 computes ----
 
-using CrcTables = std::array<std::array<std::uint32_t, 256>, 8>;
-
-constexpr CrcTables makeCrcTables() {
-  CrcTables tables{};
-  for (std::uint32_t byte = 0; byte < 256; ++byte) {
-    std::uint32_t crc = byte;
-    for (int bit = 0; bit < 8; ++bit) crc = (crc & 1U) != 0 ? (crc >> 1) ^ 0xEDB88320U : crc >> 1;
-    tables[0][byte] = crc;
-  }
-  for (std::size_t byte = 0; byte < 256; ++byte) {
-    for (std::size_t k = 1; k < 8; ++k) {
-      const std::uint32_t previous = tables[k - 1][byte];
-      tables[k][byte] = (previous >> 8) ^ tables[0][previous & 0xFFU];
-    }
-  }
-  return tables;
-}
-
-constexpr CrcTables kCrcTables = makeCrcTables();
-
-std::uint32_t crc32(const unsigned char* data, std::size_t size) {
-  std::uint32_t crc = 0xFFFFFFFFU;
-  // Eight bytes per round (the usual "slicing-by-8"): the checksum of a large map costs a
-  // fraction of writing it.
-  while (size >= 8) {
-    const std::uint32_t low = crc ^ (std::uint32_t{data[0]} | std::uint32_t{data[1]} << 8 |
-                                     std::uint32_t{data[2]} << 16 | std::uint32_t{data[3]} << 24);
-    crc = kCrcTables[7][low & 0xFFU] ^ kCrcTables[6][(low >> 8) & 0xFFU] ^
-          kCrcTables[5][(low >> 16) & 0xFFU] ^ kCrcTables[4][low >> 24] ^ kCrcTables[3][data[4]] ^
-          kCrcTables[2][data[5]] ^ kCrcTables[1][data[6]] ^ kCrcTables[0][data[7]];
-    data += 8;
-    size -= 8;
-  }
-  while (size-- > 0) crc = (crc >> 8) ^ kCrcTables[0][(crc ^ *data++) & 0xFFU];
-  return crc ^ 0xFFFFFFFFU;
+std::uint32_t checksum(const unsigned char* data, std::size_t size) {
+  // crc32_z takes a size_t length (crc32 takes an unsigned int), so a map file over 4 GiB
+  // needs no chunking.
+  return static_cast<std::uint32_t>(::crc32_z(::crc32_z(0L, nullptr, 0), data, size));
 }
 
 // ---- little-endian encoding, whatever the host's byte order ----------------------------
@@ -238,7 +207,7 @@ std::unique_ptr<Mapper> deserializeChecked(const std::string& bytes) {
   {
     Reader checksum_reader(data + size - kChecksumSize);
     const std::uint32_t stored = checksum_reader.u32();
-    const std::uint32_t computed = crc32(data, size - kChecksumSize);
+    const std::uint32_t computed = checksum(data, size - kChecksumSize);
     if (stored != computed) {
       char message[128];
       std::snprintf(message, sizeof(message), "corrupt model file: checksum mismatch (stored %08x, computed %08x)",
@@ -489,7 +458,7 @@ std::string serializeModel(const Mapper& mapper) {
     throw std::logic_error("serializeModel: wrote " + std::to_string(body) + " bytes, expected " +
                            std::to_string(bytes.size() - kChecksumSize));
   }
-  writer.u32(crc32(begin, body));
+  writer.u32(checksum(begin, body));
   return bytes;
 }
 

@@ -1,6 +1,7 @@
 #pragma once
-// What the bag tools (process_bag, offline_em) share: command-line parsing of the options
-// they have in common, the progress bar, and running offline EM on what a mapper recorded.
+// What the bag tools (process_bag, offline_em, check_bag, simulate) share: the options they
+// have in common (on command_line.h), the progress bar, and running offline EM on what a
+// mapper recorded.
 // Header-only: each tool stays one .cpp file.
 
 #include <unistd.h>
@@ -10,15 +11,16 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
-#include <cstdlib>
 #include <exception>
-#include <iostream>
-#include <sstream>
+#include <stdexcept>
 #include <string>
 #include <thread>
-#include <utility>
 #include <vector>
 
+#include <boost/algorithm/string/classification.hpp>
+#include <boost/algorithm/string/split.hpp>
+
+#include "command_line.h"
 #include "dynamic_occupancy_grid/core/mapper.h"
 #include "dynamic_occupancy_grid/core/offline_em.h"
 #include "dynamic_occupancy_grid/ros/bag_offline_em.h"
@@ -27,37 +29,7 @@
 namespace dynamic_occupancy_grid {
 namespace bag_tools {
 
-/// Help text of the options parseSharedOption understands.
-inline const char* const kSharedUsage =
-    "  --topic NAME          LaserScan topic (default /scan)\n"
-    "  --fixed-frame NAME    frame the map is built in (default odom)\n"
-    "  --laser-pose X,Y,YAW  static laser pose in the fixed frame (m, m, rad); tf is not\n"
-    "                        read (for bags recorded without tf)\n"
-    "  --start-time T        only scans stamped at or after T (ROS time, s; default: all)\n"
-    "  --end-time T          only scans stamped at or before T (ROS time, s; default: all)\n"
-    "  --resolution M        cell size in metres (default 0.05)\n"
-    "  --time-step S         HMM time step in seconds (default 1.0)\n"
-    "  --max-range M         readings longer than M metres count as no return (default:\n"
-    "                        the sensor's range_max)\n"
-    "  --max-free-range M    beams without return clear cells up to M metres (default 10;\n"
-    "                        0 ignores them)\n"
-    "  --p-hit-given-occ P   sensor model: p(hit | occupied) (default 0.7)\n"
-    "  --p-hit-given-free P  sensor model: p(hit | free) (default 0.2)\n"
-    "  --prior-p-occ-given-free P   transition prior per step, free -> occupied (default 0.01)\n"
-    "  --prior-p-free-given-occ P   transition prior per step, occupied -> free (default 0.01)\n"
-    "  --em-iterations N     offline EM: at most N iterations per cell (default 100)\n"
-    "  --em-tolerance X      offline EM: a cell stops when an iteration gains less than X\n"
-    "                        nats (default 1e-4; 0 always runs N iterations)\n"
-    "  --em-prior-weight W   offline EM: W pseudo-transitions per state drawn from the\n"
-    "                        prior transitions (MAP; default 2; 0 = maximum likelihood)\n"
-    "  --mrf-temperature T   offline EM: smooth the two transition maps with a pairwise MRF\n"
-    "                        prior over 8-neighbour cells at temperature T (THEORY.md §7;\n"
-    "                        the lower T, the smoother; default 0 = off, per-cell EM); all\n"
-    "                        cells then iterate together and stop when an iteration gains\n"
-    "                        less than X (--em-tolerance) times the number of cells\n"
-    "  --threads N           offline EM worker threads (default 0 = one per core)\n";
-
-/// The options both tools understand.
+/// The options the bag tools share.
 struct SharedOptions {
   ros_layer::BagScanSourceOptions source;
   core::MapperConfig mapper;
@@ -68,157 +40,94 @@ struct SharedOptions {
   }();
 };
 
-/// Walks over argv; errors are usage errors: message, usage, exit status 2.
-class Arguments {
- public:
-  Arguments(int argc, char** argv, std::string tool, std::string usage)
-      : args_(argv + 1, argv + argc), tool_(std::move(tool)), usage_(std::move(usage)) {}
+/// "X,Y,YAW" as a pose; throws std::invalid_argument saying what was expected.
+inline core::Pose2D toLaserPose(const std::string& text) {
+  std::vector<std::string> parts;
+  boost::split(parts, text, boost::is_any_of(","));
+  const command_line::Range<double> any{};  // any finite number
+  try {
+    if (parts.size() == 3) {
+      return core::Pose2D{command_line::toNumber(parts[0], any), command_line::toNumber(parts[1], any),
+                          command_line::toNumber(parts[2], any)};
+    }
+  } catch (const std::invalid_argument&) {
+  }
+  throw std::invalid_argument("needs X,Y,YAW (three numbers), got '" + text + "'");
+}
 
-  /// The next argument, false at the end.
-  bool next(std::string* arg) {
-    if (index_ >= args_.size()) return false;
-    current_ = args_[index_++];
-    *arg = current_;
-    return true;
-  }
-  /// The value of the option just read.
-  std::string value() {
-    if (index_ >= args_.size()) fail(current_ + " needs a value");
-    return args_[index_++];
-  }
-  double number() { return parseNumber(current_, value()); }
-  /// A number in [min, max].
-  double number(double min, double max) {
-    const double result = number();
-    if (result < min || result > max) {
-      std::ostringstream message;
-      message << current_ << " must be in [" << min << ", " << max << "], got " << result;
-      fail(message.str());
-    }
-    return result;
-  }
-  /// A number > 0.
-  double positiveNumber() {
-    const double result = number();
-    if (!(result > 0.0)) {
-      std::ostringstream message;
-      message << current_ << " must be > 0, got " << result;
-      fail(message.str());
-    }
-    return result;
-  }
-  /// A number >= 0.
-  double nonNegativeNumber() {
-    const double result = number();
-    if (result < 0.0) {
-      std::ostringstream message;
-      message << current_ << " must be >= 0, got " << result;
-      fail(message.str());
-    }
-    return result;
-  }
-  /// A whole number in [min, max].
-  long integer(long min, long max) {
-    const std::string text = value();
-    std::size_t used = 0;
-    long result = 0;
-    try {
-      result = std::stol(text, &used);
-    } catch (const std::exception&) {
-      used = 0;
-    }
-    if (used != text.size() || text.empty()) fail(current_ + " expects a whole number, got '" + text + "'");
-    if (result < min || result > max) {
-      fail(current_ + " must be in [" + std::to_string(min) + ", " + std::to_string(max) + "], got " + text);
-    }
-    return result;
-  }
-  double parseNumber(const std::string& option, const std::string& text) {
-    std::size_t used = 0;
-    double result = 0.0;
-    try {
-      result = std::stod(text, &used);
-    } catch (const std::exception&) {
-      used = 0;
-    }
-    if (used != text.size() || text.empty() || !std::isfinite(result)) {
-      fail(option + " expects a number, got '" + text + "'");
-    }
-    return result;
-  }
+/// Adds the options of the bag source and the mapper to `line`, read into `options`.
+inline void addMappingOptions(command_line::CommandLine& line, SharedOptions* options) {
+  namespace cl = command_line;
+  ros_layer::BagScanSourceOptions& source = options->source;
+  core::MapperConfig& mapper = options->mapper;
+  line.options().add_options()
+      ("topic", cl::nonEmpty(&source.scan_topic, "a topic")->value_name("NAME"),
+       "LaserScan topic (default /scan)")
+      ("fixed-frame", cl::nonEmpty(&source.fixed_frame, "a frame")->value_name("NAME"),
+       "frame the map is built in (default odom)")
+      ("laser-pose",
+       cl::converted(toLaserPose, [&source](const core::Pose2D& pose) { source.static_laser_pose = pose; })
+           ->value_name("X,Y,YAW"),
+       "static laser pose in the fixed frame (m, m, rad); tf is not read (for bags recorded without tf)")
+      ("start-time", cl::number(&source.start_time_s, cl::atLeast(0.0))->value_name("T"),
+       "only scans stamped at or after T (ROS time, s; default: all)")
+      ("end-time", cl::number(&source.end_time_s, cl::atLeast(0.0))->value_name("T"),
+       "only scans stamped at or before T (ROS time, s; default: all)")
+      ("resolution", cl::number(&mapper.resolution_m, cl::above(0.0))->value_name("M"),
+       "cell size in metres (default 0.05)")
+      ("time-step", cl::number(&mapper.time_step_s, cl::above(0.0))->value_name("S"),
+       "HMM time step in seconds (default 1.0)")
+      ("max-range", cl::number(&source.max_range_m, cl::above(0.0))->value_name("M"),
+       "readings longer than M metres count as no return (default: the sensor's range_max)")
+      ("max-free-range", cl::number(&mapper.max_free_range_m, cl::atLeast(0.0))->value_name("M"),
+       "beams without return clear cells up to M metres (default 10; 0 ignores them)")
+      ("p-hit-given-occ", cl::number(&mapper.p_hit_given_occ, cl::between(0.0, 1.0))->value_name("P"),
+       "sensor model: p(hit | occupied) (default 0.7)")
+      ("p-hit-given-free", cl::number(&mapper.p_hit_given_free, cl::between(0.0, 1.0))->value_name("P"),
+       "sensor model: p(hit | free) (default 0.2)")
+      ("prior-p-occ-given-free",
+       cl::number(&mapper.prior_transitions.p_occ_given_free, cl::between(0.0, 1.0))->value_name("P"),
+       "transition prior per step, free -> occupied (default 0.01)")
+      ("prior-p-free-given-occ",
+       cl::number(&mapper.prior_transitions.p_free_given_occ, cl::between(0.0, 1.0))->value_name("P"),
+       "transition prior per step, occupied -> free (default 0.01)");
+}
 
-  [[noreturn]] void fail(const std::string& message) const {
-    std::cerr << tool_ << ": " << message << "\n" << usage_;
-    std::exit(2);
-  }
-  [[noreturn]] void help() const {
-    std::cout << usage_;
-    std::exit(0);
-  }
+/// The names of the options addEmOptions adds.
+inline const std::vector<std::string>& emOptionNames() {
+  static const std::vector<std::string> names{"em-iterations", "em-tolerance", "em-prior-weight", "mrf-temperature",
+                                              "threads"};
+  return names;
+}
 
- private:
-  std::vector<std::string> args_;
-  std::size_t index_ = 0;
-  std::string current_;
-  std::string tool_;
-  std::string usage_;
-};
-
-/// Reads `arg` (and its value) if it is one of kSharedUsage's options; false otherwise.
-inline bool parseSharedOption(const std::string& arg, Arguments& args, SharedOptions* options) {
-  if (arg == "--topic") {
-    options->source.scan_topic = args.value();
-  } else if (arg == "--fixed-frame") {
-    options->source.fixed_frame = args.value();
-  } else if (arg == "--laser-pose") {
-    std::stringstream parts(args.value());
-    std::string item;
-    std::vector<double> numbers;
-    while (std::getline(parts, item, ',')) numbers.push_back(args.parseNumber(arg, item));
-    if (numbers.size() != 3) args.fail("--laser-pose expects X,Y,YAW");
-    options->source.static_laser_pose = core::Pose2D{numbers[0], numbers[1], numbers[2]};
-  } else if (arg == "--start-time") {
-    options->source.start_time_s = args.nonNegativeNumber();
-  } else if (arg == "--end-time") {
-    options->source.end_time_s = args.nonNegativeNumber();
-  } else if (arg == "--resolution") {
-    options->mapper.resolution_m = args.positiveNumber();
-  } else if (arg == "--time-step") {
-    options->mapper.time_step_s = args.positiveNumber();
-  } else if (arg == "--max-range") {
-    options->source.max_range_m = args.positiveNumber();
-  } else if (arg == "--max-free-range") {
-    options->mapper.max_free_range_m = args.nonNegativeNumber();
-  } else if (arg == "--p-hit-given-occ") {
-    options->mapper.p_hit_given_occ = args.number(0.0, 1.0);
-  } else if (arg == "--p-hit-given-free") {
-    options->mapper.p_hit_given_free = args.number(0.0, 1.0);
-  } else if (arg == "--prior-p-occ-given-free") {
-    options->mapper.prior_transitions.p_occ_given_free = args.number(0.0, 1.0);
-  } else if (arg == "--prior-p-free-given-occ") {
-    options->mapper.prior_transitions.p_free_given_occ = args.number(0.0, 1.0);
-  } else if (arg == "--em-iterations") {
-    options->em.max_iterations = static_cast<int>(args.integer(1, 65535));
-  } else if (arg == "--em-tolerance") {
-    options->em.tolerance = args.nonNegativeNumber();
-  } else if (arg == "--em-prior-weight") {
-    options->em.prior_weight = args.nonNegativeNumber();
-  } else if (arg == "--mrf-temperature") {
-    options->em.mrf_temperature = args.nonNegativeNumber();
-  } else if (arg == "--threads") {
-    options->em.threads = static_cast<unsigned>(args.integer(0, 1024));
-  } else {
-    return false;
-  }
-  return true;
+/// Adds the options that tune offline EM to `line`, read into `options`.
+inline void addEmOptions(command_line::CommandLine& line, SharedOptions* options) {
+  namespace cl = command_line;
+  core::OfflineEmConfig& em = options->em;
+  line.options().add_options()
+      ("em-iterations", cl::number(&em.max_iterations, cl::between(1, 65535))->value_name("N"),
+       "offline EM: at most N iterations per cell (default 100)")
+      ("em-tolerance", cl::number(&em.tolerance, cl::atLeast(0.0))->value_name("X"),
+       "offline EM: a cell stops when an iteration gains less than X nats (default 1e-4; 0 always runs N "
+       "iterations)")
+      ("em-prior-weight", cl::number(&em.prior_weight, cl::atLeast(0.0))->value_name("W"),
+       "offline EM: W pseudo-transitions per state drawn from the prior transitions (MAP; default 2; "
+       "0 = maximum likelihood)")
+      ("mrf-temperature", cl::number(&em.mrf_temperature, cl::atLeast(0.0))->value_name("T"),
+       "offline EM: smooth the two transition maps with a pairwise MRF prior over 8-neighbour cells at "
+       "temperature T (THEORY.md §7; the lower T, the smoother; default 0 = off, per-cell EM); all cells then "
+       "iterate together and stop when an iteration gains less than X (--em-tolerance) times the number of "
+       "cells")
+      ("threads", cl::number(&em.threads, cl::between(0U, 1024U))->value_name("N"),
+       "offline EM worker threads (default 0 = one per core)");
 }
 
 /// Checks the combination of values (the sensor model, the time range, ...) once all are
 /// read; a bad one is a usage error naming it.
-inline void validateSharedOptions(Arguments& args, SharedOptions* options) {
+inline void validateSharedOptions(const command_line::CommandLine& line, SharedOptions* options) {
   const ros_layer::BagScanSourceOptions& source = options->source;
   if (source.end_time_s > 0.0 && source.end_time_s < source.start_time_s) {
-    args.fail("--end-time must not be before --start-time");
+    line.fail("--end-time must not be before --start-time");
   }
   // EM's chain starts where the mapper's cells start, and its MAP prior is the mapper's.
   options->em.initial_p_occ = options->mapper.initial_p_occ;
@@ -227,7 +136,7 @@ inline void validateSharedOptions(Arguments& args, SharedOptions* options) {
     options->mapper.validate();
     options->em.validate();
   } catch (const std::exception& e) {
-    args.fail(e.what());
+    line.fail(e.what());
   }
 }
 

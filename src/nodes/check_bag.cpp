@@ -14,7 +14,6 @@
 #include <cstdio>
 #include <cstring>
 #include <exception>
-#include <set>
 #include <sstream>
 #include <stdexcept>
 #include <string>
@@ -31,37 +30,7 @@ namespace dog = dynamic_occupancy_grid;
 
 namespace {
 
-// Options of the shared set that do not apply: check_bag runs no offline EM, which would
-// learn the transitions from the very scans the map is scored on.
-const std::set<std::string> kEmOptions{"--em-iterations", "--em-tolerance", "--em-prior-weight", "--mrf-temperature",
-                                       "--threads"};
-
-// kSharedUsage without the entries of kEmOptions (an entry: its "  --name" line and the
-// more deeply indented lines continuing it).
-std::string sharedUsageWithoutEm() {
-  std::istringstream lines(dog::bag_tools::kSharedUsage);
-  std::string line;
-  std::string usage;
-  bool skipping = false;
-  while (std::getline(lines, line)) {
-    if (line.rfind("  --", 0) == 0) skipping = kEmOptions.count(line.substr(2, line.find(' ', 2) - 2)) > 0;
-    if (!skipping) usage += line + "\n";
-  }
-  return usage;
-}
-
 const std::vector<double> kDefaultHorizons_s{1.0, 5.0, 30.0, 60.0};
-
-const std::string kUsage = std::string(
-    "usage: check_bag BAG [options]\n"
-    "How well the map after each time step predicts the scans of the bag h seconds later\n"
-    "(dynamic model and static map; accuracy and Brier score). See docs/self_check.md.\n"
-    "  --horizon S           prediction horizon in seconds, rounded to whole time steps;\n"
-    "                        repeat for several (default 1, 5, 30, 60); 0 scores the map on\n"
-    "                        the scans it has just integrated\n"
-    "  --csv FILE            also write the results as CSV\n"
-    "  --no-learning         no online learning: cells keep the prior transitions\n") +
-    sharedUsageWithoutEm();
 
 struct Options {
   dog::bag_tools::SharedOptions shared;
@@ -71,34 +40,42 @@ struct Options {
 };
 
 Options parseArguments(int argc, char** argv) {
+  namespace cl = dog::command_line;
+  namespace po = boost::program_options;
   Options options;
-  dog::bag_tools::Arguments args(argc, argv, "check_bag", kUsage);
-  std::string arg;
-  while (args.next(&arg)) {
-    if (arg == "-h" || arg == "--help") {
-      args.help();
-    } else if (kEmOptions.count(arg) > 0) {
-      args.fail(arg + " does not apply: check_bag runs no offline EM (it would learn from the scans it is "
-                      "scored on)");
-    } else if (dog::bag_tools::parseSharedOption(arg, args, &options.shared)) {
-      continue;
-    } else if (arg == "--horizon") {
-      options.horizons_s.push_back(args.number(0.0, 1.0e9));
-    } else if (arg == "--csv") {
-      options.csv_path = args.value();
-      if (options.csv_path.empty()) args.fail("--csv needs a file name");
-    } else if (arg == "--no-learning") {
-      options.shared.mapper.learn_transitions = false;
-    } else if (!arg.empty() && arg[0] == '-') {
-      args.fail("unknown option " + arg);
-    } else if (options.shared.source.bag_path.empty()) {
-      options.shared.source.bag_path = arg;
-    } else {
-      args.fail("more than one bag given");
+  bool no_learning = false;
+  std::vector<std::string> bags;
+  cl::CommandLine line("check_bag",
+                       "usage: check_bag BAG [options]\n"
+                       "How well the map after each time step predicts the scans of the bag h seconds later\n"
+                       "(dynamic model and static map; accuracy and Brier score). See docs/self_check.md.\n");
+  line.options().add_options()
+      ("horizon", cl::numbers(&options.horizons_s, cl::between(0.0, 1.0e9))->value_name("S"),
+       "prediction horizon in seconds, rounded to whole time steps; repeat for several (default 1, 5, 30, 60); "
+       "0 scores the map on the scans it has just integrated")
+      ("csv", cl::nonEmpty(&options.csv_path, "a file name")->value_name("FILE"), "also write the results as CSV")
+      ("no-learning", po::bool_switch(&no_learning), "no online learning: cells keep the prior transitions");
+  dog::bag_tools::addMappingOptions(line, &options.shared);
+  // The options that tune offline EM are read (so that they are refused by name) but not
+  // listed: check_bag runs no offline EM, which would learn the transitions from the very
+  // scans the map is scored on.
+  for (const std::string& name : dog::bag_tools::emOptionNames()) {
+    line.hidden().add_options()(name.c_str(), po::value<std::string>());
+  }
+  line.hidden().add_options()("bag", po::value(&bags));
+  line.positional("bag");
+  const po::variables_map values = line.parse(argc, argv);
+  for (const std::string& name : dog::bag_tools::emOptionNames()) {
+    if (values.count(name) > 0) {
+      line.fail("--" + name + " does not apply: check_bag runs no offline EM (it would learn from the scans it is "
+                "scored on)");
     }
   }
-  if (options.shared.source.bag_path.empty()) args.fail("no bag given");
-  dog::bag_tools::validateSharedOptions(args, &options.shared);
+  if (bags.empty()) line.fail("no bag given");
+  if (bags.size() > 1) line.fail("more than one bag given");
+  options.shared.source.bag_path = bags.front();
+  if (no_learning) options.shared.mapper.learn_transitions = false;
+  dog::bag_tools::validateSharedOptions(line, &options.shared);
   if (options.horizons_s.empty()) options.horizons_s = kDefaultHorizons_s;
   const double time_step_s = options.shared.mapper.time_step_s;
   for (const double horizon_s : options.horizons_s) {
@@ -107,13 +84,13 @@ Options parseArguments(int argc, char** argv) {
     if (steps > 1.0e15) {
       std::ostringstream message;
       message << "--horizon " << horizon_s << " s is too many time steps of " << time_step_s << " s";
-      args.fail(message.str());
+      line.fail(message.str());
     }
     if (horizon_s > 0.0 && steps == 0.0) {
       std::ostringstream message;
       message << "--horizon " << horizon_s << " s rounds to 0 steps of " << time_step_s
               << " s: that would score the map on its own scans (use 0 for that on purpose)";
-      args.fail(message.str());
+      line.fail(message.str());
     }
     options.horizons_steps.push_back(static_cast<std::int64_t>(steps));
   }

@@ -6,17 +6,21 @@
 #include <cmath>
 #include <cstring>
 #include <cstdio>
-#include <cstdlib>
 #include <exception>
 #include <iomanip>
 #include <iostream>
 #include <limits>
 #include <sstream>
+#include <stdexcept>
 #include <string>
 #include <sys/stat.h>
 #include <unistd.h>
 #include <vector>
 
+#include <boost/algorithm/string/classification.hpp>
+#include <boost/algorithm/string/split.hpp>
+
+#include "command_line.h"
 #include "dynamic_occupancy_grid/evaluation/evaluation.h"
 #include "dynamic_occupancy_grid/core/map_export.h"
 #include "dynamic_occupancy_grid/evaluation/memory_experiment.h"
@@ -26,28 +30,6 @@
 namespace core = dynamic_occupancy_grid::core;
 
 namespace {
-
-const char* const kUsage =
-    "usage: evaluate [options]\n"
-    "Runs the papers' experiments on simulated changing worlds and writes CSV tables and a\n"
-    "summary (summary.md) into the output directory; scripts/plot_evaluation.py draws them.\n"
-    "  --out DIR             output directory (default ./dynamic_occupancy_grid_evaluation)\n"
-    "  --scenarios A,B,...   accuracy scenarios (default: dynamic_5_5,dynamic_25_25,\n"
-    "                        redraw_100,redraw_300,parking_lot); 'none' skips them\n"
-    "  --repetitions N       repetitions of each accuracy scenario (default 10)\n"
-    "  --path-repetitions N  repetitions of the path planning experiment (default 20;\n"
-    "                        0 skips it)\n"
-    "  --path-runs N         runs from A to B or back per repetition (default 20)\n"
-    "  --mrf-repetitions N   seeds of the MRF experiment (Li, Barão & Rato's simulation,\n"
-    "                        scenario mrf_squares: offline EM with and without the MRF;\n"
-    "                        default 10; 0 skips it)\n"
-    "  --mrf-temperature T   the MRF's temperature T in that experiment (default 50, the\n"
-    "                        paper's value; >= 1e-9, the lower the smoother)\n"
-    "  --memory-repetitions N  seeds of the memory navigation experiment (Morris et al.,\n"
-    "                        scenario dividers: static map, HMM grid, STM/LTM hypotheses;\n"
-    "                        default 10; 0 skips it)\n"
-    "  --seed S              base seed (default 1): the same seed gives the same numbers\n"
-    "  --threads N           worker threads (default 0 = one per core)\n";
 
 struct Options {
   std::string out = "dynamic_occupancy_grid_evaluation";
@@ -62,96 +44,62 @@ struct Options {
   unsigned threads = 0;
 };
 
-[[noreturn]] void usageError(const std::string& message) {
-  std::cerr << "evaluate: " << message << "\n" << kUsage;
-  std::exit(2);
-}
-
-long long parseInteger(const std::string& option, const std::string& text, long long min, long long max) {
-  std::size_t used = 0;
-  long long value = 0;
-  try {
-    value = std::stoll(text, &used);
-  } catch (const std::exception&) {
-    used = 0;
+/// "A,B,..." as accuracy scenarios ("none": no scenario); throws std::invalid_argument for
+/// an unknown one, one that belongs to another experiment, or one listed twice.
+std::vector<std::string> toScenarios(const std::string& text) {
+  std::vector<std::string> scenarios;
+  if (text == "none") return scenarios;
+  boost::split(scenarios, text, boost::is_any_of(","));
+  for (auto name = scenarios.begin(); name != scenarios.end(); ++name) {
+    core::scenarioConfig(*name);  // throws for an unknown name, listing the known ones
+    if (*name == "door") throw std::invalid_argument("the door scenario is the path planning experiment (--path-repetitions)");
+    if (*name == "mrf_squares") throw std::invalid_argument("the mrf_squares scenario is the MRF experiment (--mrf-repetitions)");
+    if (*name == "dividers") throw std::invalid_argument("the dividers scenario is the memory experiment (--memory-repetitions)");
+    if (std::find(scenarios.begin(), name, *name) != name) throw std::invalid_argument("scenario " + *name + " is listed twice");
   }
-  if (used != text.size() || text.empty() || value < min || value > max) {
-    usageError(option + " needs an integer in [" + std::to_string(min) + ", " + std::to_string(max) + "], got '" +
-               text + "'");
-  }
-  return value;
-}
-
-double parseTemperature(const std::string& option, const std::string& text) {
-  std::size_t used = 0;
-  double value = 0.0;
-  try {
-    value = std::stod(text, &used);
-  } catch (const std::exception&) {
-    used = 0;
-  }
-  if (used != text.size() || text.empty() || !std::isfinite(value) || !(value >= core::kMinMrfTemperature)) {
-    usageError(option + " needs a finite number >= 1e-9, got '" + text + "'");
-  }
-  return value;
+  return scenarios;
 }
 
 Options parseOptions(int argc, char** argv) {
+  namespace cl = dynamic_occupancy_grid::command_line;
   Options options;
-  for (int i = 1; i < argc; ++i) {
-    const std::string arg = argv[i];
-    if (arg == "-h" || arg == "--help") {
-      std::cout << kUsage;
-      std::exit(0);
-    }
-    if (i + 1 >= argc) usageError(arg == "" ? "empty argument" : "unknown option or missing value: " + arg);
-    const std::string value = argv[++i];
-    if (arg == "--out") {
-      options.out = value;
-    } else if (arg == "--scenarios") {
-      options.scenarios.clear();
-      if (value != "none") {
-        std::stringstream list(value);
-        std::string name;
-        while (std::getline(list, name, ',')) {
-          try {
-            core::scenarioConfig(name);
-          } catch (const std::invalid_argument& error) {
-            usageError(error.what());
-          }
-          if (name == "door") usageError("the door scenario is the path planning experiment (--path-repetitions)");
-          if (name == "mrf_squares") usageError("the mrf_squares scenario is the MRF experiment (--mrf-repetitions)");
-          if (name == "dividers") usageError("the dividers scenario is the memory experiment (--memory-repetitions)");
-          if (std::find(options.scenarios.begin(), options.scenarios.end(), name) != options.scenarios.end()) {
-            usageError("scenario " + name + " is listed twice");
-          }
-          options.scenarios.push_back(name);
-        }
-      }
-    } else if (arg == "--repetitions") {
-      options.repetitions = static_cast<int>(parseInteger(arg, value, 1, 100000));
-    } else if (arg == "--path-repetitions") {
-      options.path_repetitions = static_cast<int>(parseInteger(arg, value, 0, 100000));
-    } else if (arg == "--path-runs") {
-      options.path_runs = static_cast<int>(parseInteger(arg, value, 1, 100000));
-    } else if (arg == "--mrf-repetitions") {
-      options.mrf_repetitions = static_cast<int>(parseInteger(arg, value, 0, 100000));
-    } else if (arg == "--mrf-temperature") {
-      options.mrf_temperature = parseTemperature(arg, value);
-    } else if (arg == "--memory-repetitions") {
-      options.memory_repetitions = static_cast<int>(parseInteger(arg, value, 0, 100000));
-    } else if (arg == "--seed") {
-      options.seed = static_cast<std::uint64_t>(parseInteger(arg, value, 0, std::numeric_limits<long long>::max()));
-    } else if (arg == "--threads") {
-      options.threads = static_cast<unsigned>(parseInteger(arg, value, 0, 256));
-    } else {
-      usageError("unknown option " + arg);
-    }
-  }
+  const cl::Range<int> repetitions = cl::between(0, 100000);
+  cl::CommandLine line("evaluate",
+                       "usage: evaluate [options]\n"
+                       "Runs the papers' experiments on simulated changing worlds and writes CSV tables and a\n"
+                       "summary (summary.md) into the output directory; scripts/plot_evaluation.py draws them.\n");
+  line.options().add_options()
+      ("out", cl::nonEmpty(&options.out, "a directory")->value_name("DIR"),
+       "output directory (default ./dynamic_occupancy_grid_evaluation)")
+      ("scenarios", (new cl::Checked<std::vector<std::string>>(&options.scenarios, toScenarios))->value_name("A,B,..."),
+       "accuracy scenarios (default: dynamic_5_5,dynamic_25_25,redraw_100,redraw_300,parking_lot); 'none' skips "
+       "them")
+      ("repetitions", cl::number(&options.repetitions, cl::between(1, 100000))->value_name("N"),
+       "repetitions of each accuracy scenario (default 10)")
+      ("path-repetitions", cl::number(&options.path_repetitions, repetitions)->value_name("N"),
+       "repetitions of the path planning experiment (default 20; 0 skips it)")
+      ("path-runs", cl::number(&options.path_runs, cl::between(1, 100000))->value_name("N"),
+       "runs from A to B or back per repetition (default 20)")
+      ("mrf-repetitions", cl::number(&options.mrf_repetitions, repetitions)->value_name("N"),
+       "seeds of the MRF experiment (Li, Barão & Rato's simulation, scenario mrf_squares: offline EM with and "
+       "without the MRF; default 10; 0 skips it)")
+      ("mrf-temperature", cl::number(&options.mrf_temperature, cl::atLeast(core::kMinMrfTemperature))->value_name("T"),
+       "the MRF's temperature T in that experiment (default 50, the paper's value; >= 1e-9, the lower the "
+       "smoother)")
+      ("memory-repetitions", cl::number(&options.memory_repetitions, repetitions)->value_name("N"),
+       "seeds of the memory navigation experiment (Morris et al., scenario dividers: static map, HMM grid, "
+       "STM/LTM hypotheses; default 10; 0 skips it)")
+      ("seed",
+       cl::number(&options.seed, cl::between<std::uint64_t>(0, std::numeric_limits<long long>::max()))
+           ->value_name("S"),
+       "base seed (default 1): the same seed gives the same numbers")
+      ("threads", cl::number(&options.threads, cl::between(0U, 256U))->value_name("N"),
+       "worker threads (default 0 = one per core)");
+  line.parse(argc, argv);
   if (options.scenarios.empty() && options.path_repetitions == 0 && options.mrf_repetitions == 0 &&
       options.memory_repetitions == 0) {
-    usageError("nothing to run: no scenarios (--scenarios none), no path planning (--path-repetitions 0), no "
-               "MRF experiment (--mrf-repetitions 0) and no memory experiment (--memory-repetitions 0)");
+    line.fail("nothing to run: no scenarios (--scenarios none), no path planning (--path-repetitions 0), no "
+              "MRF experiment (--mrf-repetitions 0) and no memory experiment (--memory-repetitions 0)");
   }
   return options;
 }

@@ -21,11 +21,6 @@ namespace dog = dynamic_occupancy_grid;
 
 namespace {
 
-const std::string kUsage = std::string(
-    "usage: offline_em BAG [BAG...] --out MODEL [options]\n"
-    "  --out MODEL           model file to write (required)\n") +
-    dog::bag_tools::kSharedUsage;
-
 struct Options {
   dog::bag_tools::SharedOptions shared;
   std::vector<std::string> bags;
@@ -33,27 +28,21 @@ struct Options {
 };
 
 Options parseArguments(int argc, char** argv) {
+  namespace cl = dog::command_line;
   Options options;
-  dog::bag_tools::Arguments args(argc, argv, "offline_em", kUsage);
-  std::string arg;
-  while (args.next(&arg)) {
-    if (arg == "-h" || arg == "--help") {
-      args.help();
-    } else if (dog::bag_tools::parseSharedOption(arg, args, &options.shared)) {
-      continue;
-    } else if (arg == "--out") {
-      options.model_path = args.value();
-    } else if (!arg.empty() && arg[0] == '-') {
-      args.fail("unknown option " + arg);
-    } else {
-      options.bags.push_back(arg);
-    }
-  }
-  if (options.bags.empty()) args.fail("no bag given");
-  if (options.model_path.empty()) args.fail("--out MODEL is required");
+  cl::CommandLine line("offline_em", "usage: offline_em BAG [BAG...] --out MODEL [options]\n");
+  line.options().add_options()
+      ("out", cl::nonEmpty(&options.model_path, "a file name")->value_name("MODEL")->required(),
+       "model file to write (required)");
+  dog::bag_tools::addMappingOptions(line, &options.shared);
+  dog::bag_tools::addEmOptions(line, &options.shared);
+  line.hidden().add_options()("bag", boost::program_options::value(&options.bags));
+  line.positional("bag");
+  line.parse(argc, argv);
+  if (options.bags.empty()) line.fail("no bag given");
   // Only the observations matter while mapping: EM learns the transitions afterwards.
   options.shared.mapper.learn_transitions = false;
-  dog::bag_tools::validateSharedOptions(args, &options.shared);
+  dog::bag_tools::validateSharedOptions(line, &options.shared);
   return options;
 }
 

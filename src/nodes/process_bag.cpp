@@ -23,19 +23,6 @@ namespace dog = dynamic_occupancy_grid;
 
 namespace {
 
-const std::string kUsage = std::string(
-    "usage: process_bag BAG [options]\n"
-    "  --out DIR             output directory (default ./dynamic_occupancy_grid_output)\n"
-    "  --model FILE          model file to write (default DIR/model.dogm)\n"
-    "  --offline-em          after mapping, learn every cell's transitions by offline EM\n"
-    "                        over the whole bag and use them (and its final beliefs)\n"
-    "  --no-learning         no online learning: cells keep the prior transitions\n"
-    "  --snapshot-every S    also write all layers every S seconds of bag time into\n"
-    "                        DIR/snapshots/<t>s/\n"
-    "  --prediction-horizon S  the 'predicted' layer looks S seconds ahead (default 60)\n"
-    "  --transition-scale P  transition layers: P per step is written as 100 (default 0.1)\n") +
-    dog::bag_tools::kSharedUsage;
-
 struct Options {
   dog::bag_tools::SharedOptions shared;
   std::string out_dir = "dynamic_occupancy_grid_output";
@@ -47,39 +34,37 @@ struct Options {
 };
 
 Options parseArguments(int argc, char** argv) {
+  namespace cl = dog::command_line;
   Options options;
-  dog::bag_tools::Arguments args(argc, argv, "process_bag", kUsage);
-  std::string arg;
-  while (args.next(&arg)) {
-    if (arg == "-h" || arg == "--help") {
-      args.help();
-    } else if (dog::bag_tools::parseSharedOption(arg, args, &options.shared)) {
-      continue;
-    } else if (arg == "--out") {
-      options.out_dir = args.value();
-    } else if (arg == "--model") {
-      options.model_path = args.value();
-    } else if (arg == "--offline-em") {
-      options.offline_em = true;
-    } else if (arg == "--no-learning") {
-      options.shared.mapper.learn_transitions = false;
-    } else if (arg == "--snapshot-every") {
-      options.snapshot_every_s = args.positiveNumber();
-    } else if (arg == "--prediction-horizon") {
-      options.prediction_horizon_s = args.number(0.0, 1.0e9);
-    } else if (arg == "--transition-scale") {
-      options.transition_scale = args.number(1.0e-6, 1.0);
-    } else if (!arg.empty() && arg[0] == '-') {
-      args.fail("unknown option " + arg);
-    } else if (options.shared.source.bag_path.empty()) {
-      options.shared.source.bag_path = arg;
-    } else {
-      args.fail("more than one bag given");
-    }
-  }
-  if (options.shared.source.bag_path.empty()) args.fail("no bag given");
-  if (options.out_dir.empty()) args.fail("--out needs a directory");
-  dog::bag_tools::validateSharedOptions(args, &options.shared);
+  bool no_learning = false;
+  std::vector<std::string> bags;
+  cl::CommandLine line("process_bag", "usage: process_bag BAG [options]\n");
+  line.options().add_options()
+      ("out", cl::nonEmpty(&options.out_dir, "a directory")->value_name("DIR"),
+       "output directory (default ./dynamic_occupancy_grid_output)")
+      ("model", cl::nonEmpty(&options.model_path, "a file name")->value_name("FILE"),
+       "model file to write (default DIR/model.dogm)")
+      ("offline-em", boost::program_options::bool_switch(&options.offline_em),
+       "after mapping, learn every cell's transitions by offline EM over the whole bag and use them (and its "
+       "final beliefs)")
+      ("no-learning", boost::program_options::bool_switch(&no_learning),
+       "no online learning: cells keep the prior transitions")
+      ("snapshot-every", cl::number(&options.snapshot_every_s, cl::above(0.0))->value_name("S"),
+       "also write all layers every S seconds of bag time into DIR/snapshots/<t>s/")
+      ("prediction-horizon", cl::number(&options.prediction_horizon_s, cl::between(0.0, 1.0e9))->value_name("S"),
+       "the 'predicted' layer looks S seconds ahead (default 60)")
+      ("transition-scale", cl::number(&options.transition_scale, cl::between(1.0e-6, 1.0))->value_name("P"),
+       "transition layers: P per step is written as 100 (default 0.1)");
+  dog::bag_tools::addMappingOptions(line, &options.shared);
+  dog::bag_tools::addEmOptions(line, &options.shared);
+  line.hidden().add_options()("bag", boost::program_options::value(&bags));
+  line.positional("bag");
+  line.parse(argc, argv);
+  if (bags.empty()) line.fail("no bag given");
+  if (bags.size() > 1) line.fail("more than one bag given");
+  options.shared.source.bag_path = bags.front();
+  if (no_learning) options.shared.mapper.learn_transitions = false;
+  dog::bag_tools::validateSharedOptions(line, &options.shared);
   if (options.model_path.empty()) options.model_path = (std::filesystem::path(options.out_dir) / "model.dogm").string();
   return options;
 }

@@ -56,28 +56,6 @@ std::string scenarioList() {
   return names;
 }
 
-const std::string kUsage = std::string(
-    "usage: simulate --out FILE.bag [options]\n"
-    "Writes a simulated run of a scenario to a bag, with the true state of its world:\n"
-    "  /scan          sensor_msgs/LaserScan, frame laser\n"
-    "  /tf            odom -> base_link: the robot's pose at every scan\n"
-    "  /tf_static     base_link -> laser, once (latched)\n"
-    "  /ground_truth  nav_msgs/OccupancyGrid in odom, origin (0, 0): every cell's true state\n"
-    "                 (100 occupied, 0 free), one per step, stamped at the step's start\n"
-    "  /ground_truth_p_occ_given_free, /ground_truth_p_free_given_occ\n"
-    "                 the same with every cell's true transition probability per step (see\n"
-    "                 --transition-scale), at the start and whenever it changes (latched)\n"
-    "Simulation time t (s) is ROS time 1000000000 + t.\n"
-    "options:\n"
-    "  --scenario NAME       the scenario (default dynamic_5_5), one of:\n"
-    "                        ") + scenarioList() + "\n" +
-    "  --world-seed N        draws the layout: walls, which cells are dynamic (default 1)\n"
-    "  --seed N              draws the run: state changes, parked cars, sensor noise (default 1)\n"
-    "  --steps N             time steps to simulate (default: the scenario's)\n"
-    "  --transition-scale P  true transitions: P per step is written as 100, larger values\n"
-    "                        too (default 0.1, as process_bag's layers)\n"
-    "  --out FILE            the bag to write (through FILE.tmp, renamed when complete)\n";
-
 struct Options {
   dog::core::ScenarioConfig scenario = dog::core::scenarioConfig("dynamic_5_5");
   std::uint64_t world_seed = 1;
@@ -88,33 +66,43 @@ struct Options {
 };
 
 Options parseArguments(int argc, char** argv) {
+  namespace cl = dog::command_line;
   Options options;
-  dog::bag_tools::Arguments args(argc, argv, "simulate", kUsage);
-  std::string arg;
-  while (args.next(&arg)) {
-    if (arg == "-h" || arg == "--help") {
-      args.help();
-    } else if (arg == "--scenario") {
-      try {
-        options.scenario = dog::core::scenarioConfig(args.value());
-      } catch (const std::invalid_argument& e) {
-        args.fail(e.what());
-      }
-    } else if (arg == "--world-seed") {
-      options.world_seed = static_cast<std::uint64_t>(args.integer(0, std::numeric_limits<long>::max()));
-    } else if (arg == "--seed") {
-      options.run_seed = static_cast<std::uint64_t>(args.integer(0, std::numeric_limits<long>::max()));
-    } else if (arg == "--steps") {
-      options.steps = args.integer(1, std::numeric_limits<std::int32_t>::max());
-    } else if (arg == "--transition-scale") {
-      options.transition_scale = args.number(1.0e-6, 1.0);
-    } else if (arg == "--out") {
-      options.out_path = args.value();
-    } else {
-      args.fail("unknown option " + arg);
-    }
-  }
-  if (options.out_path.empty()) args.fail("--out FILE.bag is required");
+  const auto seeds = cl::between<std::uint64_t>(0, std::numeric_limits<long>::max());
+  cl::CommandLine line(
+      "simulate",
+      "usage: simulate --out FILE.bag [options]\n"
+      "Writes a simulated run of a scenario to a bag, with the true state of its world:\n"
+      "  /scan          sensor_msgs/LaserScan, frame laser\n"
+      "  /tf            odom -> base_link: the robot's pose at every scan\n"
+      "  /tf_static     base_link -> laser, once (latched)\n"
+      "  /ground_truth  nav_msgs/OccupancyGrid in odom, origin (0, 0): every cell's true state\n"
+      "                 (100 occupied, 0 free), one per step, stamped at the step's start\n"
+      "  /ground_truth_p_occ_given_free, /ground_truth_p_free_given_occ\n"
+      "                 the same with every cell's true transition probability per step (see\n"
+      "                 --transition-scale), at the start and whenever it changes (latched)\n"
+      "Simulation time t (s) is ROS time 1000000000 + t.\n");
+  line.options().add_options()
+      ("scenario",
+       // scenarioConfig's error lists the scenarios there are.
+       cl::converted(dog::core::scenarioConfig,
+                     [&options](const dog::core::ScenarioConfig& scenario) { options.scenario = scenario; })
+           ->value_name("NAME"),
+       ("the scenario (default dynamic_5_5), one of: " + scenarioList()).c_str())
+      ("world-seed", cl::number(&options.world_seed, seeds)->value_name("N"),
+       "draws the layout: walls, which cells are dynamic (default 1)")
+      ("seed", cl::number(&options.run_seed, seeds)->value_name("N"),
+       "draws the run: state changes, parked cars, sensor noise (default 1)")
+      ("steps",
+       cl::number<std::int64_t>(nullptr, cl::between<std::int64_t>(1, std::numeric_limits<std::int32_t>::max()))
+           ->value_name("N")
+           ->notifier([&options](std::int64_t steps) { options.steps = steps; }),
+       "time steps to simulate (default: the scenario's)")
+      ("transition-scale", cl::number(&options.transition_scale, cl::between(1.0e-6, 1.0))->value_name("P"),
+       "true transitions: P per step is written as 100, larger values too (default 0.1, as process_bag's layers)")
+      ("out", cl::nonEmpty(&options.out_path, "a file name")->value_name("FILE")->required(),
+       "the bag to write (through FILE.tmp, renamed when complete)");
+  line.parse(argc, argv);
   return options;
 }
 

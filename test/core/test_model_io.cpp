@@ -5,8 +5,9 @@
 // bad values, trailing bytes, absurd counts) is refused with a clear std::runtime_error; the
 // file is replaced atomically and errors name it.
 //
-// The checksum is checked against a bit-by-bit CRC-32 written here (the file promises the
-// CRC-32 of zlib, which the Python reader uses).
+// The checksum is checked against a bit-by-bit CRC-32 written here, independent of the
+// zlib the library calls (the file promises the CRC-32 of zlib, which the Python reader
+// uses too).
 
 #include "dynamic_occupancy_grid/core/model_io.h"
 

@@ -241,6 +241,22 @@ class EvaluateTool(unittest.TestCase):
                 tables.append([{k: v for k, v in row.items() if k != "seconds"} for row in csv.DictReader(file)])
         self.assertEqual(tables[0], tables[1])
 
+    def test_help_and_errors_name_the_option(self):
+        rc, stdout, stderr = evaluate(["--help"])
+        self.assertEqual(rc, 0, stderr)
+        self.assertTrue(stdout.startswith("usage: evaluate [options]"), stdout)
+        for entry in ("-h [ --help ]", "--out DIR", "--scenarios A,B,...", "--mrf-temperature T", "--threads N"):
+            self.assertIn(entry, stdout)
+        for args, message in ((["--repetitions", "x"], "evaluate: --repetitions: needs a whole number in [1, 100000], got 'x'"),
+                              (["--mrf-temperature", "0"], "evaluate: --mrf-temperature: needs a number >= 1e-09, got '0'"),
+                              (["--scenarios", "door"], "evaluate: --scenarios: the door scenario is the path planning"),
+                              (["--seed", "1", "--seed", "2"], "'--seed' cannot be specified more than once"),
+                              (["--out"], "'--out' is missing")):
+            rc, _, stderr = evaluate(args)
+            self.assertEqual(rc, 2, args)
+            self.assertIn(message, stderr)
+            self.assertIn("usage: evaluate", stderr)
+
     def test_errors(self):
         rc, _, stderr = evaluate(["--scenarios", "nope"])
         self.assertEqual(rc, 2)

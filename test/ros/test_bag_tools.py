@@ -482,6 +482,27 @@ class TestBagTools(unittest.TestCase):
         self.assert_fails("offline_em", ["--out", os.path.join(self.tmp, "x.dogm")], 2, "no bag")
         self.assert_fails("offline_em", [NEATO_BAG, "--em-tolerance", "-1", "--out", "x.dogm"], 2, "usage: offline_em")
 
+    def test_help_and_errors_name_the_option(self):
+        """--help prints the generated usage; a bad value, a missing or repeated option is named."""
+        for tool in ("process_bag", "offline_em"):
+            rc, stdout, stderr = run_tool(tool, ["--help"])
+            self.assertEqual(rc, 0, stderr)
+            self.assertTrue(stdout.startswith(f"usage: {tool} BAG"), stdout)
+            for entry in ("-h [ --help ]", "--out ", "--resolution M", "--laser-pose X,Y,YAW", "--threads N"):
+                self.assertIn(entry, stdout)
+            self.assertEqual(stderr, "")
+        out = ["--out", os.path.join(self.tmp, "named")]
+        self.assert_fails("process_bag", [NEATO_BAG, "--resolution", "abc"] + out, 2,
+                          "process_bag: --resolution: needs a number > 0, got 'abc'", "usage: process_bag")
+        self.assert_fails("process_bag", [NEATO_BAG, "--threads", "-1"] + out, 2,
+                          "process_bag: --threads: needs a whole number in [0, 1024], got '-1'")
+        self.assert_fails("process_bag", [NEATO_BAG, "--laser-pose", "1,2,x"] + out, 2,
+                          "process_bag: --laser-pose: needs X,Y,YAW")
+        self.assert_fails("process_bag", [NEATO_BAG, "--resolution", "0.1", "--resolution", "0.2"] + out, 2,
+                          "'--resolution' cannot be specified more than once")
+        self.assert_fails("process_bag", [NEATO_BAG, "--res", "0.1"] + out, 2, "unrecognised option '--res'")
+        self.assert_fails("offline_em", [NEATO_BAG], 2, "'--out' is required")
+
     def test_bad_mrf_temperature(self):
         out_dir = os.path.join(self.tmp, "refused_mrf")
         model_path = os.path.join(self.tmp, "refused_mrf.dogm")
@@ -491,7 +512,7 @@ class TestBagTools(unittest.TestCase):
                 self.assert_fails(tool, args + ["--mrf-temperature", value], 2, f"{tool}: --mrf-temperature",
                                   f"usage: {tool}", "--mrf-temperature T")
         self.assert_fails("offline_em", [NEATO_BAG, "--out", model_path, "--mrf-temperature"], 2,
-                          "--mrf-temperature needs a value")
+                          "'--mrf-temperature' is missing")
         # Refused before any work: nothing written.
         self.assertFalse(os.path.exists(out_dir))
         self.assertFalse(os.path.exists(model_path))
