@@ -23,6 +23,7 @@
 #include "command_line.h"
 #include "dynamic_occupancy_grid/evaluation/evaluation.h"
 #include "dynamic_occupancy_grid/core/map_export.h"
+#include "dynamic_occupancy_grid/evaluation/learning_experiment.h"
 #include "dynamic_occupancy_grid/evaluation/memory_experiment.h"
 #include "dynamic_occupancy_grid/evaluation/mrf_experiment.h"
 #include "dynamic_occupancy_grid/evaluation/path_planning.h"
@@ -40,9 +41,23 @@ struct Options {
   int mrf_repetitions = 10;
   double mrf_temperature = 50.0;
   int memory_repetitions = 10;
+  std::vector<std::string> learning_scenarios{"patrol", "dynamic_25_25"};
+  int learning_repetitions = 4;
   std::uint64_t seed = 1;
   unsigned threads = 0;
 };
+
+/// "A,B,..." as learning-experiment scenarios ("none": no scenario).
+std::vector<std::string> toLearningScenarios(const std::string& text) {
+  std::vector<std::string> scenarios;
+  if (text == "none") return scenarios;
+  boost::split(scenarios, text, boost::is_any_of(","));
+  for (auto name = scenarios.begin(); name != scenarios.end(); ++name) {
+    core::scenarioConfig(*name);  // throws for an unknown name, listing the known ones
+    if (std::find(scenarios.begin(), name, *name) != name) throw std::invalid_argument("scenario " + *name + " is listed twice");
+  }
+  return scenarios;
+}
 
 /// "A,B,..." as accuracy scenarios ("none": no scenario); throws std::invalid_argument for
 /// an unknown one, one that belongs to another experiment, or one listed twice.
@@ -89,6 +104,13 @@ Options parseOptions(int argc, char** argv) {
       ("memory-repetitions", cl::number(&options.memory_repetitions, repetitions)->value_name("N"),
        "seeds of the memory navigation experiment (Morris et al., scenario dividers: static map, HMM grid, "
        "STM/LTM hypotheses; default 10; 0 skips it)")
+      ("learning-scenarios",
+       (new cl::Checked<std::vector<std::string>>(&options.learning_scenarios, toLearningScenarios))
+           ->value_name("A,B,..."),
+       "scenarios of the learning experiment (docs/online_learning.md; default patrol,dynamic_25_25); 'none' "
+       "skips it")
+      ("learning-repetitions", cl::number(&options.learning_repetitions, repetitions)->value_name("N"),
+       "repetitions of each learning scenario (default 4; 0 skips it)")
       ("seed",
        cl::number(&options.seed, cl::between<std::uint64_t>(0, std::numeric_limits<long long>::max()))
            ->value_name("S"),
@@ -96,10 +118,12 @@ Options parseOptions(int argc, char** argv) {
       ("threads", cl::number(&options.threads, cl::between(0U, 256U))->value_name("N"),
        "worker threads (default 0 = one per core)");
   line.parse(argc, argv);
+  if (options.learning_repetitions == 0) options.learning_scenarios.clear();
   if (options.scenarios.empty() && options.path_repetitions == 0 && options.mrf_repetitions == 0 &&
-      options.memory_repetitions == 0) {
+      options.memory_repetitions == 0 && options.learning_scenarios.empty()) {
     line.fail("nothing to run: no scenarios (--scenarios none), no path planning (--path-repetitions 0), no "
-              "MRF experiment (--mrf-repetitions 0) and no memory experiment (--memory-repetitions 0)");
+              "MRF experiment (--mrf-repetitions 0), no memory experiment (--memory-repetitions 0) and no "
+              "learning experiment (--learning-scenarios none)");
   }
   return options;
 }
@@ -445,6 +469,115 @@ std::string mrfSummary(const core::ScenarioConfig& scenario, const core::MrfExpe
 
 }  // namespace
 
+/// The learning experiment per repetition and method: one row each.
+std::string learningCsv(const core::LearningExperimentResult& result) {
+  std::ostringstream csv;
+  csv << "method,repetition,accuracy_all,accuracy_changing,dynamic_mae,retention\n";
+  csv << std::setprecision(6);
+  for (const core::MethodScore& m : result.methods) {
+    for (std::size_t r = 0; r < m.accuracy_all.size(); ++r) {
+      csv << m.method << ',' << r << ',' << m.accuracy_all[r] << ',' << m.accuracy_changing[r] << ','
+          << m.dynamic_mae[r] << ',' << m.retention[r] << '\n';
+    }
+  }
+  return csv.str();
+}
+
+double percentMean(const std::vector<double>& values) { return 100.0 * meanStd(values).mean; }
+
+std::string learningSummary(const core::ScenarioConfig& scenario, const core::LearningExperimentConfig& config,
+                            const core::LearningExperimentResult& result) {
+  std::ostringstream text;
+  text << "\n## Learning that pays off: " << scenario.name << "\n\n"
+       << scenario.description << "; " << scenario.steps << " steps, " << config.repetitions
+       << " repetitions (seed " << config.seed << "), " << fixed(result.seconds, 1)
+       << " s. Accuracy in the last " << fixed(100.0 * config.window_fraction, 0)
+       << " % of the steps; the rest at the end of the run. Retention: of the cells static_map classifies "
+          "(map_server's thresholds) that were not seen in the last "
+       << config.left_for_steps
+       << " steps, the share the method classifies the same. Static cells changing: learned probability of "
+          "leaving their true state > 0.05 (walls / free), per run. Simulated laser: hit rate "
+       << fixed(result.laser_hit_rate_occ, 3) << " on occupied, " << fixed(result.laser_hit_rate_free, 3)
+       << " on free cells.\n\n"
+       << "| method | accuracy, all cells % | changing cells % | parameter MAE, changing | retention % | walls "
+          "changing | free changing |\n|---|---|---|---|---|---|---|\n";
+  for (const core::MethodScore& m : result.methods) {
+    const bool transitions = !m.kinds.empty();
+    text << "| " << m.method << " | " << fixed(percentMean(m.accuracy_all), 2) << " | "
+         << fixed(percentMean(m.accuracy_changing), 2) << " | "
+         << (transitions ? fixed(meanStd(m.dynamic_mae).mean, 4) : std::string("–")) << " | "
+         << fixed(percentMean(m.retention), 1) << " | "
+         << (transitions ? fixed(m.static_occupied_changing, 1) + " / " + fixed(m.static_occupied_cells, 0)
+                         : std::string("–"))
+         << " | "
+         << (transitions ? fixed(m.static_free_changing, 1) + " / " + fixed(m.static_free_cells, 0) : std::string("–"))
+         << " |\n";
+  }
+  text << "\nLearned transitions per kind of changing cell (median p_occ_given_free / p_free_given_occ; MAE "
+          "of each):\n\n| method |";
+  const core::MethodScore& oracle = result.method("oracle");
+  for (const core::KindScore& k : oracle.kinds) {
+    if (!k.truth.isStatic()) text << " truth " << k.kind << " (" << fixed(k.cells, 0) << " cells) |";
+  }
+  text << "\n|---|";
+  for (const core::KindScore& k : oracle.kinds) {
+    if (!k.truth.isStatic()) text << "---|";
+  }
+  text << '\n';
+  for (const core::MethodScore& m : result.methods) {
+    if (m.kinds.empty() || m.method == "oracle") continue;
+    text << "| " << m.method << " |";
+    for (const core::KindScore& k : m.kinds) {
+      if (k.truth.isStatic()) continue;
+      text << ' ' << fixed(k.median_p_occ_given_free, 4) << " / " << fixed(k.median_p_free_given_occ, 4) << " (MAE "
+           << fixed(k.mae_p_occ_given_free, 4) << " / " << fixed(k.mae_p_free_given_occ, 4) << ") |";
+    }
+    text << '\n';
+  }
+  return text.str();
+}
+
+/// The learning issue's targets, measured.
+void learningChecks(const core::ScenarioConfig& scenario, const core::LearningExperimentResult& result,
+                    std::vector<Check>& checks) {
+  const core::MethodScore& online = result.method("default");
+  const core::MethodScore& off = result.method("learning_off");
+  std::size_t worse = 0;
+  for (std::size_t r = 0; r < online.accuracy_changing.size(); ++r) {
+    if (online.accuracy_changing[r] < off.accuracy_changing[r]) ++worse;
+  }
+  const std::string name = scenario.name;
+  checks.push_back({name + ": online ≥ learning off on changing cells, every repetition",
+                    std::to_string(worse) + " of " + std::to_string(online.accuracy_changing.size()) + " worse (" +
+                        fixed(percentMean(online.accuracy_changing), 2) + " vs " +
+                        fixed(percentMean(off.accuracy_changing), 2) + " %)",
+                    worse == 0});
+  if (scenario.kind == core::ScenarioKind::kPatrol) {
+    const double oracle = percentMean(result.method("oracle").accuracy_changing);
+    const double offline = percentMean(result.method("offline").accuracy_changing);
+    const double on = percentMean(online.accuracy_changing);
+    const double static_map = percentMean(result.method("static").accuracy_changing);
+    checks.push_back({name + ": online within 2 points of the oracle (changing cells)",
+                      fixed(on, 2) + " vs " + fixed(oracle, 2) + " %", on >= oracle - 2.0});
+    checks.push_back({name + ": offline within 1 point of the oracle (changing cells)",
+                      fixed(offline, 2) + " vs " + fixed(oracle, 2) + " %", offline >= oracle - 1.0});
+    checks.push_back({name + ": defaults beat static_map by ≥ 5 points (changing cells)",
+                      fixed(on, 2) + " vs " + fixed(static_map, 2) + " % (the oracle: " + fixed(oracle, 2) + ")",
+                      on >= static_map + 5.0});
+    const double retention = percentMean(online.retention);
+    checks.push_back({name + ": belief keeps ≥ 95 % of static_map's classified cells the robot left",
+                      fixed(retention, 1) + " %", retention >= 95.0});
+    checks.push_back({name + ": no wall learned as changing (p_free_given_occ > 0.05)",
+                      fixed(online.static_occupied_changing, 1) + " of " + fixed(online.static_occupied_cells, 0) +
+                          " wall cells per run",
+                      online.static_occupied_changing < 0.5});
+  }
+  if (scenario.name == "dynamic_25_25") {
+    const double mae = meanStd(online.dynamic_mae).mean;
+    checks.push_back({name + ": online parameter MAE ≤ 0.05 at the end", fixed(mae, 4), mae <= 0.05});
+  }
+}
+
 int main(int argc, char** argv) {
   const Options options = parseOptions(argc, argv);
   try {
@@ -636,6 +769,21 @@ int main(int argc, char** argv) {
                         people == 0});
       checks.push_back({"memory: dividers reach LTM", std::to_string(divider_cells) + " divider cells migrated",
                         divider_cells > 0});
+    }
+
+    for (const std::string& name : options.learning_scenarios) {
+      const core::ScenarioConfig scenario = core::scenarioConfig(name);
+      core::LearningExperimentConfig config;
+      config.repetitions = options.learning_repetitions;
+      config.seed = options.seed;
+      config.threads = options.threads;
+      std::cerr << "evaluate: learning experiment (" << name << "), " << config.repetitions << " repetitions ..."
+                << std::flush;
+      const core::LearningExperimentResult result = core::runLearningExperiment(scenario, config);
+      std::cerr << " " << fixed(result.seconds, 1) << " s\n";
+      core::writeFileAtomically(options.out + "/learning_" + name + ".csv", learningCsv(result));
+      summary << learningSummary(scenario, config, result);
+      learningChecks(scenario, result, checks);
     }
 
     summary << "\n## Targets\n\n| target | measured | met |\n|---|---|---|\n";

@@ -14,7 +14,8 @@ EVALUATE = None
 PLOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "scripts", "plot_evaluation.py")
 METHODS = ["static", "static_unclamped", "online", "offline", "oracle"]
 SMALL = ["--scenarios", "dynamic_5_5,redraw_100", "--repetitions", "2", "--path-repetitions", "2",
-         "--path-runs", "4", "--mrf-repetitions", "2", "--memory-repetitions", "2", "--threads", "2"]
+         "--path-runs", "4", "--mrf-repetitions", "2", "--memory-repetitions", "2", "--threads", "2",
+         "--learning-scenarios", "dynamic_25_25", "--learning-repetitions", "1"]
 MRF_WORLD = (46, 32)  # the mrf_squares scenario's cells (evaluation/simulator.cpp)
 
 
@@ -181,11 +182,33 @@ class EvaluateTool(unittest.TestCase):
             with open(os.path.join(self.out, name), "rb") as file:
                 self.assertEqual(file.read(8), b"\x89PNG\r\n\x1a\n", name)
 
+    def test_learning_experiment(self):
+        # One row per method and repetition; the summary's table and targets name every method.
+        with open(os.path.join(self.out, "learning_dynamic_25_25.csv")) as file:
+            rows = list(csv.DictReader(file))
+        methods = [row["method"] for row in rows]
+        self.assertEqual(methods, ["static", "textbook", "learning_off", "default", "eb", "rm", "rm_averaged",
+                                   "offline", "oracle"])
+        by_method = {row["method"]: row for row in rows}
+        self.assertLess(float(by_method["oracle"]["dynamic_mae"]), 1e-6)  # the truth, rounded to float
+        self.assertEqual(float(by_method["static"]["retention"]), 1.0)  # static_map keeps itself
+        for row in rows:
+            for key in ("accuracy_all", "accuracy_changing", "retention"):
+                self.assertGreaterEqual(float(row[key]), 0.0)
+                self.assertLessEqual(float(row[key]), 1.0)
+        # The oracle knows the changing cells best; learning off (prior 0.01) relaxes to 0.5.
+        self.assertGreater(float(by_method["oracle"]["accuracy_changing"]),
+                           float(by_method["learning_off"]["accuracy_changing"]))
+        with open(os.path.join(self.out, "summary.md")) as file:
+            summary = file.read()
+        self.assertIn("## Learning that pays off: dynamic_25_25", summary)
+        self.assertIn("dynamic_25_25: online parameter MAE ≤ 0.05 at the end", summary)
+
     def test_same_seed_same_numbers(self):
         again = os.path.join(self.tmp.name, "again")
         rc, _, stderr = evaluate(["--out", again, "--scenarios", "dynamic_5_5", "--repetitions", "2",
                                   "--path-repetitions", "0", "--mrf-repetitions", "0", "--memory-repetitions", "0",
-                                  "--threads", "1"])
+                                  "--learning-repetitions", "0", "--threads", "1"])
         self.assertEqual(rc, 0, stderr)
         with open(os.path.join(self.out, "accuracy_dynamic_5_5.csv")) as a, \
                 open(os.path.join(again, "accuracy_dynamic_5_5.csv")) as b:
@@ -199,7 +222,8 @@ class EvaluateTool(unittest.TestCase):
     def test_mrf_same_seed_same_numbers_on_any_threads(self):
         again = os.path.join(self.tmp.name, "mrf_again")
         rc, _, stderr = evaluate(["--out", again, "--scenarios", "none", "--path-repetitions", "0",
-                                  "--mrf-repetitions", "2", "--memory-repetitions", "0", "--threads", "1"])
+                                  "--mrf-repetitions", "2", "--memory-repetitions", "0", "--learning-scenarios", "none",
+                                  "--threads", "1"])
         self.assertEqual(rc, 0, stderr)
         self.assertEqual(sorted(os.listdir(again)), ["mrf_iterations.csv", "mrf_maps.csv", "mrf_rmse.csv",
                                                      "mrf_rmse_by_kind.csv", "summary.md"])
@@ -218,7 +242,7 @@ class EvaluateTool(unittest.TestCase):
         again = os.path.join(self.tmp.name, "mrf_t5")
         rc, _, stderr = evaluate(["--out", again, "--scenarios", "none", "--path-repetitions", "0",
                                   "--mrf-repetitions", "2", "--mrf-temperature", "5", "--memory-repetitions", "0",
-                                  "--threads", "2"])
+                                  "--learning-scenarios", "none", "--threads", "2"])
         self.assertEqual(rc, 0, stderr)
         with open(os.path.join(again, "summary.md")) as file:
             self.assertIn("with the MRF prior at T = 5.", file.read())
@@ -232,7 +256,8 @@ class EvaluateTool(unittest.TestCase):
     def test_memory_same_seed_same_numbers_on_any_threads(self):
         again = os.path.join(self.tmp.name, "memory_again")
         rc, _, stderr = evaluate(["--out", again, "--scenarios", "none", "--path-repetitions", "0",
-                                  "--mrf-repetitions", "0", "--memory-repetitions", "2", "--threads", "1"])
+                                  "--mrf-repetitions", "0", "--memory-repetitions", "2", "--learning-scenarios", "none",
+                                  "--threads", "1"])
         self.assertEqual(rc, 0, stderr)
         self.assertEqual(sorted(os.listdir(again)), ["memory_navigation.csv", "summary.md"])
         tables = []
@@ -269,7 +294,9 @@ class EvaluateTool(unittest.TestCase):
                      ["--scenarios", "dynamic_5_5,dynamic_5_5"],
                      ["--scenarios", "dividers"], ["--memory-repetitions", "-1"],
                      ["--scenarios", "none", "--path-repetitions", "0", "--mrf-repetitions", "0",
-                      "--memory-repetitions", "0"],
+                      "--memory-repetitions", "0", "--learning-scenarios", "none"],
+                     ["--learning-scenarios", "nope"], ["--learning-repetitions", "-1"],
+                     ["--learning-scenarios", "patrol,patrol"],
                      ["--no-such-option", "1"], ["--out"]):
             rc, _, stderr = evaluate(args)
             self.assertEqual(rc, 2, args)

@@ -1,0 +1,95 @@
+// Tests of the patrol scenario (evaluation/simulator.h, PatrolLayout) and of the learning
+// experiment (evaluation/learning_experiment.h).
+#include "dynamic_occupancy_grid/evaluation/learning_experiment.h"
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <set>
+#include <stdexcept>
+#include <string>
+
+namespace dog = dynamic_occupancy_grid::core;
+
+// The layout: 4 doors, 4 carts, 6 people spots, each a group of cells with its kind's truth,
+// changing as one, off the robot's loop.
+TEST(PatrolScenario, PartsChangeAsGroupsWithTheirKindsRates) {
+  dog::ScenarioConfig config = dog::scenarioConfig("patrol");
+  dog::Simulation simulation(config, 11, 12);
+  const dog::PatrolLayout& layout = simulation.patrolLayout();
+  std::size_t doors = 0, carts = 0, people = 0;
+  for (const auto& part : layout.parts) {
+    doors += part.kind == "door";
+    carts += part.kind == "cart";
+    people += part.kind == "person";
+    const dog::TransitionParams expected = part.kind == "door"   ? config.patrol_door
+                                           : part.kind == "cart" ? config.patrol_cart
+                                                                 : config.patrol_person;
+    for (const dog::CellXY& c : part.cells) {
+      EXPECT_EQ(simulation.world().truth(c.x, c.y).p_occ_given_free, expected.p_occ_given_free);
+      EXPECT_EQ(simulation.world().truth(c.x, c.y).p_free_given_occ, expected.p_free_given_occ);
+    }
+  }
+  EXPECT_EQ(doors, 4u);
+  EXPECT_EQ(carts, 4u);
+  EXPECT_EQ(people, 6u);
+  // Over many steps every part's cells agree at every step, and the people spots change
+  // about as often as their rates say (stationary share of occupied steps 0.12 / 0.37).
+  double person_occupied = 0.0, person_steps = 0.0;
+  for (int t = 0; t < 3000; ++t) {
+    for (const auto& part : layout.parts) {
+      const bool first = simulation.world().occupied(part.cells[0].x, part.cells[0].y);
+      for (const dog::CellXY& c : part.cells) ASSERT_EQ(simulation.world().occupied(c.x, c.y), first);
+      if (part.kind == "person") {
+        person_occupied += first ? 1.0 : 0.0;
+        person_steps += 1.0;
+      }
+    }
+    simulation.advance();
+  }
+  EXPECT_NEAR(person_occupied / person_steps, 0.12 / 0.37, 0.05);
+  // The robot never drives through a part: every pose of a loop is 0.3 m clear of them.
+  for (double s = 0.0; s < 112.0; s += 0.25) {
+    const dog::Pose2D pose = dog::LoopPath({{2.5, 2.5}, {21.5, 2.5}, {21.5, 11.5}, {2.5, 11.5}}, 0.5).poseAt(s);
+    for (const auto& part : layout.parts) {
+      for (const dog::CellXY& c : part.cells) {
+        const double dx = (c.x + 0.5) * 0.1 - pose.x_m;
+        const double dy = (c.y + 0.5) * 0.1 - pose.y_m;
+        ASSERT_GT(dx * dx + dy * dy, 0.3 * 0.3) << part.kind;
+      }
+    }
+  }
+  EXPECT_THROW(dog::Simulation(dog::scenarioConfig("door"), 1, 2).patrolLayout(), std::logic_error);
+}
+
+// A short patrol: every method is scored, the oracle's parameters are exact, the static map
+// keeps itself, learning off (symmetric 0.01 prior) forgets the places the robot left while
+// the default learner keeps them, and the measured laser matches the scenario's sensor model.
+TEST(LearningExperiment, ScoresEveryMethodOnAShortPatrol) {
+  dog::ScenarioConfig scenario = dog::scenarioConfig("patrol");
+  scenario.steps = 400;
+  dog::LearningExperimentConfig config;
+  config.repetitions = 1;
+  config.threads = 1;
+  const dog::LearningExperimentResult result = dog::runLearningExperiment(scenario, config);
+  std::vector<std::string> names;
+  for (const auto& m : result.methods) names.push_back(m.method);
+  EXPECT_EQ(names, (std::vector<std::string>{"static", "textbook", "learning_off", "default", "eb", "rm", "rm_averaged",
+                                             "offline", "oracle"}));
+  const auto& oracle = result.method("oracle");
+  EXPECT_NEAR(oracle.dynamic_mae[0], 0.0, 1e-7);  // the truth, rounded to float
+  EXPECT_TRUE(result.method("static").kinds.empty());
+  std::set<std::string> kinds;
+  for (const auto& k : oracle.kinds) kinds.insert(k.kind);
+  EXPECT_EQ(kinds, (std::set<std::string>{"static free", "static occupied", "0.004 / 0.012", "0.025 / 0.05",
+                                          "0.12 / 0.25"}));
+  EXPECT_EQ(result.method("static").retention[0], 1.0);
+  EXPECT_LT(result.method("learning_off").retention[0], 0.5);
+  EXPECT_GT(result.method("default").retention[0], 0.95);
+  EXPECT_GT(result.laser_hit_rate_occ, scenario.p_hit_given_occ);
+  EXPECT_LT(result.laser_hit_rate_free, scenario.p_hit_given_free);
+  EXPECT_GE(oracle.accuracy_changing[0], result.method("learning_off").accuracy_changing[0]);
+  EXPECT_THROW(result.method("nope"), std::invalid_argument);
+  config.window_fraction = 0.0;
+  EXPECT_THROW(dog::runLearningExperiment(scenario, config), std::invalid_argument);
+}
