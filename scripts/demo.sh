@@ -52,7 +52,7 @@ rosrun dynamic_occupancy_grid process_bag "$package_dir/data/example/stationary_
 
 echo
 echo "demo: done in $(( $(date +%s) - start )) s. Everything is in $out_dir:"
-echo "  evaluation/summary.md           accuracy, path planning, MRF and memory navigation tables, targets (also printed above)"
+echo "  evaluation/summary.md           accuracy, path planning, MRF, memory navigation and learning tables, targets (also printed above)"
 echo "  evaluation/*.png, *.csv         the papers' figures (fig4.png, fig5.png, accuracy_parking_lot.png, path_planning.png, mrf_maps.png, ...)"
 echo "  example/layers.png              the simulated parking lot's six map layers (example/*.pgm + .yaml for map_server)"
 echo "  example/parking_lot.bag         the simulated run (scans, tf, ground truth) to replay"
