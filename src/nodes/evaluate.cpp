@@ -47,8 +47,9 @@ struct Options {
   unsigned threads = 0;
 };
 
-/// "A,B,..." as learning-experiment scenarios ("none": no scenario).
-std::vector<std::string> toLearningScenarios(const std::string& text) {
+/// "A,B,..." as scenario names ("none": none); throws std::invalid_argument for an unknown
+/// one or one listed twice.
+std::vector<std::string> splitScenarios(const std::string& text) {
   std::vector<std::string> scenarios;
   if (text == "none") return scenarios;
   boost::split(scenarios, text, boost::is_any_of(","));
@@ -59,18 +60,13 @@ std::vector<std::string> toLearningScenarios(const std::string& text) {
   return scenarios;
 }
 
-/// "A,B,..." as accuracy scenarios ("none": no scenario); throws std::invalid_argument for
-/// an unknown one, one that belongs to another experiment, or one listed twice.
+/// Accuracy scenarios: also none that belongs to another experiment.
 std::vector<std::string> toScenarios(const std::string& text) {
-  std::vector<std::string> scenarios;
-  if (text == "none") return scenarios;
-  boost::split(scenarios, text, boost::is_any_of(","));
-  for (auto name = scenarios.begin(); name != scenarios.end(); ++name) {
-    core::scenarioConfig(*name);  // throws for an unknown name, listing the known ones
-    if (*name == "door") throw std::invalid_argument("the door scenario is the path planning experiment (--path-repetitions)");
-    if (*name == "mrf_squares") throw std::invalid_argument("the mrf_squares scenario is the MRF experiment (--mrf-repetitions)");
-    if (*name == "dividers") throw std::invalid_argument("the dividers scenario is the memory experiment (--memory-repetitions)");
-    if (std::find(scenarios.begin(), name, *name) != name) throw std::invalid_argument("scenario " + *name + " is listed twice");
+  std::vector<std::string> scenarios = splitScenarios(text);
+  for (const std::string& name : scenarios) {
+    if (name == "door") throw std::invalid_argument("the door scenario is the path planning experiment (--path-repetitions)");
+    if (name == "mrf_squares") throw std::invalid_argument("the mrf_squares scenario is the MRF experiment (--mrf-repetitions)");
+    if (name == "dividers") throw std::invalid_argument("the dividers scenario is the memory experiment (--memory-repetitions)");
   }
   return scenarios;
 }
@@ -105,7 +101,7 @@ Options parseOptions(int argc, char** argv) {
        "seeds of the memory navigation experiment (Morris et al., scenario dividers: static map, HMM grid, "
        "STM/LTM hypotheses; default 10; 0 skips it)")
       ("learning-scenarios",
-       (new cl::Checked<std::vector<std::string>>(&options.learning_scenarios, toLearningScenarios))
+       (new cl::Checked<std::vector<std::string>>(&options.learning_scenarios, splitScenarios))
            ->value_name("A,B,..."),
        "scenarios of the learning experiment (docs/online_learning.md; default patrol,dynamic_25_25); 'none' "
        "skips it")

@@ -102,7 +102,9 @@ RefCell refPrior(const dog::TransitionParams& prior, double prior_weight, double
 // One step of THEORY.md §6, as written there:
 //   c = sum_{k,m} q(k) a_km b_m,  r_km = a_km b_m / c,
 //   S'(i,j,m) = decay * sum_k S(i,j,k) r_km + delta(j,m) q(i) r_ij,   q'(m) = sum_k q(k) r_km.
-void refStep(RefCell& cell, const Mat2& a, const Vec2& b, LD decay) {
+// `added` weighs the new term: 1 here; the Robbins–Monro schedule's steps use decay 1 - g
+// and added g (refWeightedStep below).
+void refStep(RefCell& cell, const Mat2& a, const Vec2& b, LD decay, LD added = 1.0L) {
   LD c = 0.0L;
   for (int k = 0; k < 2; ++k)
     for (int m = 0; m < 2; ++m) c += cell.q[k] * a[k][m] * b[m];
@@ -115,7 +117,7 @@ void refStep(RefCell& cell, const Mat2& a, const Vec2& b, LD decay) {
       for (int m = 0; m < 2; ++m) {
         LD carried = 0.0L;
         for (int k = 0; k < 2; ++k) carried += cell.s[i][j][k] * r[k][m];
-        next.s[i][j][m] = decay * carried + (j == m ? cell.q[i] * r[i][j] : 0.0L);
+        next.s[i][j][m] = decay * carried + (j == m ? added * cell.q[i] * r[i][j] : 0.0L);
       }
   for (int m = 0; m < 2; ++m) next.q[m] = cell.q[0] * r[0][m] + cell.q[1] * r[1][m];
   cell = next;
@@ -915,26 +917,9 @@ TEST(OnlineCell, LearnsTheTransitionsOfASimulatedCell) {
 
 namespace {
 
-void refWeightedStep(RefCell& cell, const Mat2& a, const Vec2& b, LD gamma) {
-  // The unit-weight reference with decay 1 - g, then its added part scaled by g: written
-  // out again so that the check does not lean on the scaling identity it tests.
-  LD c = 0.0L;
-  for (int k = 0; k < 2; ++k)
-    for (int m = 0; m < 2; ++m) c += cell.q[k] * a[k][m] * b[m];
-  LD r[2][2];
-  for (int k = 0; k < 2; ++k)
-    for (int m = 0; m < 2; ++m) r[k][m] = a[k][m] * b[m] / c;
-  RefCell next;
-  for (int i = 0; i < 2; ++i)
-    for (int j = 0; j < 2; ++j)
-      for (int m = 0; m < 2; ++m) {
-        LD carried = 0.0L;
-        for (int k = 0; k < 2; ++k) carried += cell.s[i][j][k] * r[k][m];
-        next.s[i][j][m] = (1.0L - gamma) * carried + (j == m ? gamma * cell.q[i] * r[i][j] : 0.0L);
-      }
-  for (int m = 0; m < 2; ++m) next.q[m] = cell.q[0] * r[0][m] + cell.q[1] * r[1][m];
-  cell = next;
-}
+// S' = (1 - g) sum_k S(., ., k) r_km + g delta(j, m) q(i) r_ij, step by step in long double
+// (not through the scaling identity the implementation uses).
+void refWeightedStep(RefCell& cell, const Mat2& a, const Vec2& b, LD gamma) { refStep(cell, a, b, 1.0L - gamma, gamma); }
 
 }  // namespace
 
