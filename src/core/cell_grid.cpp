@@ -168,6 +168,8 @@ CellGrid::Tile* CellGrid::tileForWriting(std::int32_t x, std::int32_t y) {
     tile->p_free_given_occ.fill(defaults_.p_free_given_occ);
     for (auto& stat : tile->em_stats) stat.fill(0.0f);
     tile->observed_steps.fill(0);
+    tile->last_hits.fill(0);
+    tile->last_misses.fill(0);
     tile->pending_hits.fill(0);
     tile->pending_misses.fill(0);
     tile->scan_mark.fill(0);
@@ -195,7 +197,8 @@ std::optional<CellState> CellGrid::cell(std::int32_t x, std::int32_t y) const {
   const int i = offsetOf(x, y);
   if (tile->last_step[i] == kNeverObserved) return std::nullopt;
   CellState state{tile->p_occ[i], tile->last_step[i], tile->log_odds[i],
-                  tile->p_occ_given_free[i], tile->p_free_given_occ[i], {}, tile->observed_steps[i]};
+                  tile->p_occ_given_free[i], tile->p_free_given_occ[i], {}, tile->observed_steps[i],
+                  tile->last_hits[i], tile->last_misses[i]};
   for (std::size_t k = 0; k < state.em_stats.size(); ++k) state.em_stats[k] = tile->em_stats[k][i];
   return state;
 }

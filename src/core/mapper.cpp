@@ -71,6 +71,10 @@ void MapperConfig::validate() const {
             "fixed width and height must not exceed max_map_size");
   }
   online_em.validate();
+  require(std::isfinite(sensor_model_prior_weight) && sensor_model_prior_weight > 0.0,
+          "sensor_model_prior_weight must be > 0, got " + std::to_string(sensor_model_prior_weight));
+  require(sensor_model_p_min > 0.0 && sensor_model_p_min <= 0.4,
+          "sensor_model_p_min must be in (0, 0.4], got " + std::to_string(sensor_model_p_min));
   require(std::isfinite(prior_population_weight) && prior_population_weight > 0.0,
           "prior_population_weight must be > 0, got " + std::to_string(prior_population_weight));
   require(online_em.min_observed_steps <= std::numeric_limits<std::uint16_t>::max(),
@@ -233,6 +237,9 @@ void Mapper::applyGatheredStep() {
     tile.pending_hits[i] = 0;
     tile.pending_misses[i] = 0;
     const double evidence = sensor_.logLikelihoodRatio(hits, misses);
+    if (config_.learn_sensor_model && tile.last_step[i] != kNeverObserved) {
+      addSensorEvidence(tile, i, step, evidence);
+    }
     if (config_.learn_transitions) {
       learnStep(tile, i, step, evidence);
     } else {
@@ -248,11 +255,66 @@ void Mapper::applyGatheredStep() {
     tile.log_odds[i] = static_cast<float>(updateLogOdds(tile.log_odds[i], evidence, config_.static_clamp));
     if (recorder_ != nullptr) recorder_->add(tile.cellX(i), tile.cellY(i), step, hits, misses);
     tile.last_step[i] = step;
+    tile.last_hits[i] = static_cast<std::uint8_t>(std::min<std::uint32_t>(hits, 255));
+    tile.last_misses[i] = static_cast<std::uint8_t>(std::min<std::uint32_t>(misses, 255));
     changed_cells_.include(tile.cellX(i), tile.cellY(i));
   }
   touched_.clear();
   last_applied_step_ = gathering_step_;
   updatePrior();
+  if (config_.learn_sensor_model) updateSensorModel();
+}
+
+void Mapper::addSensorEvidence(const CellGrid::Tile& tile, int i, std::int32_t step, double evidence) {
+  // The cell's previous observed step (belief q after it, evidence last_hits / last_misses)
+  // weighed by p(x_last | z up to and including this step): q_i * sum_m A^k(i, m) p(z|m),
+  // k = the transitions in between (THEORY.md §3's closed form), p(z|m) as a ratio.
+  const std::uint32_t hits = tile.last_hits[i];
+  const std::uint32_t trials = hits + tile.last_misses[i];
+  if (trials == 0) return;
+  const TransitionParams params{tile.p_occ_given_free[i], tile.p_free_given_occ[i]};
+  const std::int64_t k = std::int64_t{step} - tile.last_step[i];
+  const double occ_to_occ = predictOccupancy(1.0, params, k);
+  const double free_to_occ = predictOccupancy(0.0, params, k);
+  // Likelihoods of this step's evidence scaled so that the larger is 1.
+  const double like_occ = evidence >= 0.0 ? 1.0 : std::exp(evidence);
+  const double like_free = evidence >= 0.0 ? std::exp(-evidence) : 1.0;
+  const double q = tile.p_occ[i];
+  const double w_occ = q * (occ_to_occ * like_occ + (1.0 - occ_to_occ) * like_free);
+  const double w_free = (1.0 - q) * (free_to_occ * like_occ + (1.0 - free_to_occ) * like_free);
+  const double p_occ = w_occ / (w_occ + w_free);
+  sensor_stats_.trials[0] += p_occ * trials;
+  sensor_stats_.hits[0] += p_occ * hits;
+  sensor_stats_.trials[1] += (1.0 - p_occ) * trials;
+  sensor_stats_.hits[1] += (1.0 - p_occ) * hits;
+}
+
+void Mapper::updateSensorModel() {
+  // The M-step of the shared emissions: hits over beam ends per state, with the configured
+  // model as sensor_model_prior_weight beam ends of each state.
+  if (sensor_stats_.trials[0] == 0.0 && sensor_stats_.trials[1] == 0.0) {
+    sensor_ = ObservationModel(config_.p_hit_given_occ, config_.p_hit_given_free);  // nothing learned
+    return;
+  }
+  const double w = config_.sensor_model_prior_weight;
+  const double lo = config_.sensor_model_p_min;
+  const double occ = std::clamp((sensor_stats_.hits[0] + w * config_.p_hit_given_occ) / (sensor_stats_.trials[0] + w),
+                                lo, 1.0 - lo);
+  const double free = std::clamp(
+      (sensor_stats_.hits[1] + w * config_.p_hit_given_free) / (sensor_stats_.trials[1] + w), lo, 1.0 - lo);
+  // A hit must stay evidence for "occupied": keep the last model otherwise.
+  if (occ >= free + 0.05) sensor_ = ObservationModel(occ, free);
+}
+
+void Mapper::restoreSensorModelStats(const SensorModelStats& stats) {
+  for (int state = 0; state < 2; ++state) {
+    if (!std::isfinite(stats.trials[state]) || !std::isfinite(stats.hits[state]) || stats.hits[state] < 0.0 ||
+        stats.hits[state] > stats.trials[state] * (1.0 + 1e-12)) {
+      throw std::invalid_argument("restoreSensorModelStats: sums must be finite, >= 0, hits at most trials");
+    }
+  }
+  sensor_stats_ = stats;
+  updateSensorModel();
 }
 
 void Mapper::updatePrior() {
@@ -422,6 +484,8 @@ void Mapper::restoreCell(std::int32_t x, std::int32_t y, const CellState& state)
   for (std::size_t k = 0; k < state.em_stats.size(); ++k) stats.s[k] = state.em_stats[k];
   storeStats(*tile, i, stats);
   tile->observed_steps[i] = state.observed_steps;
+  tile->last_hits[i] = state.last_hits;
+  tile->last_misses[i] = state.last_misses;
   changed_cells_.include(x, y);
   updatePrior();
 }
@@ -453,6 +517,8 @@ void Mapper::setSensorModel(double p_hit_given_occ, double p_hit_given_free) {
   sensor_ = sensor;
   config_.p_hit_given_occ = p_hit_given_occ;
   config_.p_hit_given_free = p_hit_given_free;
+  // With learn_sensor_model the new values are where learning starts again.
+  sensor_stats_ = SensorModelStats{};
 }
 
 CellBox Mapper::takeChangedCells() {

@@ -57,6 +57,10 @@ struct CellState {
   float p_free_given_occ;        ///< p_fo the filter uses, per step
   std::array<float, 8> em_stats; ///< online EM statistics S(i, j, m), TransitionStats order
   std::uint16_t observed_steps;  ///< steps with an observation (saturating)
+  /// The evidence of the cell's last step (hits, misses; saturating at 255): online
+  /// sensor-model learning weighs it by the cell's state once the next step is seen.
+  std::uint8_t last_hits;
+  std::uint8_t last_misses;
 };
 
 class CellGrid {
@@ -75,6 +79,8 @@ class CellGrid {
     // Online EM statistics S(i, j, m) (THEORY.md §6), one array per TransitionStats index.
     std::array<std::array<float, kTileCells>, 8> em_stats;
     std::array<std::uint16_t, kTileCells> observed_steps;
+    std::array<std::uint8_t, kTileCells> last_hits;    ///< evidence of the cell's last step
+    std::array<std::uint8_t, kTileCells> last_misses;
     // Evidence gathered in the current time step, applied when the step closes.
     std::array<std::uint16_t, kTileCells> pending_hits;
     std::array<std::uint16_t, kTileCells> pending_misses;

@@ -24,6 +24,19 @@ struct MapperConfig {
   double time_step_s = 1.0;           ///< one HMM step, seconds of sensor time
   double p_hit_given_occ = 0.7;       ///< sensor model: a beam ends in an occupied cell
   double p_hit_given_free = 0.2;      ///< sensor model: a beam ends in a free cell
+  /// Learn the sensor model online, shared by all cells (docs/online_learning.md, "The
+  /// sensor model"): p_hit_given_occ / p_hit_given_free above are the start, worth
+  /// sensor_model_prior_weight beam ends per state; every cell step then adds its hits and
+  /// misses, weighed by the cell's state one observation later (fixed-lag smoothing). The
+  /// model in use is always the one the start and the sums give (Mapper::sensor()); the
+  /// flag says whether steps add to the sums. The
+  /// node turns it on by default (~learn_sensor_model); off here, so the core's default is
+  /// the fixed model of THEORY.md §1.
+  bool learn_sensor_model = false;
+  double sensor_model_prior_weight = 1000.0;
+  /// The learned p_hit_given_occ and p_hit_given_free stay in [sensor_model_p_min,
+  /// 1 - sensor_model_p_min], p_hit_given_occ at least 0.05 above p_hit_given_free.
+  double sensor_model_p_min = 0.01;
   /// Transition probabilities every cell starts with (per step); also the prior guess of
   /// online learning.
   TransitionParams prior_transitions{0.01, 0.01};
@@ -71,6 +84,14 @@ struct ScanResult {
   std::size_t cells_outside = 0;     ///< beam cells beyond the map's bounds, dropped
 };
 
+/// The running sums of online sensor-model learning (MapperConfig::learn_sensor_model):
+/// per state (0 = occ, 1 = free), the expected number of beam ends (hits + misses) and of
+/// hits in cells of that state, without the prior's pseudo-counts.
+struct SensorModelStats {
+  double trials[2] = {0.0, 0.0};
+  double hits[2] = {0.0, 0.0};
+};
+
 /// What Mapper::applyOfflineEm did.
 struct OfflineEmApplied {
   std::size_t cells_applied = 0;
@@ -83,7 +104,11 @@ class Mapper {
   explicit Mapper(const MapperConfig& config);
 
   const MapperConfig& config() const { return config_; }
+  /// The sensor model in use: the configured one, or with learn_sensor_model the one
+  /// learned up to the last applied step.
   const ObservationModel& sensor() const { return sensor_; }
+  /// learn_sensor_model's running sums (all zero while it is off).
+  const SensorModelStats& sensorModelStats() const { return sensor_stats_; }
   const StepClock& clock() const { return clock_; }
   const CellGrid& grid() const { return grid_; }
 
@@ -134,8 +159,12 @@ class Mapper {
   /// A new sensor model while mapping (dynamic_reconfigure): every step applied from now on,
   /// the one being gathered included, weighs its hit and miss counts with it; cells keep
   /// their beliefs. Throws std::invalid_argument (and changes nothing) unless both are in
-  /// (0, 1) with p_hit_given_occ > p_hit_given_free.
+  /// (0, 1) with p_hit_given_occ > p_hit_given_free. With learn_sensor_model they are the
+  /// new start: the sums learned so far are dropped.
   void setSensorModel(double p_hit_given_occ, double p_hit_given_free);
+  /// Turns online learning of the sensor model on or off while mapping. Off: the model
+  /// learned so far stays in use, fixed; on again: learning goes on from its sums.
+  void setLearnSensorModel(bool learn_sensor_model) { config_.learn_sensor_model = learn_sensor_model; }
   /// Turns online learning of the transitions on or off while mapping. Off: each cell goes
   /// on with the transitions it has learned so far (fixed from now on); on again: learning
   /// resumes from the cell's statistics as they were when it was turned off.
@@ -147,6 +176,9 @@ class Mapper {
   /// Model loading: the whole saved state of cell (x, y) (last_step at or before the last
   /// applied step). Throws std::invalid_argument for a cell outside the map or bad values.
   void restoreCell(std::int32_t x, std::int32_t y, const CellState& state);
+  /// Model loading: learn_sensor_model's saved sums; the sensor model becomes the one they
+  /// give. Throws std::invalid_argument for negative or non-finite sums, or hits above trials.
+  void restoreSensorModelStats(const SensorModelStats& stats);
 
  private:
   void applyGatheredStep();
@@ -154,6 +186,10 @@ class Mapper {
   /// Writes a cell's statistics, keeping the population's pooled transitions up to date.
   void storeStats(CellGrid::Tile& tile, int offset, const TransitionStats& stats);
   void updatePrior();
+  /// learn_sensor_model: adds the previous observed step of a cell to the sums, weighed by
+  /// its state given this step's evidence too.
+  void addSensorEvidence(const CellGrid::Tile& tile, int offset, std::int32_t step, double evidence);
+  void updateSensorModel();
   void markMiss(CellGrid::Tile& tile, int offset);
   void markHit(CellGrid::Tile& tile, int offset);
   void addTouched(CellGrid::Tile& tile, int offset);
@@ -177,6 +213,7 @@ class Mapper {
   /// Sum over cells of their statistics' expected transitions i -> j, [i][j] (learn_prior).
   double population_[2][2] = {{0.0, 0.0}, {0.0, 0.0}};
   TransitionParams current_prior_;
+  SensorModelStats sensor_stats_;
 };
 
 }  // namespace core
