@@ -26,10 +26,10 @@ import zlib
 import numpy as np
 
 MAGIC = b"DOGMODEL"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2  # the version the C++ writes; version 1 is read too
 
-# Header: magic, version, MapperConfig in its order, time, cell count (197 bytes).
-_HEADER = struct.Struct(
+# Version 1 header: magic, version, MapperConfig in its order, time, cell count (197 bytes).
+_HEADER_V1 = struct.Struct(
     "<8sI"          # magic, format version
     "dddddd"        # resolution_m, time_step_s, p_hit_given_occ, p_hit_given_free, prior p_of, prior p_fo
     "B"             # learn_transitions
@@ -45,11 +45,18 @@ _HEADER = struct.Struct(
     "Bq"            # last applied step present, last applied step
     "Q"             # cell count
 )
-HEADER_SIZE = _HEADER.size
+# Version 2 inserts the learners' options and the sensor model's sums before the cell count.
+_LEARNERS_V2 = struct.Struct(
+    "<Bd"           # learn_prior, prior_population_weight
+    "BddI"          # online_em: schedule (0 harmonic, 1 robbins_monro), step_size_exponent, step_size_offset, averaging_start
+    "Bdd"           # learn_sensor_model, sensor_model_prior_weight, sensor_model_p_min
+    "dddd"          # sensor model sums: trials occ, trials free, hits occ, hits free
+)
 CHECKSUM_SIZE = 4
+HEADER_SIZES = {1: _HEADER_V1.size, 2: _HEADER_V1.size + _LEARNERS_V2.size}
 
-# One observed cell (62 bytes, packed).
-CELL_DTYPE = np.dtype([
+# One observed cell (version 1: 62 bytes, packed; version 2 adds last_hits, last_misses).
+CELL_DTYPE_V1 = np.dtype([
     ("x", "<i4"),
     ("y", "<i4"),
     ("p_occ", "<f4"),
@@ -60,14 +67,16 @@ CELL_DTYPE = np.dtype([
     ("em_stats", "<f4", (8,)),
     ("observed_steps", "<u2"),
 ])
-CELL_SIZE = CELL_DTYPE.itemsize
-CELL_FIELDS = CELL_DTYPE.names
+CELL_DTYPE_V2 = np.dtype(CELL_DTYPE_V1.descr + [("last_hits", "u1"), ("last_misses", "u1")])
+CELL_DTYPES = {1: CELL_DTYPE_V1, 2: CELL_DTYPE_V2}
+CELL_FIELDS = CELL_DTYPE_V2.names
 
-assert HEADER_SIZE == 197 and CELL_SIZE == 62, "the layout of docs/model_format.md"
+assert HEADER_SIZES == {1: 197, 2: 276} and CELL_DTYPE_V1.itemsize == 62 and CELL_DTYPE_V2.itemsize == 64, \
+    "the layout of docs/model_format.md"
 
 
 class ModelFormatError(ValueError):
-    """The bytes are not an intact model file of FORMAT_VERSION."""
+    """The bytes are not an intact model file of version 1 or FORMAT_VERSION."""
 
 
 class Model:
@@ -79,15 +88,22 @@ class Model:
     last_applied_step: the last step applied to the cells, or None.
     x, y (int32), p_occ, log_odds, p_occ_given_free, p_free_given_occ (float32),
     last_step (int32), em_stats (float32, N x 8, S(i, j, m) at (i * 2 + j) * 2 + m, 0 = occ),
-    observed_steps (uint16): one entry per observed cell, by row (y) then column (x).
+    observed_steps (uint16), last_hits, last_misses (uint8, the evidence of the cell's last
+    step; 0 in version 1 files): one entry per observed cell, by row (y) then column (x).
+    sensor_model_stats: dict of the online sensor model's sums (trials_occ, trials_free,
+        hits_occ, hits_free; zeros in version 1 files).
     """
 
-    def __init__(self, config, clock_origin_s, last_applied_step, cells):
+    def __init__(self, config, clock_origin_s, last_applied_step, cells, sensor_model_stats):
         self.config = config
+        self.sensor_model_stats = sensor_model_stats
         self.clock_origin_s = clock_origin_s
         self.last_applied_step = last_applied_step
         for name in CELL_FIELDS:
-            setattr(self, name, np.ascontiguousarray(cells[name]))
+            if name in cells.dtype.names:
+                setattr(self, name, np.ascontiguousarray(cells[name]))
+            else:
+                setattr(self, name, np.zeros(len(cells), dtype=CELL_DTYPE_V2[name]))
 
     @property
     def cell_count(self):
@@ -116,17 +132,20 @@ def parse_model(data):
     size = len(data)
     if bytes(data[:len(MAGIC)]) != MAGIC[:min(size, len(MAGIC))]:
         raise ModelFormatError("not a dynamic_occupancy_grid model file (no DOGMODEL magic at its start)")
-    minimum = HEADER_SIZE + CHECKSUM_SIZE
+    minimum = HEADER_SIZES[1] + CHECKSUM_SIZE
     if size < len(MAGIC) + 4:
         raise ModelFormatError(f"truncated model file: expected at least {minimum} bytes, {size} available")
     (version,) = struct.unpack_from("<I", data, len(MAGIC))
-    if version != FORMAT_VERSION:
-        raise ModelFormatError(f"model format version {version}, this reader reads version {FORMAT_VERSION}")
+    if version not in HEADER_SIZES:
+        raise ModelFormatError(f"model format version {version}, this reader reads versions 1 to {FORMAT_VERSION}")
+    header_size = HEADER_SIZES[version]
+    cell_dtype = CELL_DTYPES[version]
+    minimum = header_size + CHECKSUM_SIZE
     if size < minimum:
         raise ModelFormatError(f"truncated model file: expected at least {minimum} bytes, {size} available")
-    fields = _HEADER.unpack_from(data, 0)
-    count = fields[-1]
-    expected = minimum + count * CELL_SIZE  # Python integers: no overflow
+    fields = _HEADER_V1.unpack_from(data, 0)[:-1]  # without version 1's cell count
+    (count,) = struct.unpack_from("<Q", data, header_size - 8)
+    expected = minimum + count * cell_dtype.itemsize  # Python integers: no overflow
     if expected > size:
         raise ModelFormatError(
             f"truncated model file: expected {expected} bytes for {count} cells, {size} available")
@@ -143,7 +162,7 @@ def parse_model(data):
     (_, _, resolution_m, time_step_s, p_hit_given_occ, p_hit_given_free, prior_of, prior_fo, learn,
      prior_weight, learning_rate_floor, p_min, p_max, symmetric, min_observed_steps, initial_p_occ,
      min_log_odds, max_log_odds, max_free_range_m, origin_x_m, origin_y_m, fixed, width_m, height_m,
-     max_map_size_m, has_origin, origin_s, has_last, last_step, _) = fields
+     max_map_size_m, has_origin, origin_s, has_last, last_step) = fields
     config = {
         "resolution_m": resolution_m,
         "time_step_s": time_step_s,
@@ -168,7 +187,31 @@ def parse_model(data):
         "width_m": width_m,
         "height_m": height_m,
         "max_map_size_m": max_map_size_m,
+        # Version 1 files: MapperConfig's defaults.
+        "learn_prior": False,
+        "prior_population_weight": 10.0,
+        "learn_sensor_model": False,
+        "sensor_model_prior_weight": 1000.0,
+        "sensor_model_p_min": 0.01,
     }
+    config["online_em"].update({"schedule": "harmonic", "step_size_exponent": 0.6, "step_size_offset": 2.0,
+                                "averaging_start": 0})
+    sensor_model_stats = {"trials_occ": 0.0, "trials_free": 0.0, "hits_occ": 0.0, "hits_free": 0.0}
+    if version >= 2:
+        (learn_prior, population_weight, schedule, exponent, offset, averaging_start, learn_sensor,
+         sensor_weight, sensor_p_min, trials_occ, trials_free, hits_occ, hits_free) = _LEARNERS_V2.unpack_from(
+             data, HEADER_SIZES[1] - 8)
+        if schedule not in (0, 1):
+            raise ModelFormatError(f"invalid model file: online_em.schedule is {schedule}, must be 0 (harmonic) or "
+                                   "1 (robbins_monro)")
+        config.update({"learn_prior": _flag(learn_prior, "learn_prior"), "prior_population_weight": population_weight,
+                       "learn_sensor_model": _flag(learn_sensor, "learn_sensor_model"),
+                       "sensor_model_prior_weight": sensor_weight, "sensor_model_p_min": sensor_p_min})
+        config["online_em"].update({"schedule": "harmonic" if schedule == 0 else "robbins_monro",
+                                    "step_size_exponent": exponent, "step_size_offset": offset,
+                                    "averaging_start": averaging_start})
+        sensor_model_stats = {"trials_occ": trials_occ, "trials_free": trials_free, "hits_occ": hits_occ,
+                              "hits_free": hits_free}
     has_origin = _flag(has_origin, "clock origin present")
     has_last = _flag(has_last, "last applied step present")
     if not (resolution_m > 0.0 and time_step_s > 0.0):
@@ -177,8 +220,8 @@ def parse_model(data):
         raise ModelFormatError("invalid model file: an absent time value is not stored as 0")
     if has_last and not has_origin:
         raise ModelFormatError("invalid time in model file: a last applied step needs a clock origin")
-    cells = np.frombuffer(data, dtype=CELL_DTYPE, count=count, offset=HEADER_SIZE)
-    return Model(config, origin_s if has_origin else None, last_step if has_last else None, cells)
+    cells = np.frombuffer(data, dtype=cell_dtype, count=count, offset=header_size)
+    return Model(config, origin_s if has_origin else None, last_step if has_last else None, cells, sensor_model_stats)
 
 
 def load_model(path):

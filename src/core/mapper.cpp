@@ -13,6 +13,10 @@ namespace dynamic_occupancy_grid {
 namespace core {
 namespace {
 
+// addSensorEvidence: the smallest lambda^k between a step and the next observation for the
+// step to count (docs/online_learning.md, "The sensor model").
+constexpr double kSensorModelMinCorrelation = 0.95;
+
 void require(bool ok, const std::string& message) {
   if (!ok) throw std::invalid_argument(message);
 }
@@ -274,6 +278,15 @@ void Mapper::addSensorEvidence(const CellGrid::Tile& tile, int i, std::int32_t s
   if (trials == 0) return;
   const TransitionParams params{tile.p_occ_given_free[i], tile.p_free_given_occ[i]};
   const std::int64_t k = std::int64_t{step} - tile.last_step[i];
+  // Only where the next observation says much about the state then: lambda^k >= 0.9 (the
+  // cell is expected to keep its state in between). Elsewhere the smoothed state is mostly
+  // the step's own evidence, and counting it would teach the model what it already assumes.
+  // A learning cell still on the prior transitions (fewer than min_observed_steps) has not
+  // shown yet how fast it changes: it waits.
+  if ((config_.learn_transitions && tile.observed_steps[i] < config_.online_em.min_observed_steps) ||
+      lambdaPower(params, k) < kSensorModelMinCorrelation) {
+    return;
+  }
   const double occ_to_occ = predictOccupancy(1.0, params, k);
   const double free_to_occ = predictOccupancy(0.0, params, k);
   // Likelihoods of this step's evidence scaled so that the larger is 1.

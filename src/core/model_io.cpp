@@ -31,16 +31,30 @@ namespace {
 constexpr char kMagic[8] = {'D', 'O', 'G', 'M', 'O', 'D', 'E', 'L'};
 constexpr std::size_t kMagicSize = sizeof(kMagic);
 constexpr std::size_t kVersionEnd = kMagicSize + 4;
-// magic, version, configuration (19 doubles, 3 flags, 1 uint32), time (2 flags, a double,
-// an int64), cell count.
-constexpr std::size_t kHeaderSize = kMagicSize + 4 + (19 * 8 + 3 * 1 + 4) + (1 + 8 + 1 + 8) + 8;
-static_assert(kHeaderSize == 197, "docs/model_format.md documents a 197-byte header");
+// Version 1: magic, version, configuration (19 doubles, 3 flags, 1 uint32), time (2
+// flags, a double, an int64), cell count.
+constexpr std::size_t kHeaderSizeV1 = kMagicSize + 4 + (19 * 8 + 3 * 1 + 4) + (1 + 8 + 1 + 8) + 8;
+static_assert(kHeaderSizeV1 == 197, "docs/model_format.md documents a 197-byte version 1 header");
+// Where version 1's time ends and version 2's learner block begins.
+constexpr std::size_t kTimeEnd = kHeaderSizeV1 - 8;
+// Version 2 adds, before the cell count, the learners' configuration (2 flags, 1 byte of
+// schedule, 5 doubles, 1 uint32) and the sensor model's sums (4 doubles).
+constexpr std::size_t kHeaderSizeV2 = kTimeEnd + (2 * 1 + 1 + 5 * 8 + 4) + 4 * 8 + 8;
+static_assert(kHeaderSizeV2 == 276, "docs/model_format.md documents a 276-byte version 2 header");
 // x, y, p_occ, last_step, log_odds, p_occ_given_free, p_free_given_occ, em_stats[8],
-// observed_steps.
-constexpr std::size_t kCellSize = 4 * 7 + 4 * 8 + 2;
-static_assert(kCellSize == 62, "docs/model_format.md documents 62-byte cell records");
+// observed_steps; version 2 adds last_hits and last_misses.
+constexpr std::size_t kCellSizeV1 = 4 * 7 + 4 * 8 + 2;
+static_assert(kCellSizeV1 == 62, "docs/model_format.md documents 62-byte version 1 cell records");
+constexpr std::size_t kCellSizeV2 = kCellSizeV1 + 2;
+
+struct Layout {
+  std::size_t header;
+  std::size_t cell;
+};
+Layout layoutOf(std::uint32_t version) {
+  return version == 1 ? Layout{kHeaderSizeV1, kCellSizeV1} : Layout{kHeaderSizeV2, kCellSizeV2};
+}
 constexpr std::size_t kChecksumSize = 4;
-constexpr std::size_t kMinimumSize = kHeaderSize + kChecksumSize;
 
 // ---- CRC-32: zlib's own, the one the format promises and Python's zlib.crc32 computes ----
 
@@ -173,32 +187,36 @@ std::unique_ptr<Mapper> deserializeChecked(const std::string& bytes) {
   if (std::memcmp(data, kMagic, magic_bytes) != 0) {
     throw std::runtime_error("not a dynamic_occupancy_grid model file (no DOGMODEL magic at its start)");
   }
-  if (size < kVersionEnd) throw truncated("at least " + std::to_string(kMinimumSize) + " bytes");
+  if (size < kVersionEnd) throw truncated("at least " + std::to_string(kHeaderSizeV1 + kChecksumSize) + " bytes");
   Reader reader(data + kMagicSize);
   const std::uint32_t version = reader.u32();
-  if (version != kModelFormatVersion) {
-    throw std::runtime_error("model format version " + std::to_string(version) + ", this build reads version " +
+  if (version != 1 && version != kModelFormatVersion) {
+    throw std::runtime_error("model format version " + std::to_string(version) + ", this build reads versions 1 to " +
                              std::to_string(kModelFormatVersion));
   }
-  if (size < kMinimumSize) throw truncated("at least " + std::to_string(kMinimumSize) + " bytes");
+  const Layout layout = layoutOf(version);
+  const std::size_t header_size = layout.header;
+  const std::size_t cell_size = layout.cell;
+  const std::size_t minimum_size = header_size + kChecksumSize;
+  if (size < minimum_size) throw truncated("at least " + std::to_string(minimum_size) + " bytes");
 
   // The size the cell count implies, checked before anything is allocated for the cells.
   std::uint64_t cell_count = 0;
   {
-    Reader count_reader(data + kHeaderSize - 8);
+    Reader count_reader(data + header_size - 8);
     cell_count = count_reader.u64();
   }
-  const std::uint64_t cell_room = (size - kMinimumSize) / kCellSize;
+  const std::uint64_t cell_room = (size - minimum_size) / cell_size;
   if (cell_count > cell_room) {
-    const std::uint64_t max_cells = (std::numeric_limits<std::uint64_t>::max() - kMinimumSize) / kCellSize;
+    const std::uint64_t max_cells = (std::numeric_limits<std::uint64_t>::max() - minimum_size) / cell_size;
     if (cell_count > max_cells) {
       throw std::runtime_error("corrupt model file: absurd cell count " + std::to_string(cell_count) + " in " +
                                std::to_string(size) + " bytes");
     }
-    throw truncated(std::to_string(kMinimumSize + cell_count * kCellSize) + " bytes for " +
+    throw truncated(std::to_string(minimum_size + cell_count * cell_size) + " bytes for " +
                     std::to_string(cell_count) + " cells");
   }
-  const std::size_t expected_size = kMinimumSize + static_cast<std::size_t>(cell_count) * kCellSize;
+  const std::size_t expected_size = minimum_size + static_cast<std::size_t>(cell_count) * cell_size;
   if (size > expected_size) {
     throw std::runtime_error("invalid model file: " + std::to_string(size - expected_size) +
                              " trailing bytes after the checksum (" + std::to_string(expected_size) +
@@ -252,6 +270,27 @@ std::unique_ptr<Mapper> deserializeChecked(const std::string& bytes) {
       (!has_last_applied_step && last_applied_step != 0)) {
     throw std::runtime_error("invalid model file: an absent time value is not stored as 0");
   }
+  // Version 2: the learners' configuration and the sensor model's sums (version 1 files
+  // keep MapperConfig's defaults and no sums).
+  SensorModelStats sensor_stats;
+  if (version >= 2) {
+    config.learn_prior = reader.flag("learn_prior");
+    config.prior_population_weight = reader.f64();
+    const std::uint8_t schedule = reader.u8();
+    if (schedule > 1) {
+      throw std::runtime_error("invalid model file: online_em.schedule is " + std::to_string(schedule) +
+                               ", must be 0 (harmonic) or 1 (robbins_monro)");
+    }
+    config.online_em.schedule = schedule == 0 ? StepSchedule::kHarmonic : StepSchedule::kRobbinsMonro;
+    config.online_em.step_size_exponent = reader.f64();
+    config.online_em.step_size_offset = reader.f64();
+    config.online_em.averaging_start = reader.u32();
+    config.learn_sensor_model = reader.flag("learn_sensor_model");
+    config.sensor_model_prior_weight = reader.f64();
+    config.sensor_model_p_min = reader.f64();
+    for (int state = 0; state < 2; ++state) sensor_stats.trials[state] = reader.f64();
+    for (int state = 0; state < 2; ++state) sensor_stats.hits[state] = reader.f64();
+  }
   static_cast<void>(reader.u64());  // the cell count, read above
 
   std::unique_ptr<Mapper> mapper;
@@ -267,6 +306,11 @@ std::unique_ptr<Mapper> deserializeChecked(const std::string& bytes) {
   } catch (const std::invalid_argument& error) {
     throw std::runtime_error(std::string("invalid time in model file: ") + error.what());
   }
+  try {
+    mapper->restoreSensorModelStats(sensor_stats);
+  } catch (const std::invalid_argument& error) {
+    throw std::runtime_error(std::string("invalid sensor model sums in model file: ") + error.what());
+  }
 
   for (std::uint64_t index = 0; index < cell_count; ++index) {
     const std::int32_t x = reader.i32();
@@ -279,6 +323,10 @@ std::unique_ptr<Mapper> deserializeChecked(const std::string& bytes) {
     state.p_free_given_occ = reader.f32();
     for (float& stat : state.em_stats) stat = reader.f32();
     state.observed_steps = reader.u16();
+    if (version >= 2) {
+      state.last_hits = reader.u8();
+      state.last_misses = reader.u8();
+    }
     // A second record of the same cell would silently overwrite the first.
     if (mapper->grid().cell(x, y)) {
       throw std::runtime_error("invalid model file: " + cellName(index, x, y) + " appears twice");
@@ -404,7 +452,7 @@ std::string serializeModel(const Mapper& mapper) {
   const std::size_t cell_count = countObservedCells(grid);
   // The file is built in one buffer of its exact size: the only copy of the cells besides
   // the grid itself.
-  std::string bytes(kMinimumSize + cell_count * kCellSize, '\0');
+  std::string bytes(kHeaderSizeV2 + kChecksumSize + cell_count * kCellSizeV2, '\0');
   auto* const begin = reinterpret_cast<unsigned char*>(&bytes[0]);
   Writer writer(begin);
   writer.bytes(kMagic, kMagicSize);
@@ -440,6 +488,18 @@ std::string serializeModel(const Mapper& mapper) {
   writer.f64(origin.value_or(0.0));
   writer.flag(last_applied_step.has_value());
   writer.i64(last_applied_step.value_or(0));
+  writer.flag(config.learn_prior);
+  writer.f64(config.prior_population_weight);
+  writer.u8(config.online_em.schedule == StepSchedule::kHarmonic ? 0 : 1);
+  writer.f64(config.online_em.step_size_exponent);
+  writer.f64(config.online_em.step_size_offset);
+  writer.u32(config.online_em.averaging_start);
+  writer.flag(config.learn_sensor_model);
+  writer.f64(config.sensor_model_prior_weight);
+  writer.f64(config.sensor_model_p_min);
+  const SensorModelStats& sensor_stats = mapper.sensorModelStats();
+  for (int state = 0; state < 2; ++state) writer.f64(sensor_stats.trials[state]);
+  for (int state = 0; state < 2; ++state) writer.f64(sensor_stats.hits[state]);
   writer.u64(cell_count);
 
   forEachObservedCell(grid, [&writer](std::int32_t x, std::int32_t y, const CellGrid::Tile& tile, int i) {
@@ -452,6 +512,8 @@ std::string serializeModel(const Mapper& mapper) {
     writer.f32(tile.p_free_given_occ[i]);
     for (const auto& stat : tile.em_stats) writer.f32(stat[i]);
     writer.u16(tile.observed_steps[i]);
+    writer.u8(tile.last_hits[i]);
+    writer.u8(tile.last_misses[i]);
   });
   const std::size_t body = static_cast<std::size_t>(writer.position() - begin);
   if (body != bytes.size() - kChecksumSize) {

@@ -38,6 +38,8 @@ struct Prepared {
   double b_free;
   double log_scale;
   std::int64_t length;
+  std::uint32_t hits;
+  std::uint32_t misses;
 };
 
 // Runs up to this many transitions are crossed step by step (exact, and cheaper than the
@@ -105,7 +107,7 @@ void prepare(const StepObservation* begin, const StepObservation* end, Scratch& 
       b = scaledLikelihood(it->hits, it->misses, scratch.log_hit, scratch.log_miss);
     }
     out.push_back(Prepared{b.occ_larger ? 1.0 : b.smaller, b.occ_larger ? b.smaller : 1.0, b.log_scale,
-                           std::int64_t{it->step} - previous});
+                           std::int64_t{it->step} - previous, it->hits, it->misses});
     previous = it->step;
   }
 }
@@ -216,6 +218,17 @@ ForwardBackwardResult forwardBackwardPrepared(Scratch& scratch, const Transition
     const Prepared& o = obs[k];
     const double c = scratch.normaliser[k];
     const double w[2] = {o.b_occ * beta[0] / c, o.b_free * beta[1] / c};
+    {
+      // The smoothed state at this observation, alpha_k o beta_k: the sensor model's E-step.
+      const std::array<double, 2>& filtered = scratch.alpha[k + 1];
+      const double occ = filtered[0] * beta[0];
+      const double p_occ = occ / (occ + filtered[1] * beta[1]);
+      const double trials = static_cast<double>(o.hits) + o.misses;
+      result.expected_trials[0] += p_occ * trials;
+      result.expected_trials[1] += (1.0 - p_occ) * trials;
+      result.expected_hits[0] += p_occ * o.hits;
+      result.expected_hits[1] += (1.0 - p_occ) * o.hits;
+    }
     const std::array<double, 2>& start = scratch.alpha[k];
     if (o.length <= kShortRun) {
       // Step by step: f_n = start A^n forward, g_m = A^m w backward, all products of
@@ -367,6 +380,12 @@ void OfflineEmConfig::validate() const {
   // are flat to rounding, and the solver's arithmetic degrades.
   require(std::isfinite(mrf_temperature) && (mrf_temperature == 0.0 || mrf_temperature >= kMinMrfTemperature),
           "offline_em mrf_temperature must be 0 (off) or >= 1e-9, got " + std::to_string(mrf_temperature));
+  require(!(learn_sensor_model && mrf_temperature > 0.0),
+          "offline_em learn_sensor_model does not combine with mrf_temperature > 0");
+  require(sensor_model_rounds >= 1 && sensor_model_rounds <= 1000,
+          "offline_em sensor_model_rounds must be in [1, 1000], got " + std::to_string(sensor_model_rounds));
+  require(sensor_model_p_min > 0.0 && sensor_model_p_min <= 0.4,
+          "offline_em sensor_model_p_min must be in (0, 0.4], got " + std::to_string(sensor_model_p_min));
   require(!(symmetric && mrf_temperature > 0.0),
           "offline_em mrf_temperature > 0 does not combine with symmetric: the MRF smooths p(occ -> occ) and "
           "p(free -> free) separately");
@@ -559,12 +578,12 @@ OfflineEmResult runOfflineEmMrf(const ObservationSequences& sequences, const Obs
   return result;
 }
 
-}  // namespace
-
-OfflineEmResult runOfflineEm(const ObservationSequences& sequences, const ObservationModel& sensor,
-                             const OfflineEmConfig& config, const OfflineEmProgress& progress) {
-  config.validate();
-  if (config.mrf_temperature > 0.0) return runOfflineEmMrf(sequences, sensor, config, progress);
+// Per-cell EM with a fixed sensor model, each cell from (*start)[cell] (or the config's
+// initial_params); `emission` gets the sensor model's E-step at the cells' final
+// transitions, summed in chunk order (the same for any number of threads).
+OfflineEmResult runPerCellEm(const ObservationSequences& sequences, const ObservationModel& sensor,
+                             const OfflineEmConfig& config, const std::vector<TransitionParams>* start,
+                             const OfflineEmProgress& progress, ForwardBackwardResult& emission) {
   const std::size_t cells = sequences.cellCount();
   const auto iterations_max = static_cast<std::size_t>(config.max_iterations);
   OfflineEmResult result;
@@ -578,6 +597,7 @@ OfflineEmResult runOfflineEm(const ObservationSequences& sequences, const Observ
   const std::size_t chunks = (cells + chunk_cells - 1) / chunk_cells;
   std::vector<std::vector<double>> chunk_objective(chunks);
   std::vector<std::size_t> chunk_converged(chunks, 0);
+  std::vector<ForwardBackwardResult> chunk_emission(chunks);
   std::atomic<std::size_t> next_chunk{0};
   std::atomic<bool> cancelled{false};
   std::mutex progress_mutex;
@@ -595,7 +615,7 @@ OfflineEmResult runOfflineEm(const ObservationSequences& sequences, const Observ
       const StepObservation* begin = sequences.begin(cell);
       const StepObservation* end = sequences.end(cell);
       prepare(begin, end, scratch);
-      TransitionParams params = config.initial_params;
+      TransitionParams params = start != nullptr ? (*start)[cell] : config.initial_params;
       ForwardBackwardResult pass = forwardBackwardPrepared(scratch, params, config.initial_p_occ);
       double objective = pass.log_likelihood + logPrior(params, config);
       scratch.objective.assign(1, objective);
@@ -619,6 +639,10 @@ OfflineEmResult runOfflineEm(const ObservationSequences& sequences, const Observ
       result.final_p_occ[cell] = pass.final_p_occ;
       result.final_step[cell] = (end - 1)->step;
       result.iterations[cell] = static_cast<std::uint16_t>(iteration);
+      for (int state = 0; state < 2; ++state) {
+        chunk_emission[chunk].expected_trials[state] += pass.expected_trials[state];
+        chunk_emission[chunk].expected_hits[state] += pass.expected_hits[state];
+      }
       if (converged) ++chunk_converged[chunk];
       if (scratch.objective.size() > objective_sum.size()) {
         objective_sum.resize(scratch.objective.size(), objective_sum.back());
@@ -661,6 +685,62 @@ OfflineEmResult runOfflineEm(const ObservationSequences& sequences, const Observ
     const std::vector<double>& sum = chunk_objective[chunk];
     if (sum.empty()) continue;  // not run (cancelled)
     for (std::size_t k = 0; k < entries; ++k) result.objective[k] += sum[std::min(k, sum.size() - 1)];
+    for (int state = 0; state < 2; ++state) {
+      emission.expected_trials[state] += chunk_emission[chunk].expected_trials[state];
+      emission.expected_hits[state] += chunk_emission[chunk].expected_hits[state];
+    }
+  }
+  return result;
+}
+
+}  // namespace
+
+OfflineEmResult runOfflineEm(const ObservationSequences& sequences, const ObservationModel& sensor,
+                             const OfflineEmConfig& config, const OfflineEmProgress& progress) {
+  config.validate();
+  if (config.mrf_temperature > 0.0) {
+    OfflineEmResult result = runOfflineEmMrf(sequences, sensor, config, progress);
+    result.p_hit_given_occ = sensor.pHitGivenOcc();
+    result.p_hit_given_free = sensor.pHitGivenFree();
+    return result;
+  }
+  ForwardBackwardResult emission;
+  if (!config.learn_sensor_model) {
+    OfflineEmResult result = runPerCellEm(sequences, sensor, config, nullptr, progress, emission);
+    result.p_hit_given_occ = sensor.pHitGivenOcc();
+    result.p_hit_given_free = sensor.pHitGivenFree();
+    return result;
+  }
+  // Rounds of per-cell EM under a fixed sensor model, each followed by the emission M-step;
+  // the cells' next round starts from their transitions.
+  ObservationModel current = sensor;
+  const auto rounds = static_cast<std::size_t>(config.sensor_model_rounds);
+  const std::size_t cells = sequences.cellCount();
+  OfflineEmResult result;
+  for (std::size_t round = 0; round < rounds; ++round) {
+    const OfflineEmProgress round_progress = [&](std::size_t done, std::size_t total) {
+      return !progress || progress(round * total + done, rounds * total);
+    };
+    emission = ForwardBackwardResult{};
+    const std::vector<TransitionParams> start = round == 0 ? std::vector<TransitionParams>{} : result.params;
+    const int rounds_before = result.sensor_model_rounds;
+    result = runPerCellEm(sequences, current, config, round == 0 ? nullptr : &start, round_progress, emission);
+    result.sensor_model_rounds = round == 0 ? 1 : rounds_before + 1;
+    result.p_hit_given_occ = current.pHitGivenOcc();
+    result.p_hit_given_free = current.pHitGivenFree();
+    if (result.cancelled || cells == 0) break;
+    const double lo = config.sensor_model_p_min;
+    const auto rate = [&](int state, double fallback) {
+      return emission.expected_trials[state] > 0.0
+                 ? std::clamp(emission.expected_hits[state] / emission.expected_trials[state], lo, 1.0 - lo)
+                 : fallback;
+    };
+    const double occ = rate(0, current.pHitGivenOcc());
+    const double free = rate(1, current.pHitGivenFree());
+    if (occ < free + 0.05) break;  // a hit must stay evidence for "occupied"
+    const double moved = std::max(std::abs(occ - current.pHitGivenOcc()), std::abs(free - current.pHitGivenFree()));
+    if (moved <= 1e-4) break;
+    if (round + 1 < rounds) current = ObservationModel(occ, free);
   }
   return result;
 }

@@ -71,6 +71,7 @@ OfflineTraining trainOffline(Simulation& training, const MapperConfig& mapper_co
                              const OfflineEmConfig& em_config) {
   MapperConfig config = mapper_config;
   config.learn_transitions = false;  // only the observations matter here
+  config.learn_sensor_model = false;  // offline EM starts from the configured sensor model
   Mapper mapper(config);
   SequenceBuilder recorder;
   mapper.recordObservations(&recorder);

@@ -89,12 +89,15 @@ struct RepetitionRun {
 
 RepetitionRun runRepetition(const ScenarioConfig& scenario, const LearningExperimentConfig& config, int repetition) {
   const std::uint64_t world_seed = mixSeed(config.seed * 1000003ULL + static_cast<std::uint64_t>(repetition) + 0x5041ULL);
-  const MapperConfig base = evaluationMapperConfig(scenario);
+  MapperConfig base = evaluationMapperConfig(scenario);
+  base.learn_sensor_model = config.learn_sensor_model;
 
   ScenarioConfig training_scenario = scenario;
   training_scenario.redraw_at_step = -1;
   Simulation training(training_scenario, world_seed, mixSeed(world_seed ^ 0x7261696eULL));
-  const OfflineTraining offline = trainOffline(training, base, scenario.steps, evaluationOfflineEmConfig(base));
+  OfflineEmConfig offline_config = evaluationOfflineEmConfig(base);
+  offline_config.learn_sensor_model = config.learn_sensor_model;
+  const OfflineTraining offline = trainOffline(training, base, scenario.steps, offline_config);
 
   Simulation simulation(scenario, world_seed, mixSeed(world_seed ^ 0x6576616cULL));
   const World& world = simulation.world();
@@ -116,7 +119,12 @@ RepetitionRun runRepetition(const ScenarioConfig& scenario, const LearningExperi
     if (variant.configure) variant.configure(learner);
     add(variant.name, learner, Reading::kBelief, true);
   }
-  add("offline", fixed, Reading::kBelief, true);
+  // Offline EM's own sensor model, learned with its transitions (or the configured one).
+  MapperConfig offline_fixed = fixed;
+  offline_fixed.learn_sensor_model = false;
+  offline_fixed.p_hit_given_occ = offline.result.p_hit_given_occ;
+  offline_fixed.p_hit_given_free = offline.result.p_hit_given_free;
+  add("offline", offline_fixed, Reading::kBelief, true);
   add("oracle", fixed, Reading::kBelief, true);
   Mapper& offline_mapper = *methods[methods.size() - 2].mapper;
   Mapper& oracle_mapper = *methods.back().mapper;

@@ -496,7 +496,7 @@ std::string learningSummary(const core::ScenarioConfig& scenario, const core::Le
        << fixed(result.laser_hit_rate_occ, 3) << " on occupied, " << fixed(result.laser_hit_rate_free, 3)
        << " on free cells.\n\n"
        << "| method | accuracy, all cells % | changing cells % | parameter MAE, changing | retention % | walls "
-          "changing | free changing |\n|---|---|---|---|---|---|---|\n";
+          "changing | free changing | sensor model p(hit \\| occ) / p(hit \\| free) |\n|---|---|---|---|---|---|---|---|\n";
   for (const core::MethodScore& m : result.methods) {
     const bool transitions = !m.kinds.empty();
     text << "| " << m.method << " | " << fixed(percentMean(m.accuracy_all), 2) << " | "
@@ -507,7 +507,7 @@ std::string learningSummary(const core::ScenarioConfig& scenario, const core::Le
                          : std::string("–"))
          << " | "
          << (transitions ? fixed(m.static_free_changing, 1) + " / " + fixed(m.static_free_cells, 0) : std::string("–"))
-         << " |\n";
+         << " | " << fixed(m.p_hit_given_occ, 3) << " / " << fixed(m.p_hit_given_free, 3) << " |\n";
   }
   text << "\nLearned transitions per kind of changing cell (median p_occ_given_free / p_free_given_occ; MAE "
           "of each):\n\n| method |";

@@ -1568,3 +1568,124 @@ TEST(MapperReconfigure, LearningTurnedOffKeepsTheLearnedTransitionsAndOnAgainRes
   EXPECT_NE(mapper.grid().cell(1, 0)->em_stats, learned.em_stats);
   EXPECT_NE(mapper.grid().cell(1, 0)->p_occ_given_free, learned.p_occ_given_free);
 }
+
+// ---- the sensor model learned online (MapperConfig::learn_sensor_model) ----------------------
+
+namespace {
+
+// A beam along +x in every scan: ending at 1.0 m (the wall cell 4: a hit) in the steps
+// `hit_steps` says, passing through it (a miss) in the others; some steps without a scan.
+struct SensorScenario {
+  static bool observed(int step) { return step % 7 != 3 && step % 11 != 5; }
+  static bool hit(int step) { return step % 10 != 4; }  // the wall's hit rate is 0.9
+  static float range(int step) { return hit(step) ? 1.1f : 30.0f; }
+};
+
+dog::MapperConfig sensorConfig() {
+  dog::MapperConfig config = testConfig();
+  config.prior_transitions = dog::TransitionParams{0.01, 0.01};
+  config.learn_sensor_model = true;
+  config.max_free_range_m = 2.0;
+  return config;
+}
+
+}  // namespace
+
+// Each cell step counts once the cell is seen again, weighed by p(x_then | z up to the next
+// observation): checked against a step-by-step reference (A^k by repeated products) with
+// the model held fixed by a huge prior weight.
+TEST(MapperSensorModel, SumsAreTheCellStepsWeighedByTheirSmoothedState) {
+  dog::MapperConfig config = sensorConfig();
+  config.sensor_model_prior_weight = 1e15;  // the model stays the configured one
+  dog::Mapper mapper(config);
+  dog::SequenceBuilder recorder;
+  mapper.recordObservations(&recorder);
+  for (int step = 0; step < 200; ++step) {
+    if (!SensorScenario::observed(step)) continue;
+    ASSERT_EQ(mapper.integrate(makeScan(step, {SensorScenario::range(step)})).status, dog::ScanStatus::kIntegrated);
+  }
+  mapper.finishStep();
+  const dog::ObservationSequences sequences = recorder.build();
+  ASSERT_GE(sequences.cellCount(), 8U);
+  const LD p_hit[2] = {kHitOcc, kHitFree};
+  const LD a[2][2] = {{1.0L - 0.01L, 0.01L}, {0.01L, 1.0L - 0.01L}};
+  LD trials[2] = {0.0L, 0.0L};
+  LD hits[2] = {0.0L, 0.0L};
+  for (std::size_t c = 0; c < sequences.cellCount(); ++c) {
+    LD q = 0.5L;  // filtered p(occ), the chain starting the step before the first observation
+    std::int32_t last = sequences.begin(c)->step - 1;
+    const dog::StepObservation* previous = nullptr;
+    for (const dog::StepObservation* z = sequences.begin(c); z != sequences.end(c); ++z) {
+      const int k = z->step - last;
+      // A^k step by step.
+      LD power[2][2] = {{1.0L, 0.0L}, {0.0L, 1.0L}};
+      for (int n = 0; n < k; ++n) {
+        LD next[2][2];
+        for (int i = 0; i < 2; ++i)
+          for (int j = 0; j < 2; ++j) next[i][j] = power[i][0] * a[0][j] + power[i][1] * a[1][j];
+        std::copy(&next[0][0], &next[0][0] + 4, &power[0][0]);
+      }
+      LD like[2];
+      for (int s = 0; s < 2; ++s) like[s] = std::pow(p_hit[s], z->hits) * std::pow(1.0L - p_hit[s], z->misses);
+      const LD lambda_k = power[0][0] - power[1][0];
+      if (previous != nullptr && lambda_k >= 0.95L) {
+        const LD w_occ = q * (power[0][0] * like[0] + power[0][1] * like[1]);
+        const LD w_free = (1.0L - q) * (power[1][0] * like[0] + power[1][1] * like[1]);
+        const LD p_occ = w_occ / (w_occ + w_free);
+        const LD n = previous->hits + previous->misses;
+        trials[0] += p_occ * n;
+        trials[1] += (1.0L - p_occ) * n;
+        hits[0] += p_occ * previous->hits;
+        hits[1] += (1.0L - p_occ) * previous->hits;
+      }
+      const LD predicted = q * power[0][0] + (1.0L - q) * power[1][0];
+      q = predicted * like[0] / (predicted * like[0] + (1.0L - predicted) * like[1]);
+      last = z->step;
+      previous = z;
+    }
+  }
+  const dog::SensorModelStats& stats = mapper.sensorModelStats();
+  for (int s = 0; s < 2; ++s) {
+    // The grid keeps beliefs as float: agreement to float precision of the weights.
+    EXPECT_NEAR(stats.trials[s], static_cast<double>(trials[s]), 1e-5 * static_cast<double>(trials[0] + trials[1]));
+    EXPECT_NEAR(stats.hits[s], static_cast<double>(hits[s]), 1e-5 * static_cast<double>(trials[0] + trials[1]));
+  }
+  EXPECT_GT(stats.trials[0], 100.0);  // the wall cell counted
+  EXPECT_GT(stats.trials[1], 100.0);  // the free cells before it
+}
+
+TEST(MapperSensorModel, LearnsTheHitRatesAndKeepsThemWhenTurnedOff) {
+  dog::MapperConfig config = sensorConfig();
+  config.sensor_model_prior_weight = 5.0;
+  dog::Mapper mapper(config);
+  EXPECT_EQ(mapper.sensor().pHitGivenOcc(), kHitOcc);
+  int step = 0;
+  for (; step < 400; ++step) {
+    if (!SensorScenario::observed(step)) continue;
+    ASSERT_EQ(mapper.integrate(makeScan(step, {SensorScenario::range(step)})).status, dog::ScanStatus::kIntegrated);
+  }
+  mapper.finishStep();
+  // The wall is hit in 9 steps of 10; free cells never: the floor p_min.
+  EXPECT_NEAR(mapper.sensor().pHitGivenOcc(), 0.9, 0.02);
+  EXPECT_DOUBLE_EQ(mapper.sensor().pHitGivenFree(), config.sensor_model_p_min);
+  // Off: the learned model stays, and nothing is added.
+  mapper.setLearnSensorModel(false);
+  const dog::SensorModelStats before = mapper.sensorModelStats();
+  const double learned = mapper.sensor().pHitGivenOcc();
+  for (; step < 450; ++step) {
+    ASSERT_EQ(mapper.integrate(makeScan(step, {30.0f})).status, dog::ScanStatus::kIntegrated);
+  }
+  mapper.finishStep();
+  EXPECT_EQ(mapper.sensor().pHitGivenOcc(), learned);
+  EXPECT_EQ(mapper.sensorModelStats().trials[0], before.trials[0]);
+  // A new model from outside is a new start: the sums are dropped.
+  mapper.setSensorModel(0.8, 0.1);
+  EXPECT_EQ(mapper.sensorModelStats().trials[0], 0.0);
+  EXPECT_EQ(mapper.sensor().pHitGivenOcc(), 0.8);
+  // Bad settings are refused.
+  config.sensor_model_p_min = 0.0;
+  EXPECT_THROW(dog::Mapper{config}, std::invalid_argument);
+  config.sensor_model_p_min = 0.01;
+  config.sensor_model_prior_weight = 0.0;
+  EXPECT_THROW(dog::Mapper{config}, std::invalid_argument);
+}

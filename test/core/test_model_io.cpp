@@ -59,9 +59,17 @@ constexpr std::size_t kHasOriginOffset = 171;
 constexpr std::size_t kOriginOffset = 172;
 constexpr std::size_t kHasLastStepOffset = 180;
 constexpr std::size_t kLastStepOffset = 181;
-constexpr std::size_t kCountOffset = 189;
-constexpr std::size_t kCellsOffset = 197;
-constexpr std::size_t kCellSize = 62;
+// Version 2's learners' block follows the time, then the cell count.
+constexpr std::size_t kLearnPriorOffset = 189;
+constexpr std::size_t kScheduleOffset = 198;
+constexpr std::size_t kLearnSensorOffset = 219;
+constexpr std::size_t kSensorStatsOffset = 236;
+constexpr std::size_t kCountOffset = 268;
+constexpr std::size_t kCellsOffset = 276;
+constexpr std::size_t kCellSize = 64;
+// Version 1: no learners' block, 62-byte cells.
+constexpr std::size_t kLearnersSizeV2 = kCountOffset - kLearnPriorOffset;
+constexpr std::size_t kCellSizeV1 = 62;
 
 // ---- bytes ------------------------------------------------------------------------------
 
@@ -193,6 +201,15 @@ dog::MapperConfig growingLearningConfig() {
   config.online_em.p_max = 0.45;
   config.online_em.symmetric = false;
   config.online_em.min_observed_steps = 3;
+  config.online_em.schedule = dog::StepSchedule::kRobbinsMonro;
+  config.online_em.step_size_exponent = 0.8;
+  config.online_em.step_size_offset = 3.0;
+  config.online_em.averaging_start = 5;
+  config.learn_prior = true;
+  config.prior_population_weight = 7.0;
+  config.learn_sensor_model = true;
+  config.sensor_model_prior_weight = 20.0;
+  config.sensor_model_p_min = 0.02;
   config.initial_p_occ = 0.45;
   config.static_clamp = dog::LogOddsClamp{-2.5, 3.25};
   config.max_free_range_m = 3.5;
@@ -256,6 +273,8 @@ void expectSameCells(const dog::Mapper& a, const dog::Mapper& b) {
       ASSERT_TRUE(sameBits(ca.em_stats[k], cb.em_stats[k])) << where << " em_stats[" << k << "]";
     }
     ASSERT_EQ(ca.observed_steps, cb.observed_steps) << where;
+    ASSERT_EQ(ca.last_hits, cb.last_hits) << where;
+    ASSERT_EQ(ca.last_misses, cb.last_misses) << where;
   }
   const dog::CellBox box_a = a.grid().bounds();
   const dog::CellBox box_b = b.grid().bounds();
@@ -591,9 +610,94 @@ TEST(ModelIoFormat, BytesAreAsDocumented) {
   EXPECT_TRUE(sameBits(getLE<float>(bytes, r + 24), c.p_free_given_occ));
   for (std::size_t k = 0; k < 8; ++k) EXPECT_TRUE(sameBits(getLE<float>(bytes, r + 28 + 4 * k), c.em_stats[k]));
   EXPECT_EQ(getLE<std::uint16_t>(bytes, r + 60), c.observed_steps);
+  EXPECT_EQ(getLE<std::uint8_t>(bytes, r + 62), c.last_hits);
+  EXPECT_EQ(getLE<std::uint8_t>(bytes, r + 63), c.last_misses);
+  // Version 2's learners' block.
+  EXPECT_EQ(getLE<std::uint8_t>(bytes, kLearnPriorOffset), 1);
+  EXPECT_EQ(getLE<double>(bytes, kLearnPriorOffset + 1), config.prior_population_weight);
+  EXPECT_EQ(getLE<std::uint8_t>(bytes, kScheduleOffset), 1);  // robbins_monro
+  EXPECT_EQ(getLE<double>(bytes, kScheduleOffset + 1), config.online_em.step_size_exponent);
+  EXPECT_EQ(getLE<double>(bytes, kScheduleOffset + 9), config.online_em.step_size_offset);
+  EXPECT_EQ(getLE<std::uint32_t>(bytes, kScheduleOffset + 17), config.online_em.averaging_start);
+  EXPECT_EQ(getLE<std::uint8_t>(bytes, kLearnSensorOffset), 1);
+  EXPECT_EQ(getLE<double>(bytes, kLearnSensorOffset + 1), config.sensor_model_prior_weight);
+  EXPECT_EQ(getLE<double>(bytes, kLearnSensorOffset + 9), config.sensor_model_p_min);
+  const dog::SensorModelStats& stats = mapper.sensorModelStats();
+  EXPECT_EQ(getLE<double>(bytes, kSensorStatsOffset), stats.trials[0]);
+  EXPECT_EQ(getLE<double>(bytes, kSensorStatsOffset + 8), stats.trials[1]);
+  EXPECT_EQ(getLE<double>(bytes, kSensorStatsOffset + 16), stats.hits[0]);
+  EXPECT_EQ(getLE<double>(bytes, kSensorStatsOffset + 24), stats.hits[1]);
   // The checksum is zlib's CRC-32 of everything before it.
   EXPECT_EQ(referenceCrc32("123456789", 9), 0xCBF43926U);  // the reference's check value
   EXPECT_EQ(getLE<std::uint32_t>(bytes, bytes.size() - 4), referenceCrc32(bytes, bytes.size() - 4));
+}
+
+namespace {
+
+// A version 2 model as version 1 wrote it: without the learners' block and the cells' last
+// evidence.
+std::string asVersion1(const std::string& v2) {
+  std::string v1 = v2.substr(0, kLearnPriorOffset) + v2.substr(kCountOffset, 8);
+  putLE<std::uint32_t>(v1, kVersionOffset, 1);
+  const std::uint64_t count = getLE<std::uint64_t>(v2, kCountOffset);
+  for (std::uint64_t i = 0; i < count; ++i) v1 += v2.substr(kCellsOffset + i * kCellSize, kCellSizeV1);
+  v1 += std::string(4, '\0');
+  fixChecksum(v1);
+  return v1;
+}
+
+}  // namespace
+
+TEST(ModelIoFormat, Version1FilesAreReadWithTheDefaultsOfWhatTheyLack) {
+  dog::MapperConfig config = growingLearningConfig();
+  dog::Mapper mapper(config);
+  runSteps(mapper, 0, 6, 20.0);
+  mapper.finishStep();
+  const std::string v2 = dog::serializeModel(mapper);
+  const std::string v1 = asVersion1(v2);
+  ASSERT_EQ(v1.size(), v2.size() - kLearnersSizeV2 - 2 * getLE<std::uint64_t>(v2, kCountOffset));
+  const std::unique_ptr<dog::Mapper> loaded = dog::deserializeModel(v1);
+  ASSERT_NE(loaded, nullptr);
+  // What version 1 has comes back; what it lacks takes MapperConfig's defaults.
+  const dog::MapperConfig defaults;
+  EXPECT_EQ(loaded->config().p_hit_given_occ, config.p_hit_given_occ);
+  EXPECT_EQ(loaded->config().online_em.prior_weight, config.online_em.prior_weight);
+  EXPECT_EQ(loaded->config().learn_prior, defaults.learn_prior);
+  EXPECT_EQ(loaded->config().learn_sensor_model, defaults.learn_sensor_model);
+  EXPECT_EQ(loaded->config().online_em.schedule, defaults.online_em.schedule);
+  EXPECT_EQ(loaded->sensorModelStats().trials[0], 0.0);
+  EXPECT_EQ(loaded->sensor().pHitGivenOcc(), config.p_hit_given_occ);
+  const auto original_cells = cellsOf(mapper);
+  const auto loaded_cells = cellsOf(*loaded);
+  ASSERT_EQ(original_cells.size(), loaded_cells.size());
+  for (const auto& [xy, cell] : original_cells) {
+    const dog::CellState& back = loaded_cells.at(xy);
+    EXPECT_TRUE(sameBits(back.p_occ, cell.p_occ));
+    EXPECT_EQ(back.last_step, cell.last_step);
+    EXPECT_EQ(back.observed_steps, cell.observed_steps);
+    EXPECT_EQ(back.last_hits, 0);
+    EXPECT_EQ(back.last_misses, 0);
+  }
+  // Saved again, it is a version 2 file.
+  EXPECT_EQ(getLE<std::uint32_t>(dog::serializeModel(*loaded), kVersionOffset), 2U);
+  // Damaged version 1 files are refused like version 2 ones.
+  EXPECT_TRUE(contains(errorOf(v1.substr(0, v1.size() - 1)), "truncated")) << errorOf(v1.substr(0, v1.size() - 1));
+}
+
+TEST(ModelIoRoundTrip, LearnedSensorModelComesBack) {
+  dog::Mapper original(growingLearningConfig());
+  runSteps(original, 0, 30, 50.0);
+  original.finishStep();
+  ASSERT_GT(original.sensorModelStats().trials[0], 0.0);
+  ASSERT_NE(original.sensor().pHitGivenOcc(), original.config().p_hit_given_occ);  // it learned
+  const std::unique_ptr<dog::Mapper> loaded = roundTrip(original);
+  ASSERT_NE(loaded, nullptr);
+  EXPECT_EQ(loaded->sensor().pHitGivenOcc(), original.sensor().pHitGivenOcc());
+  EXPECT_EQ(loaded->sensor().pHitGivenFree(), original.sensor().pHitGivenFree());
+  for (int state = 0; state < 2; ++state) {
+    EXPECT_EQ(loaded->sensorModelStats().trials[state], original.sensorModelStats().trials[state]);
+    EXPECT_EQ(loaded->sensorModelStats().hits[state], original.sensorModelStats().hits[state]);
+  }
 }
 
 // ---- damaged files ---------------------------------------------------------------------------
@@ -607,7 +711,7 @@ TEST(ModelIoDamage, EveryTruncationIsRefused) {
     ASSERT_TRUE(contains(message, "truncated")) << "length " << length << ": " << message;
     ASSERT_TRUE(contains(message, std::to_string(length) + " available")) << message;
   }
-  EXPECT_EQ(errorOf(bytes.substr(0, 100)), "truncated model file: expected at least 201 bytes, 100 available");
+  EXPECT_EQ(errorOf(bytes.substr(0, 100)), "truncated model file: expected at least 280 bytes, 100 available");
   const std::uint64_t count = getLE<std::uint64_t>(bytes, kCountOffset);
   EXPECT_EQ(errorOf(bytes.substr(0, bytes.size() - 1)),
             "truncated model file: expected " + std::to_string(bytes.size()) + " bytes for " + std::to_string(count) +
@@ -639,11 +743,11 @@ TEST(ModelIoDamage, MessagesSayWhatIsWrong) {
   }
   {
     std::string newer = bytes;
-    putLE<std::uint32_t>(newer, kVersionOffset, 2);
+    putLE<std::uint32_t>(newer, kVersionOffset, 3);
     fixChecksum(newer);
-    EXPECT_EQ(errorOf(newer), "model format version 2, this build reads version 1");
+    EXPECT_EQ(errorOf(newer), "model format version 3, this build reads versions 1 to 2");
     putLE<std::uint32_t>(newer, kVersionOffset, 0);
-    EXPECT_EQ(errorOf(newer), "model format version 0, this build reads version 1");
+    EXPECT_EQ(errorOf(newer), "model format version 0, this build reads versions 1 to 2");
   }
   {
     std::string corrupt = bytes;
@@ -663,8 +767,8 @@ TEST(ModelIoDamage, AbsurdCellCountsAreRefusedBeforeAllocating) {
   const std::string bytes = smallModel();
   const std::uint64_t count = getLE<std::uint64_t>(bytes, kCountOffset);
   for (const std::uint64_t absurd :
-       {count + 1, std::uint64_t{1} << 40, std::uint64_t{1} << 58, std::numeric_limits<std::uint64_t>::max() / 62,
-        std::numeric_limits<std::uint64_t>::max() / 62 + 1, std::numeric_limits<std::uint64_t>::max()}) {
+       {count + 1, std::uint64_t{1} << 40, std::uint64_t{1} << 58, std::numeric_limits<std::uint64_t>::max() / 64,
+        std::numeric_limits<std::uint64_t>::max() / 64 + 1, std::numeric_limits<std::uint64_t>::max()}) {
     std::string damaged = bytes;
     putLE<std::uint64_t>(damaged, kCountOffset, absurd);
     fixChecksum(damaged);
@@ -674,7 +778,7 @@ TEST(ModelIoDamage, AbsurdCellCountsAreRefusedBeforeAllocating) {
   std::string fewer = bytes;
   putLE<std::uint64_t>(fewer, kCountOffset, count - 1);
   fixChecksum(fewer);
-  EXPECT_TRUE(contains(errorOf(fewer), "62 trailing bytes")) << errorOf(fewer);
+  EXPECT_TRUE(contains(errorOf(fewer), "64 trailing bytes")) << errorOf(fewer);
 }
 
 TEST(ModelIoDamage, InvalidConfigurationIsRefusedWithValidatesMessage) {

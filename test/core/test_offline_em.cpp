@@ -613,6 +613,9 @@ TEST(OfflineEmForwardBackward, MatchesPathEnumeration) {
     LD evidence = 0.0L;
     LD weighted_counts[2][2] = {{0.0L, 0.0L}, {0.0L, 0.0L}};
     LD evidence_final_occ = 0.0L;
+    // The sensor model's E-step: beam ends and hits per state, weighted by the path.
+    LD weighted_trials[2] = {0.0L, 0.0L};
+    LD weighted_hits[2] = {0.0L, 0.0L};
     for (unsigned path = 0; path < (1u << (span + 1)); ++path) {
       // Bit k of `path` is x_k (1 = free).
       auto state = [path](int k) { return static_cast<int>((path >> k) & 1u); };
@@ -624,6 +627,11 @@ TEST(OfflineEmForwardBackward, MatchesPathEnumeration) {
       }
       evidence += probability;
       if (state(span) == 0) evidence_final_occ += probability;
+      for (const auto& z : sequence) {
+        const int s_k = state(z.step - first + 1);
+        weighted_trials[s_k] += probability * (z.hits + z.misses);
+        weighted_hits[s_k] += probability * z.hits;
+      }
       for (int i = 0; i < 2; ++i) {
         for (int j = 0; j < 2; ++j) weighted_counts[i][j] += probability * transitions[i][j];
       }
@@ -641,6 +649,12 @@ TEST(OfflineEmForwardBackward, MatchesPathEnumeration) {
                 std::log(evidence), "log_likelihood", inputs);
     sweep.check(near(actual.final_p_occ, evidence_final_occ / evidence, 1e-12, 1.0L),
                 actual.final_p_occ, evidence_final_occ / evidence, "final_p_occ", inputs);
+    for (int s = 0; s < 2; ++s) {
+      sweep.check(near(actual.expected_trials[s], weighted_trials[s] / evidence, 1e-12, 1.0L),
+                  actual.expected_trials[s], weighted_trials[s] / evidence, "expected_trials", inputs);
+      sweep.check(near(actual.expected_hits[s], weighted_hits[s] / evidence, 1e-12, 1.0L), actual.expected_hits[s],
+                  weighted_hits[s] / evidence, "expected_hits", inputs);
+    }
   }
   sweep.expectNoFailure();
 }
@@ -1397,4 +1411,43 @@ TEST(OfflineEmRun, RecoversKnownParameters) {
   }
   EXPECT_NEAR(mean_p_of, truth.p_occ_given_free, 0.005);
   EXPECT_NEAR(mean_p_fo, truth.p_free_given_occ, 0.005);
+}
+
+// =====================================================================================
+// The sensor model learned with the transitions (OfflineEmConfig::learn_sensor_model).
+// =====================================================================================
+
+TEST(OfflineEmSensorModel, RecoversTheSimulatedSensorFromAWrongStart) {
+  std::mt19937_64 rng(4242);
+  const dog::ObservationModel truth(0.93, 0.04);
+  std::vector<Sequence> cells;
+  // Mostly static cells (walls and free space) and some that change, as in a building.
+  for (int i = 0; i < 600; ++i) {
+    const dog::TransitionParams cell_truth =
+        i % 3 == 0 ? params(0.0, 0.0) : (i % 3 == 1 ? params(0.0005, 0.002) : params(0.05, 0.1));
+    cells.push_back(simulateCell(rng, cell_truth, truth, 400, 0.5, 3));
+  }
+  const dog::ObservationSequences sequences = buildSequences(cells);
+  dog::OfflineEmConfig config;
+  config.threads = 2;
+  config.prior_weight = 2.0;
+  const dog::ObservationModel start(0.7, 0.2);
+  const dog::OfflineEmResult fixed = dog::runOfflineEm(sequences, start, config);
+  config.learn_sensor_model = true;
+  const dog::OfflineEmResult learned = dog::runOfflineEm(sequences, start, config);
+  EXPECT_NEAR(learned.p_hit_given_occ, truth.pHitGivenOcc(), 0.01);
+  EXPECT_NEAR(learned.p_hit_given_free, truth.pHitGivenFree(), 0.01);
+  EXPECT_GT(learned.sensor_model_rounds, 1);
+  EXPECT_EQ(fixed.p_hit_given_occ, start.pHitGivenOcc());
+  EXPECT_EQ(fixed.sensor_model_rounds, 1);
+  // Coordinate ascent: the likelihood with the learned sensor model is higher.
+  EXPECT_GT(learned.objective.back(), fixed.objective.back());
+  // The same for any number of threads.
+  config.threads = 1;
+  const dog::OfflineEmResult one_thread = dog::runOfflineEm(sequences, start, config);
+  EXPECT_EQ(bits(one_thread.p_hit_given_occ), bits(learned.p_hit_given_occ));
+  EXPECT_EQ(bits(one_thread.p_hit_given_free), bits(learned.p_hit_given_free));
+  // Not with the MRF.
+  config.mrf_temperature = 50.0;
+  EXPECT_THROW(config.validate(), std::invalid_argument);
 }

@@ -20,15 +20,17 @@
 namespace dynamic_occupancy_grid {
 namespace core {
 
-/// The format version saveModel writes; loadModel reads exactly this version.
-constexpr std::uint32_t kModelFormatVersion = 1;
+/// The format version saveModel writes. loadModel reads it and version 1 (which lacks the
+/// learners' options, the sensor model's sums and the cells' last evidence: they get
+/// MapperConfig's defaults and zeros).
+constexpr std::uint32_t kModelFormatVersion = 2;
 
 /// The model as bytes. The evidence of the step still being gathered is not part of it
 /// (call Mapper::finishStep first to include it). Needs one buffer of the file's size
-/// (62 bytes per observed cell) besides the map.
+/// (64 bytes per observed cell) besides the map.
 std::string serializeModel(const Mapper& mapper);
 /// A Mapper holding the model in `bytes`. Throws std::runtime_error with a clear message for
-/// anything but a complete, intact file of kModelFormatVersion (bad magic, other version,
+/// anything but a complete, intact file of version 1 or kModelFormatVersion (bad magic, other version,
 /// truncated, checksum mismatch, invalid values, trailing bytes); nothing else is affected
 /// then. The returned mapper gathers no step yet: its next scan may be in any step after
 /// the last applied one.

@@ -83,6 +83,10 @@ struct ForwardBackwardResult {
   TransitionCounts counts{};    ///< expected transitions over all steps of the chain
   double log_likelihood = 0.0;  ///< log p(z_1:T) with the sensor's true likelihoods
   double final_p_occ = 0.0;     ///< filtered p(occ) at the last observed step
+  /// Expected beam ends (hits + misses) and hits in each state (0 = occ, 1 = free) over the
+  /// observed steps, from the smoothed state posteriors: the sensor model's E-step.
+  std::array<double, 2> expected_trials{};
+  std::array<double, 2> expected_hits{};
 };
 
 /// The E-step of one cell: scaled forward–backward over observations [begin, end)
@@ -127,6 +131,17 @@ struct OfflineEmConfig {
   /// neighbours. All cells then iterate together: EM stops when an iteration gains less than
   /// tolerance * cells (nats), or after max_iterations. Not with `symmetric`.
   double mrf_temperature = 0.0;
+  /// Learn the shared sensor model too (docs/online_learning.md, "The sensor model"): after
+  /// each round of per-cell EM the emission M-step sets p_hit_given_occ / p_hit_given_free
+  /// to the expected hits over the expected beam ends of each state, summed over all cells,
+  /// and the cells' EM runs again from their transitions; rounds stop when neither
+  /// probability moves by more than 1e-4, or after sensor_model_rounds. Each round raises
+  /// the likelihood (coordinate ascent). The learned values stay in [sensor_model_p_min,
+  /// 1 - sensor_model_p_min], p_hit_given_occ at least 0.05 above p_hit_given_free.
+  /// Not with the MRF.
+  bool learn_sensor_model = false;
+  int sensor_model_rounds = 20;
+  double sensor_model_p_min = 0.01;
 
   /// Throws std::invalid_argument naming the first bad field.
   void validate() const;
@@ -147,6 +162,11 @@ struct OfflineEmResult {
   /// p(free -> free) (entry k - 1 for M-step k). Empty without.
   std::vector<std::array<int, 2>> mrf_newton_iterations;
   bool cancelled = false;
+  /// The sensor model the params belong to: learned with learn_sensor_model, else the given.
+  double p_hit_given_occ = 0.0;
+  double p_hit_given_free = 0.0;
+  /// learn_sensor_model: rounds of per-cell EM run (1 without).
+  int sensor_model_rounds = 1;
 };
 
 /// Called now and then (from a worker thread, never concurrently) with cells done / total;

@@ -50,6 +50,10 @@ struct LearningExperimentConfig {
   /// "The robot has left": cells not observed in this many steps before the end.
   std::int64_t left_for_steps = 60;
   std::vector<LearnerVariant> variants = defaultLearnerVariants();
+  /// Every online method (static, textbook, learning_off, the variants, the oracle) learns
+  /// the sensor model online, as the node does by default (~learn_sensor_model), and
+  /// offline EM learns it with the transitions; false keeps the scenario's configured model.
+  bool learn_sensor_model = true;
 };
 
 /// One kind of cell: a truth shared by its cells (dynamic cells grouped by their true
