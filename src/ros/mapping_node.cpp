@@ -53,6 +53,42 @@ std::int64_t horizonSteps(double horizon_s, double time_step_s) {
   return static_cast<std::int64_t>(std::llround(horizon_s / time_step_s));
 }
 
+// The start-up lines on the learners in use (a loaded model's configuration, if any).
+void logLearners(const core::MapperConfig& config) {
+  const core::OnlineEmConfig& em = config.online_em;
+  if (config.learn_transitions) {
+    std::ostringstream line;
+    line << "online EM of the transitions: schedule ";
+    if (em.schedule == core::StepSchedule::kRobbinsMonro) {
+      line << "robbins_monro (step sizes max(" << em.learning_rate_floor << ", (n + " << em.step_size_offset
+           << ")^-" << em.step_size_exponent << "))";
+    } else {
+      line << "harmonic (prior weight " << em.prior_weight << ", learning rate floor " << em.learning_rate_floor
+           << ")";
+    }
+    line << ", averaging ";
+    if (em.averaging_start == 0) {
+      line << "off";
+    } else {
+      line << "from observed step " << em.averaging_start;
+    }
+    line << ", prior ";
+    if (config.learn_prior) {
+      line << "learned from the map (prior_population_weight " << config.prior_population_weight << ")";
+    } else {
+      line << "fixed (" << config.prior_transitions.p_occ_given_free << " / "
+           << config.prior_transitions.p_free_given_occ << ")";
+    }
+    ROS_INFO("%s", line.str().c_str());
+  }
+  if (config.learn_sensor_model) {
+    ROS_INFO("online learning of the sensor model: from p_hit_given_occ %g, p_hit_given_free %g, worth %g beam "
+             "ends per state (sensor_model/prior_weight), within [%g, %g] (sensor_model/p_min)",
+             config.p_hit_given_occ, config.p_hit_given_free, config.sensor_model_prior_weight,
+             config.sensor_model_p_min, 1.0 - config.sensor_model_p_min);
+  }
+}
+
 }  // namespace
 
 MappingNode::MappingNode(const ros::NodeHandle& nh, const ros::NodeHandle& private_nh)
@@ -136,9 +172,14 @@ bool MappingNode::start() {
   std::ostringstream topics;
   for (const std::string& topic : parameters_.scan_topics) topics << " " << nh_.resolveName(topic);
   if (mapper_) {
-    ROS_INFO("mapping scans from%s in frame '%s' with the cell HMM: %.3f m cells, time step %.3f s, transitions %s",
-             topics.str().c_str(), parameters_.fixed_frame.c_str(), mapper_->config().resolution_m,
-             mapper_->config().time_step_s, mapper_->config().learn_transitions ? "learned online" : "fixed");
+    const core::MapperConfig& config = mapper_->config();
+    ROS_INFO("mapping scans from%s in frame '%s' with the cell HMM: %.3f m cells, time step %.3f s, transitions %s, "
+             "sensor model %s (in use: p_hit_given_occ %.3f, p_hit_given_free %.3f)",
+             topics.str().c_str(), parameters_.fixed_frame.c_str(), config.resolution_m, config.time_step_s,
+             config.learn_transitions ? "learned online" : "fixed",
+             config.learn_sensor_model ? "learned online" : "fixed", mapper_->sensor().pHitGivenOcc(),
+             mapper_->sensor().pHitGivenFree());
+    logLearners(config);
   }
   if (memory_) {
     ROS_INFO("mapping scans from%s in frame '%s' with the STM/LTM memory model: %.3f m cells, an update every "
