@@ -53,6 +53,42 @@ std::int64_t horizonSteps(double horizon_s, double time_step_s) {
   return static_cast<std::int64_t>(std::llround(horizon_s / time_step_s));
 }
 
+// The start-up lines on the learners in use (a loaded model's configuration, if any).
+void logLearners(const core::MapperConfig& config) {
+  const core::OnlineEmConfig& em = config.online_em;
+  if (config.learn_transitions) {
+    std::ostringstream line;
+    line << "online EM of the transitions: schedule ";
+    if (em.schedule == core::StepSchedule::kRobbinsMonro) {
+      line << "robbins_monro (step sizes max(" << em.learning_rate_floor << ", (n + " << em.step_size_offset
+           << ")^-" << em.step_size_exponent << "))";
+    } else {
+      line << "harmonic (prior weight " << em.prior_weight << ", learning rate floor " << em.learning_rate_floor
+           << ")";
+    }
+    line << ", averaging ";
+    if (em.averaging_start == 0) {
+      line << "off";
+    } else {
+      line << "from observed step " << em.averaging_start;
+    }
+    line << ", prior ";
+    if (config.learn_prior) {
+      line << "learned from the map (prior_population_weight " << config.prior_population_weight << ")";
+    } else {
+      line << "fixed (" << config.prior_transitions.p_occ_given_free << " / "
+           << config.prior_transitions.p_free_given_occ << ")";
+    }
+    ROS_INFO("%s", line.str().c_str());
+  }
+  if (config.learn_sensor_model) {
+    ROS_INFO("online learning of the sensor model: from p_hit_given_occ %g, p_hit_given_free %g, worth %g beam "
+             "ends per state (sensor_model/prior_weight), within [%g, %g] (sensor_model/p_min)",
+             config.p_hit_given_occ, config.p_hit_given_free, config.sensor_model_prior_weight,
+             config.sensor_model_p_min, 1.0 - config.sensor_model_p_min);
+  }
+}
+
 }  // namespace
 
 MappingNode::MappingNode(const ros::NodeHandle& nh, const ros::NodeHandle& private_nh)
@@ -136,9 +172,14 @@ bool MappingNode::start() {
   std::ostringstream topics;
   for (const std::string& topic : parameters_.scan_topics) topics << " " << nh_.resolveName(topic);
   if (mapper_) {
-    ROS_INFO("mapping scans from%s in frame '%s' with the cell HMM: %.3f m cells, time step %.3f s, transitions %s",
-             topics.str().c_str(), parameters_.fixed_frame.c_str(), mapper_->config().resolution_m,
-             mapper_->config().time_step_s, mapper_->config().learn_transitions ? "learned online" : "fixed");
+    const core::MapperConfig& config = mapper_->config();
+    ROS_INFO("mapping scans from%s in frame '%s' with the cell HMM: %.3f m cells, time step %.3f s, transitions %s, "
+             "sensor model %s (in use: p_hit_given_occ %.3f, p_hit_given_free %.3f)",
+             topics.str().c_str(), parameters_.fixed_frame.c_str(), config.resolution_m, config.time_step_s,
+             config.learn_transitions ? "learned online" : "fixed",
+             config.learn_sensor_model ? "learned online" : "fixed", mapper_->sensor().pHitGivenOcc(),
+             mapper_->sensor().pHitGivenFree());
+    logLearners(config);
   }
   if (memory_) {
     ROS_INFO("mapping scans from%s in frame '%s' with the STM/LTM memory model: %.3f m cells, an update every "
@@ -416,6 +457,12 @@ void MappingNode::diagnoseMap(diagnostic_updater::DiagnosticStatusWrapper& statu
     status.addf("cell memory (MiB)", "%.1f", cells * core::CellGrid::bytesPerCell() / (1024.0 * 1024.0));
     status.add("time step (s)", mapper_->config().time_step_s);
     status.add("learn transitions", mapper_->config().learn_transitions);
+    // The sensor model in use: the configured one, or the one learned so far.
+    status.add("learn sensor model", mapper_->config().learn_sensor_model);
+    status.add("sensor model p_hit_given_occ", mapper_->sensor().pHitGivenOcc());
+    status.add("sensor model p_hit_given_free", mapper_->sensor().pHitGivenFree());
+    const core::SensorModelStats& sensor_stats = mapper_->sensorModelStats();
+    status.add("sensor model learned from (beam ends)", sensor_stats.trials[0] + sensor_stats.trials[1]);
     if (!step) {
       status.summary(diagnostic_msgs::DiagnosticStatus::OK, "no step applied yet");
       status.add("last applied step", "none");
@@ -466,11 +513,13 @@ void MappingNode::diagnoseOfflineEm(diagnostic_updater::DiagnosticStatusWrapper&
 
 DynamicOccupancyGridConfig MappingNode::reconfigurableValues() const {
   DynamicOccupancyGridConfig values;
-  // A loaded model's sensor model and learning flag are the ones in use.
+  // A loaded model's sensor model (the start of learning, with learn_sensor_model) and
+  // learning flags are the ones in use.
   const core::MapperConfig& mapper = mapper_ ? mapper_->config() : parameters_.mapper;
   values.p_hit_given_occ = mapper.p_hit_given_occ;
   values.p_hit_given_free = mapper.p_hit_given_free;
   values.learn_transitions = mapper.learn_transitions;
+  values.learn_sensor_model = mapper.learn_sensor_model;
   values.max_range = parameters_.max_range_m;
   values.publish_period = parameters_.publish_period_s;
   values.full_map_period = parameters_.full_map_period_s;
@@ -498,6 +547,8 @@ void MappingNode::startReconfigure() {
 void MappingNode::reconfigure(DynamicOccupancyGridConfig& config, std::uint32_t) {
   std::lock_guard<std::mutex> lock(mutex_);
   std::string refused;
+  const bool sensor_changed = config.p_hit_given_occ != reconfigured_.p_hit_given_occ ||
+                              config.p_hit_given_free != reconfigured_.p_hit_given_free;
   if (!(config.p_hit_given_occ > config.p_hit_given_free)) {
     refused = "p_hit_given_occ (" + std::to_string(config.p_hit_given_occ) + ") must be > p_hit_given_free (" +
               std::to_string(config.p_hit_given_free) + ")";
@@ -506,7 +557,9 @@ void MappingNode::reconfigure(DynamicOccupancyGridConfig& config, std::uint32_t)
              !(config.max_range > 0.0)) {
     refused = "a value is out of its range (publish_period > 0, full_map_period >= 0, prediction_horizon >= 0, "
               "transition_scale in (0, 1], max_range > 0)";
-  } else {
+  } else if (sensor_changed) {
+    // Only a new sensor model is set: with learn_sensor_model, setting it restarts learning
+    // from it, which another parameter's change (or the server's first call) must not do.
     try {
       if (mapper_) {
         mapper_->setSensorModel(config.p_hit_given_occ, config.p_hit_given_free);
@@ -526,6 +579,8 @@ void MappingNode::reconfigure(DynamicOccupancyGridConfig& config, std::uint32_t)
   parameters_.mapper.p_hit_given_free = config.p_hit_given_free;
   parameters_.mapper.learn_transitions = config.learn_transitions;
   if (mapper_) mapper_->setLearnTransitions(config.learn_transitions);
+  parameters_.mapper.learn_sensor_model = config.learn_sensor_model;
+  if (mapper_) mapper_->setLearnSensorModel(config.learn_sensor_model);
   parameters_.max_range_m = config.max_range;
   parameters_.full_map_period_s = config.full_map_period;
   if (config.publish_period != parameters_.publish_period_s) {
@@ -549,9 +604,12 @@ void MappingNode::reconfigure(DynamicOccupancyGridConfig& config, std::uint32_t)
     }
   }
   reconfigured_ = config;
-  ROS_INFO("dynamic_reconfigure: p_hit_given_occ %.3f, p_hit_given_free %.3f, learn_transitions %s, max_range %.2f m, "
-           "publish_period %.3f s, full_map_period %.3f s, prediction_horizon %.3f s, transition_scale %.4f",
-           config.p_hit_given_occ, config.p_hit_given_free, config.learn_transitions ? "true" : "false",
+  ROS_INFO("dynamic_reconfigure: p_hit_given_occ %.3f, p_hit_given_free %.3f%s, learn_transitions %s, "
+           "learn_sensor_model %s, max_range %.2f m, publish_period %.3f s, full_map_period %.3f s, "
+           "prediction_horizon %.3f s, transition_scale %.4f",
+           config.p_hit_given_occ, config.p_hit_given_free,
+           sensor_changed && config.learn_sensor_model ? " (sensor model learning restarts from them)" : "",
+           config.learn_transitions ? "true" : "false", config.learn_sensor_model ? "true" : "false",
            config.max_range, config.publish_period, config.full_map_period, config.prediction_horizon,
            config.transition_scale);
 }
@@ -862,10 +920,11 @@ bool MappingNode::loadModel(LoadModel::Request& request, LoadModel::Response& re
   {
     std::lock_guard<std::mutex> lock(mutex_);
     replaceMapper(std::move(loaded));
-    // The model's sensor model and learning flag replace the reconfigured ones.
+    // The model's sensor model and learning flags replace the reconfigured ones.
     parameters_.mapper.p_hit_given_occ = mapper_->config().p_hit_given_occ;
     parameters_.mapper.p_hit_given_free = mapper_->config().p_hit_given_free;
     parameters_.mapper.learn_transitions = mapper_->config().learn_transitions;
+    parameters_.mapper.learn_sensor_model = mapper_->config().learn_sensor_model;
     values = reconfigurableValues();
     reconfigured_ = values;
   }

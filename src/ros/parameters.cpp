@@ -7,6 +7,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <limits>
 #include <set>
 #include <stdexcept>
@@ -131,6 +132,24 @@ std::string memoryParameterMessage(const std::string& message) {
   return message;
 }
 
+/// The mapper's checks name most fields as their parameters are named; those whose
+/// parameter sits in a namespace ("online_em prior_weight must be ...",
+/// "sensor_model_p_min must be ...") get the parameter's name ("online_em/prior_weight",
+/// "sensor_model/p_min").
+std::string mapperParameterMessage(const std::string& message) {
+  const auto starts_with = [&message](const std::string& prefix) { return message.compare(0, prefix.size(), prefix) == 0; };
+  for (const std::string field : {"prior_weight", "learning_rate_floor", "step_size_exponent", "step_size_offset",
+                                  "min_observed_steps"}) {
+    const std::string prefix = "online_em " + field + " ";
+    if (starts_with(prefix)) return "online_em/" + message.substr(std::string("online_em ").size());
+  }
+  for (const std::string field : {"prior_weight", "p_min"}) {
+    const std::string prefix = "sensor_model_" + field + " ";
+    if (starts_with(prefix)) return "sensor_model/" + message.substr(std::string("sensor_model_").size());
+  }
+  return message;
+}
+
 }  // namespace
 
 bool readParameters(const ros::NodeHandle& private_nh, NodeParameters* parameters, std::string* error,
@@ -198,6 +217,27 @@ bool readParameters(const ros::NodeHandle& private_nh, NodeParameters* parameter
   read.number("prior_p_occ_given_free", &m.prior_transitions.p_occ_given_free);
   read.number("prior_p_free_given_occ", &m.prior_transitions.p_free_given_occ);
   read.boolean("learn_transitions", &m.learn_transitions);
+  // The node learns the sensor model by default (the core's default is the fixed model).
+  m.learn_sensor_model = kDefaultLearnSensorModel;
+  read.boolean("learn_sensor_model", &m.learn_sensor_model);
+  read.number("sensor_model/prior_weight", &m.sensor_model_prior_weight);
+  read.number("sensor_model/p_min", &m.sensor_model_p_min);
+  read.boolean("learn_prior", &m.learn_prior);
+  read.number("prior_population_weight", &m.prior_population_weight);
+  std::string schedule = "harmonic";
+  read.text("online_em/schedule", &schedule);
+  if (schedule == "harmonic") {
+    m.online_em.schedule = core::StepSchedule::kHarmonic;
+  } else if (schedule == "robbins_monro") {
+    m.online_em.schedule = core::StepSchedule::kRobbinsMonro;
+  } else {
+    read.fail("online_em/schedule", "must be \"harmonic\" or \"robbins_monro\", got \"" + schedule + "\"");
+  }
+  read.number("online_em/step_size_exponent", &m.online_em.step_size_exponent);
+  read.number("online_em/step_size_offset", &m.online_em.step_size_offset);
+  int averaging_start = static_cast<int>(m.online_em.averaging_start);
+  read.integer("online_em/averaging_start", &averaging_start, 0, std::numeric_limits<int>::max());
+  m.online_em.averaging_start = static_cast<std::uint32_t>(averaging_start);
   read.number("online_em/prior_weight", &m.online_em.prior_weight);
   read.number("online_em/learning_rate_floor", &m.online_em.learning_rate_floor);
   read.number("online_em/p_min", &m.online_em.p_min);
@@ -284,7 +324,8 @@ bool readParameters(const ros::NodeHandle& private_nh, NodeParameters* parameter
       m.validate();
       em.validate();
     } catch (const std::invalid_argument& e) {
-      *error = std::string("invalid parameter value (in ") + private_nh.getNamespace() + "): " + e.what();
+      *error = std::string("invalid parameter value (in ") + private_nh.getNamespace() +
+               "): " + mapperParameterMessage(e.what());
       return false;
     }
     try {

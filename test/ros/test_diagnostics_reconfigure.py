@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """mapping_node's /diagnostics (scan rate, tf, dropped scans, map), dynamic_reconfigure (a bad
-sensor model refused, a good one used by the next step) and the `map` topic's map_server
-thresholds, on the wall scene. The tests run in order (test_01 ...) on one node."""
+sensor model refused, a good one used by the next step, sensor-model learning on and off,
+the sensor model in use in the map status) and the `map` topic's map_server thresholds, on
+the wall scene. The tests run in order (test_01 ...) on one node."""
 
 import math
 import os
@@ -136,20 +137,70 @@ class TestDiagnosticsReconfigure(unittest.TestCase):
         self.assertAlmostEqual(config['publish_period'], 0.1)   # from the .test, not the .cfg default
         self.assertAlmostEqual(config['full_map_period'], 0.0)
         self.assertFalse(config['learn_transitions'])
+        self.assertTrue(config['learn_sensor_model'])  # the node's default (not set in the .test)
         self.assertAlmostEqual(config['p_hit_given_occ'], 0.7)
         result = client.update_configuration({'p_hit_given_occ': 0.3, 'p_hit_given_free': 0.4})
         self.assertAlmostEqual(result['p_hit_given_occ'], 0.7)
         self.assertAlmostEqual(result['p_hit_given_free'], 0.2)
         self.assertAlmostEqual(rospy.get_param(NODE + '/p_hit_given_occ'), 0.7)
 
-    def test_05_new_sensor_model_weighs_the_next_step(self):
+    def sensor_model_after_step(self, step, condition=lambda values: True):
+        """The map status of a /diagnostics published after the call once step `step` (the
+        node's number) is applied and `condition(values)` holds: its values, and the sensor
+        model in use (p_hit_given_occ, p_hit_given_free, beam ends learned from)."""
+        def applied(array):
+            status = find_status(array, 'map')
+            if status is None:
+                return False
+            values = values_of(status)
+            return values.get('last applied step') == str(step) and condition(values)
+
+        values = values_of(find_status(self.wait_for_diagnostics(applied), 'map'))
+        return values, (float(values['sensor model p_hit_given_occ']), float(values['sensor model p_hit_given_free']),
+                        float(values['sensor model learned from (beam ends)']))
+
+    def apply_steps(self, count):
+        """`count` steps of wall scans, applied; the node's number of the last."""
+        self.scene.feed_steps(count)
+        self.scene.finish()
+        cell = self.scene.wait_for_cell_step(self.scene.last_step)
+        self.assertEqual(cell.steps_since_observed, 0)
+        return cell.last_observed_step
+
+    def test_05_sensor_model_learned_by_default_and_fixed_when_turned_off(self):
+        client = self.client()
+        step = self.apply_steps(2)
+        values, learned = self.sensor_model_after_step(step)
+        # The node's default: learned online from 0.7 / 0.2. The wall ends every beam that
+        # reaches it, the swept cells only see misses.
+        self.assertEqual(values['learn sensor model'], 'True')
+        self.assertEqual(values['learn transitions'], 'False')
+        self.assertGreater(learned[2], 0.0)
+        self.assertGreater(learned[0], 0.7 + 1e-3, values)
+        self.assertLess(learned[1], 0.2 - 1e-3, values)
+
+        # Off, together with a parameter that does not touch the sensor model: the model
+        # learned so far stays in use (no restart from 0.7 / 0.2) ...
+        result = client.update_configuration({'learn_sensor_model': False, 'transition_scale': 0.2})
+        self.assertFalse(result['learn_sensor_model'])
+        values, fixed = self.sensor_model_after_step(step, lambda v: v['learn sensor model'] == 'False')
+        self.assertEqual(fixed, learned, values)
+        # ... and fixed: the next steps do not change it.
+        step = self.apply_steps(2)
+        values, after = self.sensor_model_after_step(step)
+        self.assertEqual(values['learn sensor model'], 'False')
+        self.assertEqual(after, learned, values)
+        client.update_configuration({'transition_scale': 0.1})
+
+    def test_06_new_sensor_model_weighs_the_next_step(self):
         scene = self.scene
         x, y = WALL_POINTS[2]
         client = self.client()
         result = client.update_configuration({'p_hit_given_occ': 0.55, 'p_hit_given_free': 0.45})
         self.assertAlmostEqual(result['p_hit_given_occ'], 0.55)
         # The wall cell after its last step, then one step of two scans (two hits) with the
-        # new model (learn_transitions is off: the transitions stay the prior ones).
+        # new model (learn_transitions is off: the transitions stay the prior ones;
+        # learn_sensor_model is off since test_05: the model stays the one set).
         scene.finish()
         before = scene.wait_for_cell_step(scene.last_step)
         self.assertEqual(before.steps_since_observed, 0)
@@ -170,7 +221,7 @@ class TestDiagnosticsReconfigure(unittest.TestCase):
         self.assertGreater(abs(after.belief - expected(0.7, 0.2)), 1e-3)
         client.update_configuration({'p_hit_given_occ': 0.7, 'p_hit_given_free': 0.2})
 
-    def test_06_map_topic_is_static_map_scaled_like_map_server(self):
+    def test_07_map_topic_is_static_map_scaled_like_map_server(self):
         scene = self.scene
         maps = wall_scene.TopicRecorder('/map', OccupancyGrid)
         static = wall_scene.TopicRecorder(NODE + '/static_map', OccupancyGrid)
@@ -210,6 +261,23 @@ class TestDiagnosticsReconfigure(unittest.TestCase):
             elif FREE_THRESH + 0.006 < p < OCCUPIED_THRESH - 0.006:
                 scaled = 1.0 + 98.0 * (p - FREE_THRESH) / (OCCUPIED_THRESH - FREE_THRESH)
                 self.assertLessEqual(abs(value - scaled), 2.0, 'raw %d' % raw)
+
+    def test_08_sensor_model_learning_on_again_starts_from_the_model_set(self):
+        client = self.client()
+        # test_06 set 0.7 / 0.2 last, with learning off: the start, with no sums.
+        result = client.update_configuration({'learn_sensor_model': True})
+        self.assertTrue(result['learn_sensor_model'])
+        cell = self.scene.get_cell(*WALL_POINTS[2])
+        values, start = self.sensor_model_after_step(cell.last_observed_step,
+                                                     lambda v: v['learn sensor model'] == 'True')
+        self.assertEqual(start, (0.7, 0.2, 0.0), values)
+        # Steps with learning on again: it learns from there.
+        step = self.apply_steps(2)
+        values, learned = self.sensor_model_after_step(step)
+        self.assertEqual(values['learn sensor model'], 'True')
+        self.assertGreater(learned[2], 0.0, values)
+        self.assertGreater(learned[0], 0.7 + 1e-3, values)
+        self.assertLess(learned[1], 0.2 - 1e-3, values)
 
 
 if __name__ == '__main__':

@@ -13,6 +13,9 @@ timer keeps running while the test waits for a message or a condition.
 """
 
 import math
+import os
+import queue
+import signal
 import subprocess
 import threading
 import time
@@ -96,7 +99,8 @@ def laser_transform(stamp, x=LASER_X, y=LASER_Y, yaw=0.0, roll=0.0, child=LASER_
 
 def assert_bad_parameters_stop_node(test, cases, node_prefix):
     """Starts mapping_node once per (name, arguments) of `cases`, all at once, and checks that
-    each exits with 1 and names the parameter `name` in its output."""
+    each exits with 1 and names the parameter `name` in its output (`name` may also be a
+    tuple of texts the output must all contain)."""
     processes = []
     for i, (name, argument) in enumerate(cases):
         command = ['rosrun', PKG, 'mapping_node', '__name:=%s_%d' % (node_prefix, i)] + argument.split()
@@ -111,7 +115,50 @@ def assert_bad_parameters_stop_node(test, cases, node_prefix):
             test.fail('%s did not exit: %s' % (' '.join(command), output))
         test.assertEqual(process.returncode, 1, '%s exited with %d:\n%s' % (' '.join(command), process.returncode,
                                                                           output))
-        test.assertIn(name, output, '%s: the error does not name %s:\n%s' % (' '.join(command), name, output))
+        for text in (name,) if isinstance(name, str) else name:
+            test.assertIn(text, output, '%s: the error does not name %s:\n%s' % (' '.join(command), text, output))
+
+
+def node_startup_output(test, node_name, arguments, until, timeout=30.0):
+    """Starts mapping_node as `node_name` with `arguments` (a list of rosrun arguments),
+    reads its output (stdout and stderr, line-buffered) until a line contains `until`, stops
+    it and returns all lines read; fails if it exits or `timeout` (wall s) passes first."""
+    command = ['rosrun', PKG, 'mapping_node', '__name:=' + node_name] + list(arguments)
+    env = dict(os.environ, ROSCONSOLE_STDOUT_LINE_BUFFERED='1')
+    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, universal_newlines=True,
+                               env=env)
+    lines = queue.Queue()
+
+    def pump():
+        for line in process.stdout:
+            lines.put(line)
+        lines.put(None)  # end of output
+
+    reader = threading.Thread(target=pump, daemon=True)
+    reader.start()
+    output = []
+    deadline = time.monotonic() + timeout
+    try:
+        while True:
+            try:
+                line = lines.get(timeout=max(0.0, deadline - time.monotonic()))
+            except queue.Empty:
+                test.fail('%s: no line with %r within %.0f s:\n%s' % (' '.join(command), until, timeout,
+                                                                      ''.join(output)))
+            if line is None:
+                test.fail('%s exited before a line with %r:\n%s' % (' '.join(command), until, ''.join(output)))
+            output.append(line)
+            if until in line:
+                return output
+    finally:
+        if process.poll() is None:
+            process.send_signal(signal.SIGINT)
+            try:
+                process.wait(timeout=15.0)
+            except subprocess.TimeoutExpired:
+                process.kill()
+                process.wait()
+        reader.join(timeout=5.0)
 
 
 def grid_value(grid, x, y):

@@ -16,6 +16,10 @@
 namespace dynamic_occupancy_grid {
 namespace ros_layer {
 
+/// ~learn_sensor_model's default: the node learns the sensor model (core::MapperConfig's
+/// own default is the fixed model).
+constexpr bool kDefaultLearnSensorModel = true;
+
 /// Which map model the node runs on the scans (~model).
 enum class MapModel { kHmm, kMemory, kBoth };
 
