@@ -27,7 +27,7 @@ namespace {
 constexpr std::int32_t kSide = 4000;
 constexpr std::int64_t kNow = 1000;
 
-// Built once, shared by every benchmark (about 1 GB: 16 M cells x 62 bytes).
+// Built once, shared by every benchmark (about 1 GB: 16 M cells x 64 bytes).
 const dog::Mapper& fullMap() {
   static const std::unique_ptr<dog::Mapper> mapper = [] {
     dog::MapperConfig config;

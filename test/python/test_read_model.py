@@ -52,6 +52,9 @@ def parse_values(path):
             elif line.startswith("# last_applied_step "):
                 value = line.split(" ")[2]
                 last = None if value == "none" else int(value)
+            elif line.startswith("# sensor_model_stats "):
+                values = [float.fromhex(v) for v in line.split(" ")[2:]]
+                config["sensor_model_stats"] = dict(zip(("trials_occ", "trials_free", "hits_occ", "hits_free"), values))
             elif line.startswith("# cells "):
                 count = int(line.split(" ")[2])
             elif header is None:
@@ -65,6 +68,8 @@ def parse_values(path):
         "y": np.array([int(v) for v in columns["y"]], dtype=np.int32),
         "last_step": np.array([int(v) for v in columns["last_step"]], dtype=np.int32),
         "observed_steps": np.array([int(v) for v in columns["observed_steps"]], dtype=np.uint16),
+        "last_hits": np.array([int(v) for v in columns["last_hits"]], dtype=np.uint8),
+        "last_misses": np.array([int(v) for v in columns["last_misses"]], dtype=np.uint8),
     }
     for name in FLOAT_FIELDS:
         cells[name] = np.array([float.fromhex(v) for v in columns[name]], dtype=np.float32)
@@ -126,10 +131,15 @@ class ReadModelTest(unittest.TestCase):
         path, (config, origin, last, cells) = self.runs[mode]
         model = read_model.load_model(path)
         flat = flat_config(model.config)
+        stats = config.pop("sensor_model_stats")
+        for name, value in stats.items():
+            self.assertEqual(struct.pack("<d", model.sensor_model_stats[name]), struct.pack("<d", value), name)
         self.assertEqual(sorted(flat), sorted(config))
         for name, text in config.items():
             value = flat[name]
-            if isinstance(value, bool) or isinstance(value, int):
+            if isinstance(value, str):
+                self.assertEqual(value, text, name)
+            elif isinstance(value, bool) or isinstance(value, int):
                 self.assertEqual(int(value), int(text), name)
             else:
                 self.assertEqual(struct.pack("<d", value), struct.pack("<d", float.fromhex(text)), name)
@@ -174,6 +184,22 @@ class ReadModelTest(unittest.TestCase):
         grid, window = read_model.dense_field(model, "p_occ")
         self.assertEqual(grid.shape, (0, 0))
         self.assertEqual(window["width"], 0)
+
+    def test_version_1_files_are_read_with_defaults_for_what_they_lack(self):
+        data = self.bytes_of("growing")
+        count = struct.unpack_from("<Q", data, 268)[0]
+        cells = b"".join(data[276 + 64 * i:276 + 64 * i + 62] for i in range(count))
+        v1 = bytearray(data[:189] + data[268:276] + cells + b"\0\0\0\0")
+        v1[8:12] = struct.pack("<I", 1)
+        model = read_model.parse_model(with_checksum(v1))
+        newer = read_model.parse_model(data)
+        self.assertEqual(model.cell_count, newer.cell_count)
+        self.assertTrue(np.array_equal(model.p_occ, newer.p_occ))
+        self.assertFalse(model.config["learn_sensor_model"])
+        self.assertEqual(model.config["online_em"]["schedule"], "harmonic")
+        self.assertEqual(model.sensor_model_stats["trials_occ"], 0.0)
+        self.assertEqual(int(model.last_hits.sum()), 0)
+        self.assertGreater(int(newer.last_hits.sum()), 0)
 
     # ---- dense grids ----------------------------------------------------------------------------
 
@@ -230,14 +256,14 @@ class ReadModelTest(unittest.TestCase):
         self.expect_error(b"P5\n# an image", "not a dynamic_occupancy_grid model file")
         self.expect_error(b"X" + data[1:], "not a dynamic_occupancy_grid model file")
         newer = bytearray(data)
-        newer[8:12] = struct.pack("<I", 2)
-        self.expect_error(with_checksum(newer), "model format version 2, this reader reads version 1")
+        newer[8:12] = struct.pack("<I", 3)
+        self.expect_error(with_checksum(newer), "model format version 3, this reader reads versions 1 to 2")
         self.expect_error(data + b"\0", "1 trailing bytes")
         flag = bytearray(data)
         flag[146] = 2  # fixed_bounds
         self.expect_error(with_checksum(flag), "fixed_bounds is 2, must be 0 or 1")
         absurd = bytearray(data)
-        absurd[189:197] = struct.pack("<Q", 2 ** 64 - 1)
+        absurd[268:276] = struct.pack("<Q", 2 ** 64 - 1)  # the cell count of version 2
         self.expect_error(with_checksum(absurd), "truncated")
 
     def test_load_model_names_the_file(self):

@@ -13,8 +13,9 @@
 // with %a (hexadecimal, exact; Python's float.fromhex reads it):
 //   lines "# config NAME VALUE" for every MapperConfig field (nested names with dots,
 //   booleans 0/1), "# clock_origin_s VALUE|none", "# last_applied_step VALUE|none",
-//   "# cells N", then the header line
-//   x,y,p_occ,last_step,log_odds,p_occ_given_free,p_free_given_occ,em_stats_0,...,em_stats_7,observed_steps
+//   "# sensor_model_stats TRIALS_OCC TRIALS_FREE HITS_OCC HITS_FREE", "# cells N", then the
+//   header line x,y,p_occ,last_step,log_odds,p_occ_given_free,p_free_given_occ,em_stats_0,...,
+//   em_stats_7,observed_steps,last_hits,last_misses
 //   and one line per observed cell, by row (y) then column (x).
 //
 // Exit status: 0 done, 2 usage, 3 a library error (message on stderr).
@@ -92,6 +93,9 @@ dog::MapperConfig growingConfig() {
   config.online_em.prior_weight = 4.0;
   config.online_em.learning_rate_floor = 0.01;
   config.online_em.min_observed_steps = 3;
+  config.learn_sensor_model = true;
+  config.sensor_model_prior_weight = 30.0;
+  config.learn_prior = true;
   config.initial_p_occ = 0.45;
   config.max_free_range_m = 3.5;
   config.origin_x_m = -0.35;
@@ -158,6 +162,19 @@ void writeValues(const dog::Mapper& mapper, std::FILE* out) {
   real("width_m", c.width_m);
   real("height_m", c.height_m);
   real("max_map_size_m", c.max_map_size_m);
+  integer("learn_prior", c.learn_prior);
+  real("prior_population_weight", c.prior_population_weight);
+  std::fprintf(out, "# config online_em.schedule %s\n",
+               c.online_em.schedule == dog::StepSchedule::kHarmonic ? "harmonic" : "robbins_monro");
+  real("online_em.step_size_exponent", c.online_em.step_size_exponent);
+  real("online_em.step_size_offset", c.online_em.step_size_offset);
+  integer("online_em.averaging_start", c.online_em.averaging_start);
+  integer("learn_sensor_model", c.learn_sensor_model);
+  real("sensor_model_prior_weight", c.sensor_model_prior_weight);
+  real("sensor_model_p_min", c.sensor_model_p_min);
+  const dog::SensorModelStats& stats = mapper.sensorModelStats();
+  std::fprintf(out, "# sensor_model_stats %a %a %a %a\n", stats.trials[0], stats.trials[1], stats.hits[0],
+               stats.hits[1]);
   if (mapper.clock().origin()) {
     std::fprintf(out, "# clock_origin_s %a\n", *mapper.clock().origin());
   } else {
@@ -183,8 +200,9 @@ void writeValues(const dog::Mapper& mapper, std::FILE* out) {
         for (const float stat : cell->em_stats) {
           used += std::snprintf(line + used, sizeof(line) - static_cast<std::size_t>(used), ",%a", stat);
         }
-        std::snprintf(line + used, sizeof(line) - static_cast<std::size_t>(used), ",%u",
-                      static_cast<unsigned>(cell->observed_steps));
+        std::snprintf(line + used, sizeof(line) - static_cast<std::size_t>(used), ",%u,%u,%u",
+                      static_cast<unsigned>(cell->observed_steps), static_cast<unsigned>(cell->last_hits),
+                      static_cast<unsigned>(cell->last_misses));
         lines.emplace_back(line);
       }
     }
@@ -192,7 +210,7 @@ void writeValues(const dog::Mapper& mapper, std::FILE* out) {
   std::fprintf(out, "# cells %zu\n", lines.size());
   std::fprintf(out,
                "x,y,p_occ,last_step,log_odds,p_occ_given_free,p_free_given_occ,em_stats_0,em_stats_1,em_stats_2,"
-               "em_stats_3,em_stats_4,em_stats_5,em_stats_6,em_stats_7,observed_steps\n");
+               "em_stats_3,em_stats_4,em_stats_5,em_stats_6,em_stats_7,observed_steps,last_hits,last_misses\n");
   for (const std::string& line : lines) std::fprintf(out, "%s\n", line.c_str());
 }
 

@@ -47,7 +47,7 @@ struct MapWindow {
   CellBox cells;  ///< lattice cells covered; width/height of the block are its extent
 };
 
-/// The state of one cell (THEORY.md §1–6). Floats keep a cell at 62 bytes; the filter
+/// The state of one cell (THEORY.md §1–6). Floats keep a cell at 64 bytes; the filter
 /// and EM math runs in double and rounds once per stored step.
 struct CellState {
   float p_occ;                   ///< belief p(occ) at last_step
