@@ -247,7 +247,8 @@ std::map<XY, dog::CellState> cellsOf(const dog::Mapper& mapper) {
     for (int i = 0; i < dog::CellGrid::kTileCells; ++i) {
       if (tile.last_step[i] == dog::kNeverObserved) continue;
       dog::CellState state{tile.p_occ[i], tile.last_step[i], tile.log_odds[i], tile.p_occ_given_free[i],
-                           tile.p_free_given_occ[i], {}, tile.observed_steps[i]};
+                           tile.p_free_given_occ[i], {}, tile.observed_steps[i], tile.last_hits[i],
+                           tile.last_misses[i]};
       for (std::size_t k = 0; k < state.em_stats.size(); ++k) state.em_stats[k] = tile.em_stats[k][i];
       cells[{tile.cellX(i), tile.cellY(i)}] = state;
     }
