@@ -445,6 +445,12 @@ OfflineEmApplied Mapper::applyOfflineEm(const ObservationSequences& sequences, c
     ++applied.cells_applied;
   }
   updatePrior();
+  // A sensor model offline EM learned with the transitions is the one they belong to: it
+  // becomes this mapper's, as a new start (setSensorModel).
+  if (result.p_hit_given_occ > 0.0 && result.sensor_model_rounds > 1 &&
+      (result.p_hit_given_occ != sensor_.pHitGivenOcc() || result.p_hit_given_free != sensor_.pHitGivenFree())) {
+    setSensorModel(result.p_hit_given_occ, result.p_hit_given_free);
+  }
   return applied;
 }
 

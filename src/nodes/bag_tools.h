@@ -96,7 +96,7 @@ inline void addMappingOptions(command_line::CommandLine& line, SharedOptions* op
 /// The names of the options addEmOptions adds.
 inline const std::vector<std::string>& emOptionNames() {
   static const std::vector<std::string> names{"em-iterations", "em-tolerance", "em-prior-weight", "mrf-temperature",
-                                              "threads"};
+                                              "em-learn-sensor-model", "threads"};
   return names;
 }
 
@@ -118,6 +118,9 @@ inline void addEmOptions(command_line::CommandLine& line, SharedOptions* options
        "temperature T (THEORY.md §7; the lower T, the smoother; default 0 = off, per-cell EM); all cells then "
        "iterate together and stop when an iteration gains less than X (--em-tolerance) times the number of "
        "cells")
+      ("em-learn-sensor-model", boost::program_options::bool_switch(&em.learn_sensor_model),
+       "offline EM: learn the sensor model too (an emission M-step after each round of per-cell EM; "
+       "docs/online_learning.md); the map then uses the learned one. Not with --mrf-temperature")
       ("threads", cl::number(&em.threads, cl::between(0U, 1024U))->value_name("N"),
        "offline EM worker threads (default 0 = one per core)");
 }
@@ -189,6 +192,7 @@ inline core::OfflineEmResult runOfflineEmAndApply(core::Mapper& mapper, core::Se
   std::printf("offline EM: %zu cells, %zu observed cell steps (%.1f MB), %u threads", sequences.cellCount(),
               sequences.observationCount(), static_cast<double>(sequences.bytes()) / 1.0e6, threads);
   if (config.mrf_temperature > 0.0) std::printf(", MRF temperature %g", config.mrf_temperature);
+  if (config.learn_sensor_model) std::printf(", learning the sensor model");
   std::printf("\n");
   std::fflush(stdout);
   const auto start = std::chrono::steady_clock::now();
@@ -216,6 +220,10 @@ inline core::OfflineEmResult runOfflineEmAndApply(core::Mapper& mapper, core::Se
       std::printf(" %d/%d", newton[0], newton[1]);
     }
     std::printf("\n");
+  }
+  if (config.learn_sensor_model) {
+    std::printf("offline EM sensor model: p_hit_given_occ %.4f, p_hit_given_free %.4f (%d rounds)\n",
+                result.p_hit_given_occ, result.p_hit_given_free, result.sensor_model_rounds);
   }
   const core::OfflineEmApplied applied = mapper.applyOfflineEm(sequences, result, true);
   std::printf("offline EM applied to %zu cells (%zu not in the map)\n", applied.cells_applied,

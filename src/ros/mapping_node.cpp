@@ -759,7 +759,10 @@ bool MappingNode::runOfflineEm(RunOfflineEm::Request& request, RunOfflineEm::Res
   if (!std::isfinite(request.mrf_temperature) || request.mrf_temperature < 0.0) {
     return refuse("mrf_temperature must be a finite number >= 0 (0 = ~offline_em/mrf_temperature)");
   }
-  if (request.mrf_temperature > 0.0) options.em.mrf_temperature = request.mrf_temperature;
+  if (request.mrf_temperature > 0.0) {
+    options.em.mrf_temperature = request.mrf_temperature;
+    options.em.learn_sensor_model = false;  // the MRF's M-step does not learn it
+  }
   if (options.source.end_time_s > 0.0 && options.source.end_time_s < options.source.start_time_s) {
     return refuse("end_time is before start_time");
   }

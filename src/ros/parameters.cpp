@@ -269,6 +269,10 @@ bool readParameters(const ros::NodeHandle& private_nh, NodeParameters* parameter
   read.number("offline_em/prior_weight", &em.prior_weight);
   read.boolean("offline_em/symmetric", &em.symmetric);
   read.number("offline_em/mrf_temperature", &em.mrf_temperature);
+  // Offline EM learns the sensor model when the node does (not with the MRF, whose joint
+  // M-step does not include it), unless told otherwise.
+  em.learn_sensor_model = m.learn_sensor_model && em.mrf_temperature == 0.0;
+  read.boolean("offline_em/learn_sensor_model", &em.learn_sensor_model);
   // Offline EM learns within the same bounds as online EM and starts from the prior.
   em.p_min = m.online_em.p_min;
   em.p_max = m.online_em.p_max;

@@ -144,7 +144,9 @@ class Mapper {
   /// and the online statistics restart from them with the weight of the steps the result
   /// saw (capped at the online memory 1 / learning_rate_floor), so online learning goes on
   /// from there. With `use_final_beliefs` (the sequences are this map's own history, as in
-  /// process_bag) each cell's belief also becomes the offline filter's at its last step.
+  /// process_bag) each cell's belief also becomes the offline filter's at its last step. A
+  /// sensor model the result learned (OfflineEmConfig::learn_sensor_model) becomes the
+  /// mapper's, as with setSensorModel.
   OfflineEmApplied applyOfflineEm(const ObservationSequences& sequences, const OfflineEmResult& result,
                                   bool use_final_beliefs);
 
