@@ -568,6 +568,15 @@ void learningChecks(const core::ScenarioConfig& scenario, const core::LearningEx
                           " wall cells per run",
                       online.static_occupied_changing < 0.5});
   }
+  {
+    // The sensor model learned online against the simulated laser's hit rates.
+    const double occ = std::abs(online.p_hit_given_occ - result.laser_hit_rate_occ);
+    const double free = std::abs(online.p_hit_given_free - result.laser_hit_rate_free);
+    checks.push_back({name + ": learned sensor model within 0.03 of the laser's hit rates",
+                      fixed(online.p_hit_given_occ, 3) + " / " + fixed(online.p_hit_given_free, 3) + " vs " +
+                          fixed(result.laser_hit_rate_occ, 3) + " / " + fixed(result.laser_hit_rate_free, 3),
+                      occ <= 0.03 && free <= 0.03});
+  }
   if (scenario.name == "dynamic_25_25") {
     const double mae = meanStd(online.dynamic_mae).mean;
     checks.push_back({name + ": online parameter MAE ≤ 0.05 at the end", fixed(mae, 4), mae <= 0.05});

@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <cmath>
 #include <set>
 #include <stdexcept>
 #include <string>
@@ -89,6 +90,14 @@ TEST(LearningExperiment, ScoresEveryMethodOnAShortPatrol) {
   EXPECT_GT(result.laser_hit_rate_occ, scenario.p_hit_given_occ);
   EXPECT_LT(result.laser_hit_rate_free, scenario.p_hit_given_free);
   EXPECT_GE(oracle.accuracy_changing[0], result.method("learning_off").accuracy_changing[0]);
+  // The sensor model is learned (online and offline) towards the simulated laser's rates.
+  for (const char* name : {"default", "offline"}) {
+    const auto& m = result.method(name);
+    EXPECT_LT(std::abs(m.p_hit_given_occ - result.laser_hit_rate_occ),
+              std::abs(scenario.p_hit_given_occ - result.laser_hit_rate_occ) / 2.0)
+        << name;
+    EXPECT_LT(m.p_hit_given_free, scenario.p_hit_given_free) << name;
+  }
   EXPECT_THROW(result.method("nope"), std::invalid_argument);
   config.window_fraction = 0.0;
   EXPECT_THROW(dog::runLearningExperiment(scenario, config), std::invalid_argument);
