@@ -143,9 +143,9 @@ class EvaluateTool(unittest.TestCase):
             learned = [c[f"{m}_{p}"] for m in ("plain", "mrf") for p in ("p_occ_given_free", "p_free_given_occ")]
             self.assertEqual({bool(value) for value in learned}, {int(c["observed_steps"]) > 0})
             self.assertTrue(c["truth_p_occ_given_free"] and c["truth_p_free_given_occ"])
-        # The four squares' truths: 1 / hold time for holds of 8, 48, 72 and 168 steps.
+        # The four squares' truths: 1 / hold time for holds of 7, 42, 63 and 147 steps.
         truths = {round(float(c["truth_p_occ_given_free"]), 6) for c in cells}
-        self.assertEqual(truths, {0.0, round(1 / 8, 6), round(1 / 48, 6), round(1 / 72, 6), round(1 / 168, 6)})
+        self.assertEqual(truths, {0.0, round(1 / 7, 6), round(1 / 42, 6), round(1 / 63, 6), round(1 / 147, 6)})
 
     def test_accuracy_table_has_every_step_and_method_in_range(self):
         with open(os.path.join(self.out, "accuracy_dynamic_5_5.csv")) as file:
