@@ -90,6 +90,7 @@ MrfOnlineOutcome scoreOnline(const OnlineLearner& learner, const ObservationSequ
   MrfOnlineOutcome outcome;
   outcome.rmse = transitionRmse(sequences, *params, world, sparse_below);
   outcome.rmse_by_kind = transitionRmseByKind(sequences, *params, world, sparse_below);
+  outcome.rmse_changing_by_data = changingRmseBySeenStates(sequences, *params, world, sparse_below);
   outcome.prior_at_end = learner.mapper->currentPrior();
   outcome.seconds = learner.seconds;
   return outcome;
@@ -103,6 +104,7 @@ MrfEmOutcome runEm(const ObservationSequences& sequences, const ObservationModel
   outcome.em_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   outcome.rmse = transitionRmse(sequences, result.params, world, sparse_below);
   outcome.rmse_by_kind = transitionRmseByKind(sequences, result.params, world, sparse_below);
+  outcome.rmse_changing_by_data = changingRmseBySeenStates(sequences, result.params, world, sparse_below);
   // objective holds the value before the first M-step and after each one.
   outcome.em_iterations = static_cast<int>(result.objective.size()) - 1;
   outcome.objective = std::move(result.objective);
@@ -181,8 +183,20 @@ Run runRepetition(const ScenarioConfig& scenario, const MrfExperimentConfig& con
   return run;
 }
 
-// The RMSE over the cells for which `include` holds, split by observed steps; a parameter
-// not scored is NaN.
+// Whether cell `c` of `sequences` has a step with more hits than misses and one with more
+// misses than hits.
+bool seenInBothStates(const ObservationSequences& sequences, std::size_t c) {
+  bool hits = false;
+  bool misses = false;
+  for (const StepObservation* o = sequences.begin(c); o != sequences.end(c); ++o) {
+    hits = hits || o->hits > o->misses;
+    misses = misses || o->misses > o->hits;
+  }
+  return hits && misses;
+}
+
+// The RMSE over the cells for which `include(index, cell)` holds, split by observed steps;
+// a parameter not scored is NaN.
 template <typename Include>
 SplitRmse splitRmse(const ObservationSequences& sequences, const std::vector<TransitionParams>& learned,
                     const World& world, std::size_t sparse_below, const Include& include,
@@ -199,7 +213,7 @@ SplitRmse splitRmse(const ObservationSequences& sequences, const std::vector<Tra
       throw std::invalid_argument("transitionRmse: cell (" + std::to_string(xy.x) + ", " + std::to_string(xy.y) +
                                   ") is outside the world");
     }
-    if (!include(xy)) continue;
+    if (!include(c, xy)) continue;
     const TransitionParams truth = world.truth(xy.x, xy.y);
     const auto observed = static_cast<std::size_t>(sequences.end(c) - sequences.begin(c));
     SquaredErrors& errors = observed < sparse_below ? sparse : well_observed;
@@ -222,7 +236,7 @@ SplitRmse splitRmse(const ObservationSequences& sequences, const std::vector<Tra
 
 SplitRmse transitionRmse(const ObservationSequences& sequences, const std::vector<TransitionParams>& learned,
                          const World& world, std::size_t sparse_below) {
-  return splitRmse(sequences, learned, world, sparse_below, [](const CellXY&) { return true; });
+  return splitRmse(sequences, learned, world, sparse_below, [](std::size_t, const CellXY&) { return true; });
 }
 
 CellKind cellKind(const World& world, std::int32_t x, std::int32_t y) {
@@ -267,10 +281,22 @@ std::array<SplitRmse, kCellKinds> transitionRmseByKind(const ObservationSequence
     const auto kind = static_cast<CellKind>(k);
     by_kind[k] = splitRmse(
         sequences, learned, world, sparse_below,
-        [&](const CellXY& xy) { return cellKind(world, xy.x, xy.y) == kind; }, isScored(kind, true),
+        [&](std::size_t, const CellXY& xy) { return cellKind(world, xy.x, xy.y) == kind; }, isScored(kind, true),
         isScored(kind, false));
   }
   return by_kind;
+}
+
+std::array<SplitRmse, 2> changingRmseBySeenStates(const ObservationSequences& sequences,
+                                                  const std::vector<TransitionParams>& learned, const World& world,
+                                                  std::size_t sparse_below) {
+  std::array<SplitRmse, 2> by_data;
+  for (const bool both : {true, false}) {
+    by_data[both ? 0 : 1] = splitRmse(sequences, learned, world, sparse_below, [&](std::size_t c, const CellXY& xy) {
+      return cellKind(world, xy.x, xy.y) == CellKind::kChanging && seenInBothStates(sequences, c) == both;
+    });
+  }
+  return by_data;
 }
 
 std::array<std::size_t, 4> squareCellsSeenInBothStates(const ObservationSequences& sequences,
@@ -284,13 +310,7 @@ std::array<std::size_t, 4> squareCellsSeenInBothStates(const ObservationSequence
           xy.y >= corner.y + layout.square_side_cells) {
         continue;
       }
-      bool hits = false;
-      bool misses = false;
-      for (const StepObservation* o = sequences.begin(c); o != sequences.end(c); ++o) {
-        hits = hits || o->hits > o->misses;
-        misses = misses || o->misses > o->hits;
-      }
-      if (hits && misses) ++both[k];
+      if (seenInBothStates(sequences, c)) ++both[k];
     }
   }
   return both;

@@ -8,6 +8,7 @@
 #include <cstring>
 #include <cstdio>
 #include <exception>
+#include <functional>
 #include <iomanip>
 #include <iostream>
 #include <limits>
@@ -262,26 +263,24 @@ std::string signedPercent(double before, double after) {
 struct MrfMethod {
   const char* name;   ///< in the CSV files
   const char* label;  ///< in the summary
-  const core::SplitRmse& (*rmse)(const core::MrfRepetition&);
   const std::array<core::SplitRmse, core::kCellKinds>& (*by_kind)(const core::MrfRepetition&);
+  const std::array<core::SplitRmse, 2>& (*changing_by_data)(const core::MrfRepetition&);
 };
+template <typename Outcome, Outcome core::MrfRepetition::*member>
+constexpr MrfMethod mrfMethod(const char* name, const char* label) {
+  return MrfMethod{name, label,
+                   [](const core::MrfRepetition& r) -> const std::array<core::SplitRmse, core::kCellKinds>& {
+                     return (r.*member).rmse_by_kind;
+                   },
+                   [](const core::MrfRepetition& r) -> const std::array<core::SplitRmse, 2>& {
+                     return (r.*member).rmse_changing_by_data;
+                   }};
+}
 const std::array<MrfMethod, 4> kMrfMethods{{
-    {"plain", "plain EM", [](const core::MrfRepetition& r) -> const core::SplitRmse& { return r.plain.rmse; },
-     [](const core::MrfRepetition& r) -> const std::array<core::SplitRmse, core::kCellKinds>& {
-       return r.plain.rmse_by_kind;
-     }},
-    {"mrf", "MRF EM", [](const core::MrfRepetition& r) -> const core::SplitRmse& { return r.mrf.rmse; },
-     [](const core::MrfRepetition& r) -> const std::array<core::SplitRmse, core::kCellKinds>& {
-       return r.mrf.rmse_by_kind;
-     }},
-    {"online", "online", [](const core::MrfRepetition& r) -> const core::SplitRmse& { return r.online.rmse; },
-     [](const core::MrfRepetition& r) -> const std::array<core::SplitRmse, core::kCellKinds>& {
-       return r.online.rmse_by_kind;
-     }},
-    {"online_eb", "online EB", [](const core::MrfRepetition& r) -> const core::SplitRmse& { return r.online_eb.rmse; },
-     [](const core::MrfRepetition& r) -> const std::array<core::SplitRmse, core::kCellKinds>& {
-       return r.online_eb.rmse_by_kind;
-     }},
+    mrfMethod<core::MrfEmOutcome, &core::MrfRepetition::plain>("plain", "plain EM"),
+    mrfMethod<core::MrfEmOutcome, &core::MrfRepetition::mrf>("mrf", "MRF EM"),
+    mrfMethod<core::MrfOnlineOutcome, &core::MrfRepetition::online>("online", "online"),
+    mrfMethod<core::MrfOnlineOutcome, &core::MrfRepetition::online_eb>("online_eb", "online EB"),
 }};
 
 // Offline EM's RMSE over all cells, sparse and well observed, both parameters (the RMSE of
@@ -326,6 +325,28 @@ std::string mrfRmseByKindCsv(const core::MrfExperimentResult& result) {
           csv << r << ',' << method.name << ',' << core::cellKindName(static_cast<core::CellKind>(k)) << ','
               << observed << ',' << e->cells << ',' << probability(e->p_occ_given_free) << ','
               << probability(e->p_free_given_occ) << '\n';
+        }
+      }
+    }
+  }
+  return csv.str();
+}
+
+// The changing cells by what their data show (core::changingRmseBySeenStates): seen in both
+// states or in one only, one row per seed, method, class and observation class.
+std::string mrfRmseChangingCsv(const core::MrfExperimentResult& result) {
+  std::ostringstream csv;
+  csv << "repetition,method,seen,observed,cells,p_occ_given_free_rmse,p_free_given_occ_rmse\n";
+  for (std::size_t r = 0; r < result.repetitions.size(); ++r) {
+    const core::MrfRepetition& run = result.repetitions[r];
+    for (const MrfMethod& method : kMrfMethods) {
+      for (std::size_t d = 0; d < 2; ++d) {
+        const core::SplitRmse& split = method.changing_by_data(run)[d];
+        for (const auto& [observed, e] : {std::make_pair("sparse", &split.sparse),
+                                          std::make_pair("well_observed", &split.well_observed)}) {
+          csv << r << ',' << method.name << ',' << (d == 0 ? "both_states" : "one_state") << ',' << observed << ','
+              << e->cells << ',' << probability(e->p_occ_given_free) << ',' << probability(e->p_free_given_occ)
+              << '\n';
         }
       }
     }
@@ -419,10 +440,51 @@ std::string mrfSummary(const core::ScenarioConfig& scenario, const core::MrfExpe
        << "where the method beats the one it is compared with.\n\n"
        << "| kind | cells | parameter | cells per run | plain EM | MRF EM | MRF vs plain | online | online EB | "
           "EB vs online | best |\n|---|---|---|---|---|---|---|---|---|---|---|\n";
-  // Pooled over seeds: sqrt(sum of cells * rmse^2 / all cells); per seed for the comparisons.
+  // One row: the RMSE of `parameter` over the cells `part` picks, pooled over the seeds
+  // (sqrt(sum of cells * rmse^2 / all cells)); per seed for the comparisons. Returns the
+  // pooled RMSE per method and the cells.
   struct Pooled {
     double rmse = 0.0;
     std::vector<double> per_seed;  // NaN for a seed without cells of the row
+  };
+  const auto row = [&](const std::string& label, bool occ_given_free,
+                       const std::function<const core::TransitionRmse&(const MrfMethod&, const core::MrfRepetition&)>& part) {
+    double cells = 0.0;
+    std::array<Pooled, 4> pooled;
+    for (std::size_t m = 0; m < kMrfMethods.size(); ++m) {
+      double squares = 0.0;
+      double method_cells = 0.0;
+      for (const core::MrfRepetition& run : result.repetitions) {
+        const core::TransitionRmse& e = part(kMrfMethods[m], run);
+        const double rmse = occ_given_free ? e.p_occ_given_free : e.p_free_given_occ;
+        squares += static_cast<double>(e.cells) * rmse * rmse;
+        method_cells += static_cast<double>(e.cells);
+        pooled[m].per_seed.push_back(e.cells > 0 ? rmse : std::numeric_limits<double>::quiet_NaN());
+      }
+      pooled[m].rmse = method_cells > 0.0 ? std::sqrt(squares / method_cells) : 0.0;
+      cells = method_cells;  // the same cells for every method
+    }
+    // "-11.9 % (8/10)": the change of the pooled RMSE, and the seeds where `after` is lower.
+    const auto compare = [](const Pooled& before, const Pooled& after) {
+      int wins = 0;
+      int with_cells = 0;
+      for (std::size_t r = 0; r < before.per_seed.size(); ++r) {
+        if (std::isnan(before.per_seed[r])) continue;
+        ++with_cells;
+        wins += after.per_seed[r] < before.per_seed[r] ? 1 : 0;
+      }
+      return signedPercent(before.rmse, after.rmse) + " (" + std::to_string(wins) + "/" + std::to_string(with_cells) +
+             ")";
+    };
+    std::size_t best = 0;
+    for (std::size_t m = 1; m < pooled.size(); ++m) {
+      if (pooled[m].rmse < pooled[best].rmse) best = m;
+    }
+    text << "| " << label << " | " << (occ_given_free ? "p_occ_given_free" : "p_free_given_occ") << " | "
+         << fixed(cells / seeds, 1) << " | " << fixed(pooled[0].rmse, 4) << " | " << fixed(pooled[1].rmse, 4) << " | "
+         << compare(pooled[0], pooled[1]) << " | " << fixed(pooled[2].rmse, 4) << " | " << fixed(pooled[3].rmse, 4)
+         << " | " << compare(pooled[2], pooled[3]) << " | " << (cells > 0.0 ? kMrfMethods[best].label : "-") << " |\n";
+    return std::make_pair(pooled, cells);
   };
   std::vector<std::string> well_observed_measured;
   bool well_observed_met = true;
@@ -431,49 +493,36 @@ std::string mrfSummary(const core::ScenarioConfig& scenario, const core::MrfExpe
     for (const bool sparse : {true, false}) {
       for (const bool occ_given_free : {true, false}) {
         if (!core::isScored(kind, occ_given_free)) continue;
-        double cells = 0.0;
-        std::array<Pooled, 4> pooled;
-        for (std::size_t m = 0; m < kMrfMethods.size(); ++m) {
-          double squares = 0.0;
-          double method_cells = 0.0;
-          for (const core::MrfRepetition& run : result.repetitions) {
-            const core::SplitRmse& split = kMrfMethods[m].by_kind(run)[k];
-            const core::TransitionRmse& e = sparse ? split.sparse : split.well_observed;
-            const double rmse = occ_given_free ? e.p_occ_given_free : e.p_free_given_occ;
-            squares += static_cast<double>(e.cells) * rmse * rmse;
-            method_cells += static_cast<double>(e.cells);
-            pooled[m].per_seed.push_back(e.cells > 0 ? rmse : std::numeric_limits<double>::quiet_NaN());
-          }
-          pooled[m].rmse = method_cells > 0.0 ? std::sqrt(squares / method_cells) : 0.0;
-          cells = method_cells;  // the same cells for every method
-        }
-        // "-11.9 % (8/10)": the change of the pooled RMSE, and the seeds where `after` is lower.
-        const auto compare = [](const Pooled& before, const Pooled& after) {
-          int wins = 0;
-          int with_cells = 0;
-          for (std::size_t r = 0; r < before.per_seed.size(); ++r) {
-            if (std::isnan(before.per_seed[r])) continue;
-            ++with_cells;
-            wins += after.per_seed[r] < before.per_seed[r] ? 1 : 0;
-          }
-          return signedPercent(before.rmse, after.rmse) + " (" + std::to_string(wins) + "/" +
-                 std::to_string(with_cells) + ")";
-        };
-        std::size_t best = 0;
-        for (std::size_t m = 1; m < pooled.size(); ++m) {
-          if (pooled[m].rmse < pooled[best].rmse) best = m;
-        }
-        const char* parameter = occ_given_free ? "p_occ_given_free" : "p_free_given_occ";
-        text << "| " << core::cellKindName(kind) << " | " << (sparse ? "sparse" : "well observed") << " | "
-             << parameter << " | " << fixed(cells / seeds, 1) << " | " << fixed(pooled[0].rmse, 4) << " | "
-             << fixed(pooled[1].rmse, 4) << " | " << compare(pooled[0], pooled[1]) << " | " << fixed(pooled[2].rmse, 4)
-             << " | " << fixed(pooled[3].rmse, 4) << " | " << compare(pooled[2], pooled[3]) << " | "
-             << (cells > 0.0 ? kMrfMethods[best].label : "-") << " |\n";
+        const auto [pooled, cells] = row(
+            std::string(core::cellKindName(kind)) + " | " + (sparse ? "sparse" : "well observed"), occ_given_free,
+            [&](const MrfMethod& method, const core::MrfRepetition& run) -> const core::TransitionRmse& {
+              const core::SplitRmse& split = method.by_kind(run)[k];
+              return sparse ? split.sparse : split.well_observed;
+            });
         if (!sparse && cells > 0.0) {
-          well_observed_measured.push_back(std::string(core::cellKindName(kind)) + " " + parameter + " " +
+          well_observed_measured.push_back(std::string(core::cellKindName(kind)) + " " +
+                                           (occ_given_free ? "p_occ_given_free " : "p_free_given_occ ") +
                                            fixed(pooled[1].rmse, 4) + " vs " + fixed(pooled[0].rmse, 4));
           well_observed_met = well_observed_met && pooled[1].rmse <= pooled[0].rmse;
         }
+      }
+    }
+  }
+  text << "\nThe changing cells by what their data show: seen in both states (a step with more hits than misses and "
+          "one with more misses than hits: the squares' faces) or in one only (the cells behind a face, observed only "
+          "while the square is free: their data say \"static free\" whatever the square does). Per seed in "
+          "mrf_rmse_changing.csv.\n\n"
+       << "| changing cells | cells | parameter | cells per run | plain EM | MRF EM | MRF vs plain | online | online EB | "
+          "EB vs online | best |\n|---|---|---|---|---|---|---|---|---|---|---|\n";
+  for (const std::size_t d : {std::size_t{0}, std::size_t{1}}) {
+    for (const bool sparse : {true, false}) {
+      for (const bool occ_given_free : {true, false}) {
+        row(std::string(d == 0 ? "seen in both states" : "seen in one state") + " | " +
+                (sparse ? "sparse" : "well observed"),
+            occ_given_free, [&](const MrfMethod& method, const core::MrfRepetition& run) -> const core::TransitionRmse& {
+              const core::SplitRmse& split = method.changing_by_data(run)[d];
+              return sparse ? split.sparse : split.well_observed;
+            });
       }
     }
   }
@@ -825,6 +874,7 @@ int main(int argc, char** argv) {
       std::cerr << " " << fixed(result.seconds, 1) << " s\n";
       core::writeFileAtomically(options.out + "/mrf_rmse.csv", mrfRmseCsv(result));
       core::writeFileAtomically(options.out + "/mrf_rmse_by_kind.csv", mrfRmseByKindCsv(result));
+      core::writeFileAtomically(options.out + "/mrf_rmse_changing.csv", mrfRmseChangingCsv(result));
       core::writeFileAtomically(options.out + "/mrf_online.csv", mrfOnlineCsv(result));
       core::writeFileAtomically(options.out + "/mrf_iterations.csv", mrfIterationsCsv(result));
       core::writeFileAtomically(options.out + "/mrf_maps.csv", mrfMapsCsv(result.first_maps));

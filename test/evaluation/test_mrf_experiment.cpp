@@ -120,6 +120,37 @@ TEST(TransitionRmse, PerKindOfCell) {
   EXPECT_THROW(transitionRmseByKind(sequences, {learned[0]}, world, 3), std::invalid_argument);
 }
 
+TEST(TransitionRmse, ChangingCellsByWhatTheirDataShow) {
+  World world(3, 1, 1.0);
+  world.setScheduled(0, 0, TransitionParams{0.1, 0.2}, true);
+  world.setScheduled(1, 0, TransitionParams{0.3, 0.3}, false);
+  world.setStatic(2, 0, false);
+  SequenceBuilder builder;
+  builder.add(0, 0, 0, 2, 0);  // (0, 0): a step of more hits, one of more misses: both states
+  builder.add(0, 0, 1, 0, 1);
+  builder.add(0, 0, 2, 1, 1);
+  builder.add(1, 0, 0, 0, 1);  // (1, 0): misses only (a tie is neither): one state
+  builder.add(1, 0, 1, 1, 1);
+  builder.add(2, 0, 0, 1, 0);  // static: in neither class
+  builder.add(2, 0, 1, 0, 1);
+  const ObservationSequences sequences = builder.build();
+  const std::vector<TransitionParams> learned{{0.15, 0.1}, {0.05, 0.5}, {0.2, 0.2}};
+  const std::array<SplitRmse, 2> by_data = changingRmseBySeenStates(sequences, learned, world, 4);
+  EXPECT_EQ(by_data[0].sparse.cells, 1U);  // 3 observed steps, sparse below 4
+  EXPECT_EQ(by_data[0].well_observed.cells, 0U);
+  EXPECT_NEAR(by_data[0].sparse.p_occ_given_free, 0.05, 1e-15);
+  EXPECT_NEAR(by_data[0].sparse.p_free_given_occ, 0.1, 1e-15);
+  EXPECT_EQ(by_data[1].sparse.cells, 1U);
+  EXPECT_NEAR(by_data[1].sparse.p_occ_given_free, 0.25, 1e-15);
+  EXPECT_NEAR(by_data[1].sparse.p_free_given_occ, 0.2, 1e-15);
+  EXPECT_EQ(by_data[1].well_observed.cells, 0U);
+  const std::array<SplitRmse, 2> at_3 = changingRmseBySeenStates(sequences, learned, world, 3);
+  EXPECT_EQ(at_3[0].well_observed.cells, 1U);
+  EXPECT_EQ(at_3[0].sparse.cells, 0U);
+  EXPECT_EQ(at_3[1].sparse.cells, 1U);
+  EXPECT_THROW(changingRmseBySeenStates(sequences, {learned[0]}, world, 3), std::invalid_argument);
+}
+
 TEST(SquareCells, SeenInBothStatesNeedsAStepOfEach) {
   MrfSquaresLayout layout;
   layout.square_side_cells = 2;
@@ -394,6 +425,17 @@ TEST(MrfExperiment, OnlineLearnersWithAndWithoutTheEmpiricalBayesPriorAreScored)
       }
     }
   }
+  // The changing cells by what their data show partition the changing kind, for all four.
+  const auto changing_kind = static_cast<std::size_t>(CellKind::kChanging);
+  for (const auto* by_data : {&run.plain.rmse_changing_by_data, &run.mrf.rmse_changing_by_data,
+                              &run.online.rmse_changing_by_data, &run.online_eb.rmse_changing_by_data}) {
+    EXPECT_EQ((*by_data)[0].sparse.cells + (*by_data)[1].sparse.cells,
+              run.plain.rmse_by_kind[changing_kind].sparse.cells);
+    EXPECT_EQ((*by_data)[0].well_observed.cells + (*by_data)[1].well_observed.cells,
+              run.plain.rmse_by_kind[changing_kind].well_observed.cells);
+    EXPECT_GT((*by_data)[0].sparse.cells + (*by_data)[0].well_observed.cells, 0U);  // the faces
+  }
+
   // Without the empirical-Bayes prior every sparse cell keeps prior_transitions (0.01 / 0.01
   // as float): a static free cell's error is exactly that.
   const auto free_kind = static_cast<std::size_t>(CellKind::kStaticFree);

@@ -38,7 +38,8 @@ class EvaluateTool(unittest.TestCase):
     def test_writes_the_tables_and_the_summary(self):
         self.assertEqual(self.rc, 0, self.stderr)
         for name in ["accuracy_dynamic_5_5.csv", "accuracy_redraw_100.csv", "parameter_error.csv",
-                     "path_planning.csv", "mrf_rmse.csv", "mrf_rmse_by_kind.csv", "mrf_online.csv",
+                     "path_planning.csv", "mrf_rmse.csv", "mrf_rmse_by_kind.csv", "mrf_rmse_changing.csv",
+                     "mrf_online.csv",
                      "mrf_iterations.csv", "mrf_maps.csv", "memory_navigation.csv", "summary.md"]:
             self.assertTrue(os.path.isfile(os.path.join(self.out, name)), name)
         self.assertIn("## Targets", self.stdout)
@@ -148,6 +149,23 @@ class EvaluateTool(unittest.TestCase):
         for row in rows:
             for square in range(4):
                 self.assertGreater(int(row[f"square_{square}_cells_both_states"]), 0)
+
+        # The changing cells by what their data show: both states and one state partition them.
+        with open(os.path.join(self.out, "mrf_rmse_changing.csv")) as file:
+            changing = list(csv.DictReader(file))
+        self.assertEqual(len(changing), 2 * 4 * 2 * 2)
+        for k in by_kind:
+            if k["kind"] != "changing":
+                continue
+            mine = [c for c in changing if (c["repetition"], c["method"], c["observed"]) ==
+                    (k["repetition"], k["method"], k["observed"])]
+            self.assertEqual(sorted(c["seen"] for c in mine), ["both_states", "one_state"])
+            self.assertEqual(sum(int(c["cells"]) for c in mine), int(k["cells"]))
+            for parameter in ("p_occ_given_free", "p_free_given_occ"):
+                squares = sum(int(c["cells"]) * float(c[f"{parameter}_rmse"]) ** 2 for c in mine)
+                self.assertAlmostEqual(squares, int(k["cells"]) * float(k[f"{parameter}_rmse"]) ** 2, places=5)
+        with open(os.path.join(self.out, "summary.md")) as file:
+            self.assertIn("| seen in both states | well observed | p_occ_given_free |", file.read())
 
         # The online learners: prior_transitions kept without the empirical-Bayes prior, the
         # population's with it.
@@ -270,8 +288,9 @@ class EvaluateTool(unittest.TestCase):
                                   "--threads", "1"])
         self.assertEqual(rc, 0, stderr)
         self.assertEqual(sorted(os.listdir(again)), ["mrf_iterations.csv", "mrf_maps.csv", "mrf_online.csv",
-                                                     "mrf_rmse.csv", "mrf_rmse_by_kind.csv", "summary.md"])
-        for name in ("mrf_maps.csv", "mrf_iterations.csv", "mrf_rmse_by_kind.csv"):
+                                                     "mrf_rmse.csv", "mrf_rmse_by_kind.csv", "mrf_rmse_changing.csv",
+                                                     "summary.md"])
+        for name in ("mrf_maps.csv", "mrf_iterations.csv", "mrf_rmse_by_kind.csv", "mrf_rmse_changing.csv"):
             with open(os.path.join(self.out, name)) as a, open(os.path.join(again, name)) as b:
                 self.assertEqual(a.read(), b.read(), name)
         # Everything but the wall time.

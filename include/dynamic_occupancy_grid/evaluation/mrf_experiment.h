@@ -64,6 +64,14 @@ std::array<SplitRmse, kCellKinds> transitionRmseByKind(const ObservationSequence
                                                         const std::vector<TransitionParams>& learned,
                                                         const World& world, std::size_t sparse_below);
 
+/// The changing cells by what their data show: [0] those seen in both states (a step of more
+/// hits than misses and one of more misses than hits), [1] the others (in the squares: the
+/// cells behind the front face, observed only while the square is free), each split as
+/// transitionRmse, both parameters scored.
+std::array<SplitRmse, 2> changingRmseBySeenStates(const ObservationSequences& sequences,
+                                                  const std::vector<TransitionParams>& learned, const World& world,
+                                                  std::size_t sparse_below);
+
 /// Per square of the mrf_squares scenario (MrfSquaresLayout order): how many of its cells
 /// `sequences` show in both states, with at least one step of more hits than misses and
 /// one of more misses than hits.
@@ -88,6 +96,7 @@ struct MrfExperimentConfig {
 struct MrfEmOutcome {
   SplitRmse rmse;
   std::array<SplitRmse, kCellKinds> rmse_by_kind;  ///< the same per CellKind
+  std::array<SplitRmse, 2> rmse_changing_by_data;  ///< changingRmseBySeenStates
   double em_seconds = 0.0;   ///< wall time of runOfflineEm (single-threaded)
   int em_iterations = 0;     ///< M-steps (plain EM: the most any cell used)
   std::vector<double> objective;  ///< OfflineEmResult::objective
@@ -102,6 +111,7 @@ struct MrfEmOutcome {
 struct MrfOnlineOutcome {
   SplitRmse rmse;
   std::array<SplitRmse, kCellKinds> rmse_by_kind;
+  std::array<SplitRmse, 2> rmse_changing_by_data;  ///< changingRmseBySeenStates
   TransitionParams prior_at_end;  ///< Mapper::currentPrior() after the last step
   double seconds = 0.0;           ///< wall time of the mapper's integrate and finishStep calls
 };
