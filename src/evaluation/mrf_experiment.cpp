@@ -5,6 +5,8 @@
 #include <chrono>
 #include <cmath>
 #include <limits>
+#include <memory>
+#include <optional>
 #include <stdexcept>
 #include <string>
 #include <utility>
@@ -28,25 +30,70 @@ struct SquaredErrors {
   }
 };
 
-// The observations of a whole run, recorded as offline EM reads them (as trainOffline does).
-ObservationSequences recordRun(Simulation& simulation, const MapperConfig& mapper_config) {
+// The online learners' mappers of a run, fed the scans the recorder gets.
+struct OnlineLearner {
+  std::unique_ptr<Mapper> mapper;
+  double seconds = 0.0;
+};
+
+// The observations of a whole run, recorded as offline EM reads them (as trainOffline does),
+// and the same scans into each online learner.
+ObservationSequences recordRun(Simulation& simulation, const MapperConfig& mapper_config,
+                               std::vector<OnlineLearner>& learners) {
   MapperConfig config = mapper_config;
   config.learn_transitions = false;  // only the observations matter here
   Mapper mapper(config);
   SequenceBuilder recorder;
   mapper.recordObservations(&recorder);
+  const auto integrate = [](Mapper& into, const Scan& scan) {
+    const ScanResult result = into.integrate(scan);
+    if (result.status != ScanStatus::kIntegrated) {
+      throw std::runtime_error("runMrfExperiment: scan rejected: " + result.error);
+    }
+  };
   for (std::int64_t t = 0; t < simulation.config().steps; ++t) {
     for (int k = 0; k < simulation.config().scans_per_step; ++k) {
-      const ScanResult result = mapper.integrate(simulation.scan(k));
-      if (result.status != ScanStatus::kIntegrated) {
-        throw std::runtime_error("runMrfExperiment: scan rejected: " + result.error);
+      const Scan scan = simulation.scan(k);
+      integrate(mapper, scan);
+      for (OnlineLearner& learner : learners) {
+        const auto start = std::chrono::steady_clock::now();
+        integrate(*learner.mapper, scan);
+        learner.seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
       }
     }
     simulation.advance();
   }
   mapper.finishStep();
+  for (OnlineLearner& learner : learners) {
+    const auto start = std::chrono::steady_clock::now();
+    learner.mapper->finishStep();
+    learner.seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  }
   mapper.recordObservations(nullptr);
   return recorder.build();
+}
+
+// An online learner's transitions of the recorded cells (in their order), as its cells'
+// filters use them, scored.
+MrfOnlineOutcome scoreOnline(const OnlineLearner& learner, const ObservationSequences& sequences, const World& world,
+                             std::size_t sparse_below, std::vector<TransitionParams>* params) {
+  params->clear();
+  params->reserve(sequences.cellCount());
+  for (std::size_t c = 0; c < sequences.cellCount(); ++c) {
+    const CellXY xy = sequences.cell(c);
+    const std::optional<CellState> cell = learner.mapper->grid().cell(xy.x, xy.y);
+    if (!cell || cell->last_step == kNeverObserved) {
+      throw std::logic_error("runMrfExperiment: an online learner did not observe a recorded cell");
+    }
+    params->push_back(TransitionParams{cell->p_occ_given_free, cell->p_free_given_occ});
+  }
+  MrfOnlineOutcome outcome;
+  outcome.rmse = transitionRmse(sequences, *params, world, sparse_below);
+  outcome.rmse_by_kind = transitionRmseByKind(sequences, *params, world, sparse_below);
+  outcome.rmse_changing_by_data = changingRmseBySeenStates(sequences, *params, world, sparse_below);
+  outcome.prior_at_end = learner.mapper->currentPrior();
+  outcome.seconds = learner.seconds;
+  return outcome;
 }
 
 MrfEmOutcome runEm(const ObservationSequences& sequences, const ObservationModel& sensor, const OfflineEmConfig& config,
@@ -57,6 +104,7 @@ MrfEmOutcome runEm(const ObservationSequences& sequences, const ObservationModel
   outcome.em_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   outcome.rmse = transitionRmse(sequences, result.params, world, sparse_below);
   outcome.rmse_by_kind = transitionRmseByKind(sequences, result.params, world, sparse_below);
+  outcome.rmse_changing_by_data = changingRmseBySeenStates(sequences, result.params, world, sparse_below);
   // objective holds the value before the first M-step and after each one.
   outcome.em_iterations = static_cast<int>(result.objective.size()) - 1;
   outcome.objective = std::move(result.objective);
@@ -78,8 +126,18 @@ Run runRepetition(const ScenarioConfig& scenario, const MrfExperimentConfig& con
   run.repetition.run_seed = mixSeed(run.repetition.world_seed ^ 0x6d7266ULL);  // "mrf": its own stream
   Simulation simulation(scenario, run.repetition.world_seed, run.repetition.run_seed);
   const MapperConfig mapper_config = evaluationMapperConfig(scenario);
-  const ObservationSequences sequences = recordRun(simulation, mapper_config);
+  // The online learners: the package's defaults on the scenario's geometry and sensor
+  // model, without and with the empirical-Bayes prior.
+  std::vector<OnlineLearner> learners(2);
+  for (std::size_t l = 0; l < learners.size(); ++l) {
+    MapperConfig learner_config = mapper_config;
+    learner_config.learn_transitions = true;
+    learner_config.learn_prior = l == 1;
+    learners[l].mapper = std::make_unique<Mapper>(learner_config);
+  }
+  const ObservationSequences sequences = recordRun(simulation, mapper_config, learners);
   run.repetition.cells_observed = sequences.cellCount();
+  run.repetition.square_cells_both_states = squareCellsSeenInBothStates(sequences, simulation.mrfSquaresLayout());
   const ObservationModel sensor(mapper_config.p_hit_given_occ, mapper_config.p_hit_given_free);
 
   OfflineEmConfig em_config = evaluationOfflineEmConfig(mapper_config);
@@ -90,6 +148,10 @@ Run runRepetition(const ScenarioConfig& scenario, const MrfExperimentConfig& con
   em_config.mrf_temperature = config.temperature;
   std::vector<TransitionParams> mrf;
   run.repetition.mrf = runEm(sequences, sensor, em_config, simulation.world(), config.sparse_below, &mrf);
+  std::vector<TransitionParams> online;
+  run.repetition.online = scoreOnline(learners[0], sequences, simulation.world(), config.sparse_below, &online);
+  std::vector<TransitionParams> online_eb;
+  run.repetition.online_eb = scoreOnline(learners[1], sequences, simulation.world(), config.sparse_below, &online_eb);
 
   if (repetition == 0) {
     const World& world = simulation.world();
@@ -101,6 +163,8 @@ Run runRepetition(const ScenarioConfig& scenario, const MrfExperimentConfig& con
     maps.observed_steps.assign(size, 0);
     maps.plain.assign(size, TransitionParams{kNaN, kNaN});
     maps.mrf.assign(size, TransitionParams{kNaN, kNaN});
+    maps.online.assign(size, TransitionParams{kNaN, kNaN});
+    maps.online_eb.assign(size, TransitionParams{kNaN, kNaN});
     maps.truth.resize(size);
     for (std::size_t i = 0; i < size; ++i) {
       const CellXY c = world.cellOf(i);
@@ -112,15 +176,31 @@ Run runRepetition(const ScenarioConfig& scenario, const MrfExperimentConfig& con
       maps.observed_steps[i] = static_cast<std::uint32_t>(sequences.end(c) - sequences.begin(c));
       maps.plain[i] = plain[c];
       maps.mrf[i] = mrf[c];
+      maps.online[i] = online[c];
+      maps.online_eb[i] = online_eb[c];
     }
   }
   return run;
 }
 
-// The RMSE over the cells for which `include` holds, split by observed steps.
+// Whether cell `c` of `sequences` has a step with more hits than misses and one with more
+// misses than hits.
+bool seenInBothStates(const ObservationSequences& sequences, std::size_t c) {
+  bool hits = false;
+  bool misses = false;
+  for (const StepObservation* o = sequences.begin(c); o != sequences.end(c); ++o) {
+    hits = hits || o->hits > o->misses;
+    misses = misses || o->misses > o->hits;
+  }
+  return hits && misses;
+}
+
+// The RMSE over the cells for which `include(index, cell)` holds, split by observed steps;
+// a parameter not scored is NaN.
 template <typename Include>
 SplitRmse splitRmse(const ObservationSequences& sequences, const std::vector<TransitionParams>& learned,
-                    const World& world, std::size_t sparse_below, const Include& include) {
+                    const World& world, std::size_t sparse_below, const Include& include,
+                    bool score_occ_given_free = true, bool score_free_given_occ = true) {
   if (learned.size() != sequences.cellCount()) {
     throw std::invalid_argument("transitionRmse: " + std::to_string(learned.size()) + " learned parameters for " +
                                 std::to_string(sequences.cellCount()) + " cells");
@@ -133,7 +213,7 @@ SplitRmse splitRmse(const ObservationSequences& sequences, const std::vector<Tra
       throw std::invalid_argument("transitionRmse: cell (" + std::to_string(xy.x) + ", " + std::to_string(xy.y) +
                                   ") is outside the world");
     }
-    if (!include(xy)) continue;
+    if (!include(c, xy)) continue;
     const TransitionParams truth = world.truth(xy.x, xy.y);
     const auto observed = static_cast<std::size_t>(sequences.end(c) - sequences.begin(c));
     SquaredErrors& errors = observed < sparse_below ? sparse : well_observed;
@@ -143,14 +223,20 @@ SplitRmse splitRmse(const ObservationSequences& sequences, const std::vector<Tra
     errors.p_free_given_occ += e_fo * e_fo;
     ++errors.cells;
   }
-  return SplitRmse{sparse.rmse(), well_observed.rmse()};
+  SplitRmse split{sparse.rmse(), well_observed.rmse()};
+  constexpr double kNotScored = std::numeric_limits<double>::quiet_NaN();
+  for (TransitionRmse* e : {&split.sparse, &split.well_observed}) {
+    if (!score_occ_given_free) e->p_occ_given_free = kNotScored;
+    if (!score_free_given_occ) e->p_free_given_occ = kNotScored;
+  }
+  return split;
 }
 
 }  // namespace
 
 SplitRmse transitionRmse(const ObservationSequences& sequences, const std::vector<TransitionParams>& learned,
                          const World& world, std::size_t sparse_below) {
-  return splitRmse(sequences, learned, world, sparse_below, [](const CellXY&) { return true; });
+  return splitRmse(sequences, learned, world, sparse_below, [](std::size_t, const CellXY&) { return true; });
 }
 
 CellKind cellKind(const World& world, std::int32_t x, std::int32_t y) {
@@ -175,16 +261,59 @@ const char* cellKindName(CellKind kind) {
   return "unknown";
 }
 
+bool isScored(CellKind kind, bool occ_given_free) {
+  switch (kind) {
+    case CellKind::kChanging:
+      return true;
+    case CellKind::kStaticFree:
+      return occ_given_free;
+    case CellKind::kStaticOccupied:
+      return !occ_given_free;
+  }
+  return false;
+}
+
 std::array<SplitRmse, kCellKinds> transitionRmseByKind(const ObservationSequences& sequences,
                                                         const std::vector<TransitionParams>& learned,
                                                         const World& world, std::size_t sparse_below) {
   std::array<SplitRmse, kCellKinds> by_kind;
   for (std::size_t k = 0; k < kCellKinds; ++k) {
-    by_kind[k] = splitRmse(sequences, learned, world, sparse_below, [&](const CellXY& xy) {
-      return static_cast<std::size_t>(cellKind(world, xy.x, xy.y)) == k;
-    });
+    const auto kind = static_cast<CellKind>(k);
+    by_kind[k] = splitRmse(
+        sequences, learned, world, sparse_below,
+        [&](std::size_t, const CellXY& xy) { return cellKind(world, xy.x, xy.y) == kind; }, isScored(kind, true),
+        isScored(kind, false));
   }
   return by_kind;
+}
+
+std::array<SplitRmse, 2> changingRmseBySeenStates(const ObservationSequences& sequences,
+                                                  const std::vector<TransitionParams>& learned, const World& world,
+                                                  std::size_t sparse_below) {
+  std::array<SplitRmse, 2> by_data;
+  for (const bool both : {true, false}) {
+    by_data[both ? 0 : 1] = splitRmse(sequences, learned, world, sparse_below, [&](std::size_t c, const CellXY& xy) {
+      return cellKind(world, xy.x, xy.y) == CellKind::kChanging && seenInBothStates(sequences, c) == both;
+    });
+  }
+  return by_data;
+}
+
+std::array<std::size_t, 4> squareCellsSeenInBothStates(const ObservationSequences& sequences,
+                                                       const MrfSquaresLayout& layout) {
+  std::array<std::size_t, 4> both{};
+  for (std::size_t c = 0; c < sequences.cellCount(); ++c) {
+    const CellXY xy = sequences.cell(c);
+    for (std::size_t k = 0; k < layout.square_corner.size(); ++k) {
+      const CellXY corner = layout.square_corner[k];
+      if (xy.x < corner.x || xy.y < corner.y || xy.x >= corner.x + layout.square_side_cells ||
+          xy.y >= corner.y + layout.square_side_cells) {
+        continue;
+      }
+      if (seenInBothStates(sequences, c)) ++both[k];
+    }
+  }
+  return both;
 }
 
 void MrfExperimentConfig::validate() const {

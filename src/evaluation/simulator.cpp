@@ -41,8 +41,7 @@ double cellCentre(std::int32_t cell, double resolution) { return (cell + 0.5) * 
 
 // Li, Barão & Rato's simulation (Sec. IV, Fig. 3) in cells. The robot's loop, counter-
 // clockwise through these cell centres: 24 + 12 + 24 + 12 = 72 cells, 24 steps at 3 cells per
-// step, a multiple of 3 so that the shortest hold (a third of a loop) is a whole number of
-// steps. Every square's near face is 3.5 cells from the loop (within the 8-cell beams, with
+// step. Every square's near face is 3.5 cells from the loop (within the 8-cell beams, with
 // room behind it for beams that pass when it is free), the wall 6.5 cells from its left side.
 constexpr std::array<std::array<std::int32_t, 2>, 4> kMrfLoop{{{10, 9}, {34, 9}, {34, 21}, {10, 21}}};
 constexpr std::int32_t kMrfSpeedCells = 3;
@@ -50,6 +49,9 @@ constexpr std::int32_t kMrfSquareSide = 4;
 // Below the bottom side (the first two), right of the right side, above the top side: where
 // the loop's outward (-pi/2 and -pi/4) beams look.
 constexpr std::array<std::array<std::int32_t, 2>, 4> kMrfSquares{{{15, 2}, {26, 2}, {38, 13}, {20, 25}}};
+// The paper's unit of the hold times (it leaves dt open), in steps: 7/8 of the loop, so that
+// no hold is a multiple or a simple fraction of the loop (scenarioConfig("mrf_squares")).
+constexpr std::int64_t kMrfDeltaTSteps = 21;
 
 // The dividers office (scenarioConfig("dividers")), in cells.
 constexpr std::int32_t kDividersWidth = 40;
@@ -431,14 +433,23 @@ ScenarioConfig scenarioConfig(const std::string& name) {
     // Li, Barão & Rato, Sec. IV: static walls on the left, four square objects holding their
     // state for dt/3, 2 dt, 3 dt and 7 dt, a robot making 20 loops near a path at 3 cells per
     // step, four beams at -pi/2, -pi/4, pi/4, pi/2 from its heading, 8 cells long. The paper
-    // leaves dt open; here it is the time of one loop (24 steps), so the squares range from
-    // changing three times per visit to a few times per run.
+    // leaves dt open. It is not the loop (24 steps) but 21 steps, 7/8 of it: holds of 7, 42,
+    // 63 and 147 steps (0.29, 1.75, 2.6 and 6.1 loops), true rates 1/7 ... 1/147 per step.
+    // A square's state repeats every 2 hold steps; the robot passes every 24, so it meets
+    // the square at the same point of its cycle again only after lcm(2 hold, 24) / 24 loops:
+    // 7, 7, 21 and 49 loops (all 20 of a run at a new point for the two slow squares). With
+    // dt = one loop (holds 8, 48, 72, 168) that was 2, 4, 6 and 14: the fast square was met
+    // at only two points of its cycle, each visit the mirror of the one before. dt must be a
+    // multiple of 3 (dt/3 whole) and, for every hold to be off the loop's divisors, odd and
+    // not a multiple of 9; 21 is the one near the loop (15 gives 5, 5, 15, 35 loops; 33
+    // holds the slowest square 231 steps, two toggles a run).
     config.kind = ScenarioKind::kMrfSquares;
     config.width_cells = 46;
     config.height_cells = 32;
     config.resolution_m = 0.1;
     const std::int64_t loop = mrfLoopSteps();
-    config.square_hold_steps = {loop / 3, 2 * loop, 3 * loop, 7 * loop};
+    const std::int64_t dt = kMrfDeltaTSteps;
+    config.square_hold_steps = {dt / 3, 2 * dt, 3 * dt, 7 * dt};
     config.steps = 20 * loop;
     config.laser.beams = 5;
     config.laser.angle_min_rad = -0.5 * kPi;
@@ -458,8 +469,9 @@ ScenarioConfig scenarioConfig(const std::string& name) {
     config.path_noise_sigma_rad = 0.05;
     config.p_hit_given_occ = 0.8;
     config.p_hit_given_free = 0.05;
-    config.description = "Li, Barão & Rato's simulation: walls, four squares holding their state for 8, 48, 72 and "
-                         "168 steps (a third of a loop to 7 loops), 20 noisy loops with 4 beams of 8 cells";
+    config.description = "Li, Barão & Rato's simulation: walls, four squares holding their state for 7, 42, 63 and "
+                         "147 steps (dt/3 to 7 dt, dt = 21 steps, 7/8 of the robot's 24-step loop), 20 noisy loops "
+                         "with 4 beams of 8 cells";
     return config;
   }
   if (name == "dividers") {
@@ -693,6 +705,7 @@ void Simulation::buildMrfSquares() {
   }
   squares_.square_side_cells = kMrfSquareSide;
   squares_.loop_steps = mrfLoopSteps();
+  squares_.delta_t_steps = kMrfDeltaTSteps;
   for (std::size_t k = 0; k < kMrfSquares.size(); ++k) {
     squares_.square_corner[k] = CellXY{kMrfSquares[k][0], kMrfSquares[k][1]};
     const std::int64_t hold = config_.square_hold_steps[k];

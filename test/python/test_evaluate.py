@@ -38,8 +38,9 @@ class EvaluateTool(unittest.TestCase):
     def test_writes_the_tables_and_the_summary(self):
         self.assertEqual(self.rc, 0, self.stderr)
         for name in ["accuracy_dynamic_5_5.csv", "accuracy_redraw_100.csv", "parameter_error.csv",
-                     "path_planning.csv", "mrf_rmse.csv", "mrf_rmse_by_kind.csv", "mrf_iterations.csv",
-                     "mrf_maps.csv", "memory_navigation.csv", "summary.md"]:
+                     "path_planning.csv", "mrf_rmse.csv", "mrf_rmse_by_kind.csv", "mrf_rmse_changing.csv",
+                     "mrf_online.csv",
+                     "mrf_iterations.csv", "mrf_maps.csv", "memory_navigation.csv", "summary.md"]:
             self.assertTrue(os.path.isfile(os.path.join(self.out, name)), name)
         self.assertIn("## Targets", self.stdout)
         self.assertIn(self.out, self.stdout)
@@ -52,12 +53,21 @@ class EvaluateTool(unittest.TestCase):
         for cells in ("sparse", "well observed"):
             for parameter in ("p_occ_given_free", "p_free_given_occ"):
                 self.assertIn(f"| {cells} | {parameter} |", summary)
-        for kind in ("static_free", "static_occupied", "changing"):
+        # The headline: per kind of cell, only the parameters its data carry, four methods.
+        self.assertIn("| kind | cells | parameter | cells per run | plain EM | MRF EM | MRF vs plain | online | "
+                      "online EB | EB vs online | best |", summary)
+        for kind, parameters in (("changing", ("p_occ_given_free", "p_free_given_occ")),
+                                 ("static_free", ("p_occ_given_free",)), ("static_occupied", ("p_free_given_occ",))):
             for cells in ("sparse", "well observed"):
-                self.assertIn(f"| {kind} | {cells} |", summary)
-        for target in ("MRF: sparse-cell RMSE ≥ 30 % lower than plain EM", "MRF: well-observed RMSE no higher",
+                for parameter in ("p_occ_given_free", "p_free_given_occ"):
+                    row = f"| {kind} | {cells} | {parameter} |"
+                    (self.assertIn if parameter in parameters else self.assertNotIn)(row, summary)
+        self.assertLess(summary.index("| kind | cells | parameter |"), summary.index("| cells | parameter |"))
+        for target in ("MRF: well-observed RMSE no higher than plain EM (each kind, the parameters its data carry)",
                        "MRF: EM time ≤ 5× plain EM"):
             self.assertIn(f"| {target}", summary)
+        # The sparse-cell target is dropped: its error sat in parameters no data determine.
+        self.assertNotIn("sparse-cell RMSE", summary)
 
     def test_memory_table_and_summary(self):
         with open(os.path.join(self.out, "memory_navigation.csv")) as file:
@@ -103,23 +113,74 @@ class EvaluateTool(unittest.TestCase):
                         self.assertLess(value, 0.5)  # the EM's bound on the learned probabilities
         self.assertNotEqual(rows[0]["run_seed"], rows[2]["run_seed"])
 
-        # Per kind of cell: the kinds partition each run's cells, and their squared errors add
-        # up to the whole set's.
+        # Per kind of cell, four methods: the kinds partition each run's cells; each kind is
+        # scored on the parameters its data carry (the other field empty), and their squared
+        # errors are part of the whole set's.
+        scored = {"changing": ("p_occ_given_free", "p_free_given_occ"), "static_free": ("p_occ_given_free",),
+                  "static_occupied": ("p_free_given_occ",)}
         with open(os.path.join(self.out, "mrf_rmse_by_kind.csv")) as file:
             by_kind = list(csv.DictReader(file))
-        self.assertEqual(len(by_kind), 2 * 2 * 3 * 2)
+        self.assertEqual(len(by_kind), 2 * 4 * 3 * 2)
+        self.assertEqual({k["method"] for k in by_kind}, {"plain", "mrf", "online", "online_eb"})
+        for k in by_kind:
+            for parameter in ("p_occ_given_free", "p_free_given_occ"):
+                value = k[f"{parameter}_rmse"]
+                if parameter not in scored[k["kind"]]:
+                    self.assertEqual(value, "", (k, parameter))
+                else:
+                    self.assertGreaterEqual(float(value), 0.0)
+                    self.assertLess(float(value), 0.5)
         for row in rows:
             for cells in ("sparse", "well_observed"):
+                for method in ("plain", "mrf", "online", "online_eb") if row["method"] == "plain" else ("mrf",):
+                    mine = [k for k in by_kind if (k["repetition"], k["method"], k["observed"]) ==
+                            (row["repetition"], method, cells)]
+                    self.assertEqual(sorted(k["kind"] for k in mine), ["changing", "static_free", "static_occupied"])
+                    total = int(row[f"{cells}_cells"])
+                    self.assertEqual(sum(int(k["cells"]) for k in mine), total)  # the same cells for all four
                 mine = [k for k in by_kind if (k["repetition"], k["method"], k["observed"]) ==
                         (row["repetition"], row["method"], cells)]
-                self.assertEqual(sorted(k["kind"] for k in mine), ["changing", "static_free", "static_occupied"])
-                total = int(row[f"{cells}_cells"])
-                self.assertEqual(sum(int(k["cells"]) for k in mine), total)
                 for parameter in ("p_occ_given_free", "p_free_given_occ"):
-                    squares = sum(int(k["cells"]) * float(k[f"{parameter}_rmse"]) ** 2 for k in mine)
-                    self.assertAlmostEqual(squares, total * float(row[f"{cells}_{parameter}_rmse"]) ** 2, places=5)
-        # The squares' cells are seen.
+                    squares = sum(int(k["cells"]) * float(k[f"{parameter}_rmse"]) ** 2 for k in mine
+                                  if parameter in scored[k["kind"]])
+                    self.assertLessEqual(squares, total * float(row[f"{cells}_{parameter}_rmse"]) ** 2 + 1e-6)
+        # The squares' cells are seen, some of each square in both states.
         self.assertGreater(sum(int(k["cells"]) for k in by_kind if k["kind"] == "changing"), 0)
+        for row in rows:
+            for square in range(4):
+                self.assertGreater(int(row[f"square_{square}_cells_both_states"]), 0)
+
+        # The changing cells by what their data show: both states and one state partition them.
+        with open(os.path.join(self.out, "mrf_rmse_changing.csv")) as file:
+            changing = list(csv.DictReader(file))
+        self.assertEqual(len(changing), 2 * 4 * 2 * 2)
+        for k in by_kind:
+            if k["kind"] != "changing":
+                continue
+            mine = [c for c in changing if (c["repetition"], c["method"], c["observed"]) ==
+                    (k["repetition"], k["method"], k["observed"])]
+            self.assertEqual(sorted(c["seen"] for c in mine), ["both_states", "one_state"])
+            self.assertEqual(sum(int(c["cells"]) for c in mine), int(k["cells"]))
+            for parameter in ("p_occ_given_free", "p_free_given_occ"):
+                squares = sum(int(c["cells"]) * float(c[f"{parameter}_rmse"]) ** 2 for c in mine)
+                self.assertAlmostEqual(squares, int(k["cells"]) * float(k[f"{parameter}_rmse"]) ** 2, places=5)
+        with open(os.path.join(self.out, "summary.md")) as file:
+            self.assertIn("| seen in both states | well observed | p_occ_given_free |", file.read())
+
+        # The online learners: prior_transitions kept without the empirical-Bayes prior, the
+        # population's with it.
+        with open(os.path.join(self.out, "mrf_online.csv")) as file:
+            online = list(csv.DictReader(file))
+        self.assertEqual([(o["repetition"], o["method"]) for o in online],
+                         [("0", "online"), ("0", "online_eb"), ("1", "online"), ("1", "online_eb")])
+        for o in online:
+            self.assertGreater(float(o["mapping_seconds"]), 0.0)
+            if o["method"] == "online":
+                self.assertAlmostEqual(float(o["prior_p_occ_given_free"]), 0.01, places=8)
+                self.assertAlmostEqual(float(o["prior_p_free_given_occ"]), 0.01, places=8)
+            else:
+                self.assertLess(float(o["prior_p_occ_given_free"]), 0.005)
+        self.assertEqual([o["world_seed"] for o in online[::2]], [r["world_seed"] for r in rows[::2]])
 
         with open(os.path.join(self.out, "mrf_iterations.csv")) as file:
             iterations = list(csv.DictReader(file))
@@ -140,12 +201,13 @@ class EvaluateTool(unittest.TestCase):
         self.assertEqual(len(observed), int(rows[0]["sparse_cells"]) + int(rows[0]["well_observed_cells"]))
         self.assertEqual(sum(int(c["observed_steps"]) < 10 for c in observed), int(rows[0]["sparse_cells"]))
         for c in cells:
-            learned = [c[f"{m}_{p}"] for m in ("plain", "mrf") for p in ("p_occ_given_free", "p_free_given_occ")]
+            learned = [c[f"{m}_{p}"] for m in ("plain", "mrf", "online", "online_eb")
+                       for p in ("p_occ_given_free", "p_free_given_occ")]
             self.assertEqual({bool(value) for value in learned}, {int(c["observed_steps"]) > 0})
             self.assertTrue(c["truth_p_occ_given_free"] and c["truth_p_free_given_occ"])
-        # The four squares' truths: 1 / hold time for holds of 8, 48, 72 and 168 steps.
+        # The four squares' truths: 1 / hold time for holds of 7, 42, 63 and 147 steps.
         truths = {round(float(c["truth_p_occ_given_free"]), 6) for c in cells}
-        self.assertEqual(truths, {0.0, round(1 / 8, 6), round(1 / 48, 6), round(1 / 72, 6), round(1 / 168, 6)})
+        self.assertEqual(truths, {0.0, round(1 / 7, 6), round(1 / 42, 6), round(1 / 63, 6), round(1 / 147, 6)})
 
     def test_accuracy_table_has_every_step_and_method_in_range(self):
         with open(os.path.join(self.out, "accuracy_dynamic_5_5.csv")) as file:
@@ -225,9 +287,10 @@ class EvaluateTool(unittest.TestCase):
                                   "--mrf-repetitions", "2", "--memory-repetitions", "0", "--learning-scenarios", "none",
                                   "--threads", "1"])
         self.assertEqual(rc, 0, stderr)
-        self.assertEqual(sorted(os.listdir(again)), ["mrf_iterations.csv", "mrf_maps.csv", "mrf_rmse.csv",
-                                                     "mrf_rmse_by_kind.csv", "summary.md"])
-        for name in ("mrf_maps.csv", "mrf_iterations.csv"):
+        self.assertEqual(sorted(os.listdir(again)), ["mrf_iterations.csv", "mrf_maps.csv", "mrf_online.csv",
+                                                     "mrf_rmse.csv", "mrf_rmse_by_kind.csv", "mrf_rmse_changing.csv",
+                                                     "summary.md"])
+        for name in ("mrf_maps.csv", "mrf_iterations.csv", "mrf_rmse_by_kind.csv", "mrf_rmse_changing.csv"):
             with open(os.path.join(self.out, name)) as a, open(os.path.join(again, name)) as b:
                 self.assertEqual(a.read(), b.read(), name)
         # Everything but the wall time.
@@ -250,7 +313,8 @@ class EvaluateTool(unittest.TestCase):
         for directory in (self.out, again):
             with open(os.path.join(directory, "mrf_rmse_by_kind.csv")) as file:
                 tables.append(list(csv.DictReader(file)))
-        self.assertEqual([r for r in tables[0] if r["method"] == "plain"], [r for r in tables[1] if r["method"] == "plain"])
+        for method in ("plain", "online", "online_eb"):
+            self.assertEqual([r for r in tables[0] if r["method"] == method], [r for r in tables[1] if r["method"] == method])
         self.assertNotEqual([r for r in tables[0] if r["method"] == "mrf"], [r for r in tables[1] if r["method"] == "mrf"])
 
     def test_memory_same_seed_same_numbers_on_any_threads(self):

@@ -1,9 +1,12 @@
 #pragma once
 // The simulation of Li, Barão & Rato (Sec. IV; THEORY.md §7) as a measurement: on the
 // scenario "mrf_squares" (simulator.h), offline EM of the transition maps without and with
-// the MRF prior, each scored against the world's true transitions by RMSE, separately on
-// sparsely and on well observed cells, with the EM's wall time and the MRF's work per EM
-// iteration.
+// the MRF prior, and the online learner of core::Mapper on the same scans without and with
+// its empirical-Bayes prior (MapperConfig::learn_prior), each scored against the world's
+// true transitions by RMSE per kind of cell on the parameters the cell's data carry,
+// separately on sparsely and on well observed cells, with the EM's wall time and the MRF's
+// work per EM iteration. The MRF borrows strength from a cell's neighbours, the
+// empirical-Bayes prior from the whole map's population of cells.
 //
 // ROS-free: standard library only.
 
@@ -21,9 +24,9 @@ namespace core {
 
 /// Root mean squared error of learned transitions against the truth over a set of cells.
 struct TransitionRmse {
-  double p_occ_given_free = 0.0;
-  double p_free_given_occ = 0.0;
-  std::size_t cells = 0;  ///< 0: no cell in the set, both errors 0
+  double p_occ_given_free = 0.0;  ///< NaN: not scored (transitionRmseByKind)
+  double p_free_given_occ = 0.0;  ///< NaN: not scored (transitionRmseByKind)
+  std::size_t cells = 0;  ///< 0: no cell in the set, both errors 0 (or NaN where not scored)
 };
 
 /// The RMSE over the cells with fewer than `sparse_below` observed steps and over the others.
@@ -49,10 +52,31 @@ CellKind cellKind(const World& world, std::int32_t x, std::int32_t y);
 /// Short names: "static_free", "static_occupied", "changing".
 const char* cellKindName(CellKind kind);
 
-/// transitionRmse over the cells of each kind separately (index: CellKind).
+/// Whether a cell of `kind` carries p_occ_given_free (`occ_given_free`) or p_free_given_occ
+/// in its data, i.e. whether it is scored: a changing cell both, a static free cell only
+/// p_occ_given_free (it is free, and stays so), a static occupied cell only p_free_given_occ.
+bool isScored(CellKind kind, bool occ_given_free);
+
+/// transitionRmse over the cells of each kind separately (index: CellKind), on the
+/// parameters isScored gives the kind: the other one is NaN (a static free cell's
+/// p_free_given_occ is the prior's and the chain start's, whatever the learner).
 std::array<SplitRmse, kCellKinds> transitionRmseByKind(const ObservationSequences& sequences,
                                                         const std::vector<TransitionParams>& learned,
                                                         const World& world, std::size_t sparse_below);
+
+/// The changing cells by what their data show: [0] those seen in both states (a step of more
+/// hits than misses and one of more misses than hits), [1] the others (in the squares: the
+/// cells behind the front face, observed only while the square is free), each split as
+/// transitionRmse, both parameters scored.
+std::array<SplitRmse, 2> changingRmseBySeenStates(const ObservationSequences& sequences,
+                                                  const std::vector<TransitionParams>& learned, const World& world,
+                                                  std::size_t sparse_below);
+
+/// Per square of the mrf_squares scenario (MrfSquaresLayout order): how many of its cells
+/// `sequences` show in both states, with at least one step of more hits than misses and
+/// one of more misses than hits.
+std::array<std::size_t, 4> squareCellsSeenInBothStates(const ObservationSequences& sequences,
+                                                       const MrfSquaresLayout& layout);
 
 struct MrfExperimentConfig {
   int repetitions = 10;
@@ -72,6 +96,7 @@ struct MrfExperimentConfig {
 struct MrfEmOutcome {
   SplitRmse rmse;
   std::array<SplitRmse, kCellKinds> rmse_by_kind;  ///< the same per CellKind
+  std::array<SplitRmse, 2> rmse_changing_by_data;  ///< changingRmseBySeenStates
   double em_seconds = 0.0;   ///< wall time of runOfflineEm (single-threaded)
   int em_iterations = 0;     ///< M-steps (plain EM: the most any cell used)
   std::vector<double> objective;  ///< OfflineEmResult::objective
@@ -79,12 +104,28 @@ struct MrfEmOutcome {
   std::vector<std::array<int, 2>> newton_iterations;
 };
 
+/// One online learner (core::Mapper learning while it maps the run's scans) on one run:
+/// each cell's transitions at the end, as its filter uses them (until a cell has
+/// OnlineEmConfig::min_observed_steps observed steps, the prior: sparse cells are scored
+/// on the prior they were given).
+struct MrfOnlineOutcome {
+  SplitRmse rmse;
+  std::array<SplitRmse, kCellKinds> rmse_by_kind;
+  std::array<SplitRmse, 2> rmse_changing_by_data;  ///< changingRmseBySeenStates
+  TransitionParams prior_at_end;  ///< Mapper::currentPrior() after the last step
+  double seconds = 0.0;           ///< wall time of the mapper's integrate and finishStep calls
+};
+
 struct MrfRepetition {
   std::uint64_t world_seed = 0;
   std::uint64_t run_seed = 0;
   std::size_t cells_observed = 0;
+  /// Per square, its cells observed in both states (squareCellsSeenInBothStates).
+  std::array<std::size_t, 4> square_cells_both_states{};
   MrfEmOutcome plain;
   MrfEmOutcome mrf;
+  MrfOnlineOutcome online;     ///< learn_prior = false: every cell starts from prior_transitions
+  MrfOnlineOutcome online_eb;  ///< learn_prior = true: the empirical-Bayes prior
 };
 
 /// Maps of one run for plotting, row-major over the world (World::index); NaN where a map
@@ -96,6 +137,8 @@ struct MrfMaps {
   std::vector<TransitionParams> truth;
   std::vector<TransitionParams> plain;
   std::vector<TransitionParams> mrf;
+  std::vector<TransitionParams> online;
+  std::vector<TransitionParams> online_eb;
 };
 
 struct MrfExperimentResult {
@@ -108,8 +151,10 @@ struct MrfExperimentResult {
 /// each records its observations with a Mapper of evaluationMapperConfig(scenario), then
 /// runs offline EM with evaluationOfflineEmConfig (the tools' prior), initial parameters 0.5
 /// (the paper's) and config.max_iterations, once plain and once with mrf_temperature =
-/// config.temperature, and scores
-/// both against the truth. Results do not depend on the number of threads (the timings
+/// config.temperature. The same scans are mapped by two online learners, Mappers of
+/// evaluationMapperConfig(scenario) with the package's online-learning defaults (same
+/// sensor model, prior_transitions as the guess), learn_prior false and true. All four are
+/// scored against the truth. Results do not depend on the number of threads (the timings
 /// aside). `progress` (optional) is called after each repetition.
 MrfExperimentResult runMrfExperiment(const ScenarioConfig& scenario, const MrfExperimentConfig& config,
                                      const std::function<void(int done)>& progress = {});

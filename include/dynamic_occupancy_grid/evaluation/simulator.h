@@ -251,8 +251,11 @@ struct MrfSquaresLayout {
   /// The lowest (x, y) cell of each square, in the order of square_hold_steps.
   std::array<CellXY, 4> square_corner{};
   std::int32_t square_side_cells = 0;
-  /// Delta t of the paper's hold times: the steps of one loop of the robot's path.
+  /// The steps of one loop of the robot's path.
   std::int64_t loop_steps = 0;
+  /// Delta t of the paper's hold times (dt/3, 2 dt, 3 dt, 7 dt), in steps: 7/8 of the loop
+  /// in scenarioConfig("mrf_squares"), so that the holds are incommensurate with the loop.
+  std::int64_t delta_t_steps = 0;
 };
 
 /// The dividers scenario's places and its moving parts (scenarioConfig("dividers"); Morris
