@@ -130,21 +130,20 @@ def parse_end(stdout):
     missing = set(END_LINES) - set(found)
     if missing:
         raise AssertionError(f"end-of-run lines missing: {sorted(missing)}\n{stdout}")
-    number = int
     return {
         "p_hit_given_occ": float(found["sensor"][0]), "p_hit_given_free": float(found["sensor"][1]),
         "sensor_learned": found["sensor"][2] == "learned",
-        "static_free": number(found["static"][0]), "static_occupied": number(found["static"][1]),
-        "observed_cells": number(found["static"][2]),
-        "kept_free": number(found["kept"][0]), "kept_occupied": number(found["kept"][2]),
+        "static_free": int(found["static"][0]), "static_occupied": int(found["static"][1]),
+        "observed_cells": int(found["static"][2]),
+        "kept_free": int(found["kept"][0]), "kept_occupied": int(found["kept"][2]),
         "retention_after_s": float(found["left"][0]),
-        "left_kept_free": number(found["left"][1]), "left_static_free": number(found["left"][2]),
-        "left_kept_occupied": number(found["left"][3]), "left_static_occupied": number(found["left"][4]),
-        "occupied_changing": number(found["walls"][0]), "occupied_changing_edge": number(found["walls"][2]),
-        "occupied_edge": number(found["walls"][3]), "free_changing": number(found["free"][0]),
+        "left_kept_free": int(found["left"][1]), "left_static_free": int(found["left"][2]),
+        "left_kept_occupied": int(found["left"][3]), "left_static_occupied": int(found["left"][4]),
+        "occupied_changing": int(found["walls"][0]), "occupied_changing_edge": int(found["walls"][2]),
+        "occupied_edge": int(found["walls"][3]), "free_changing": int(found["free"][0]),
         # consistency of the lines themselves
-        "_kept_free_of": number(found["kept"][1]), "_kept_occupied_of": number(found["kept"][3]),
-        "_walls_of": number(found["walls"][1]), "_free_of": number(found["free"][1]),
+        "_kept_free_of": int(found["kept"][1]), "_kept_occupied_of": int(found["kept"][3]),
+        "_walls_of": int(found["walls"][1]), "_free_of": int(found["free"][1]),
     }
 
 
