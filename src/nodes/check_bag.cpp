@@ -2,7 +2,10 @@
 // horizon h, how well the map after each time step predicts the hits and misses of the scans
 // h later: the dynamic model (beliefs predicted in closed form) against the static
 // occupancy grid of the same mapper. Reads the bag twice (labels, then maps and scores;
-// evaluation/prediction_check.h). See docs/self_check.md.
+// evaluation/prediction_check.h). At the end it also reports the map the second pass built:
+// the sensor model in use (learned or fixed), the cells the static map classifies and how
+// many of them the belief keeps, and the static walls learned as changing, edge cells apart.
+// See docs/self_check.md.
 
 #include <unistd.h>
 
@@ -14,36 +17,65 @@
 #include <cstdio>
 #include <cstring>
 #include <exception>
+#include <optional>
 #include <sstream>
 #include <stdexcept>
 #include <string>
 #include <vector>
 
 #include "bag_tools.h"
+#include "dynamic_occupancy_grid/core/cell_model.h"
 #include "dynamic_occupancy_grid/core/map_export.h"
 #include "dynamic_occupancy_grid/core/mapper.h"
 #include "dynamic_occupancy_grid/evaluation/prediction_check.h"
 #include "dynamic_occupancy_grid/ros/bag_offline_em.h"
 #include "dynamic_occupancy_grid/ros/bag_scan_source.h"
+#include "dynamic_occupancy_grid/ros/parameters.h"
 
 namespace dog = dynamic_occupancy_grid;
 
 namespace {
 
 const std::vector<double> kDefaultHorizons_s{1.0, 5.0, 30.0, 60.0};
+// The end-of-run report: map_server's trinary thresholds (its defaults, what a planner
+// sees), and the change probability above which a cell counts as learned as changing
+// (issue 17's 0.05).
+constexpr double kFreeThreshold = 0.196;
+constexpr double kOccupiedThreshold = 0.65;
+constexpr double kChangingThreshold = 0.05;
+constexpr double kDefaultRetentionAfter_s = 10.0;
 
 struct Options {
   dog::bag_tools::SharedOptions shared;
   std::vector<double> horizons_s;
   std::vector<std::int64_t> horizons_steps;  ///< horizons_s in whole steps
   std::string csv_path;                      ///< empty: no CSV
+  /// Retention is also reported on the cells last observed at least this long before the
+  /// end (in whole steps).
+  double retention_after_s = kDefaultRetentionAfter_s;
+  std::int64_t retention_after_steps = 0;
 };
+
+const char* scheduleName(dog::core::StepSchedule schedule) {
+  return schedule == dog::core::StepSchedule::kRobbinsMonro ? "robbins_monro" : "harmonic";
+}
+
+dog::core::StepSchedule toSchedule(const std::string& text) {
+  if (text == "harmonic") return dog::core::StepSchedule::kHarmonic;
+  if (text == "robbins_monro") return dog::core::StepSchedule::kRobbinsMonro;
+  throw std::invalid_argument("needs harmonic or robbins_monro, got '" + text + "'");
+}
 
 Options parseArguments(int argc, char** argv) {
   namespace cl = dog::command_line;
   namespace po = boost::program_options;
   Options options;
+  dog::core::MapperConfig& mapper = options.shared.mapper;
+  // The node's default: the sensor model is learned (~learn_sensor_model).
+  mapper.learn_sensor_model = dog::ros_layer::kDefaultLearnSensorModel;
   bool no_learning = false;
+  bool learn_sensor_model = false;
+  bool no_learn_sensor_model = false;
   std::vector<std::string> bags;
   cl::CommandLine line("check_bag",
                        "usage: check_bag BAG [options]\n"
@@ -54,7 +86,33 @@ Options parseArguments(int argc, char** argv) {
        "prediction horizon in seconds, rounded to whole time steps; repeat for several (default 1, 5, 30, 60); "
        "0 scores the map on the scans it has just integrated")
       ("csv", cl::nonEmpty(&options.csv_path, "a file name")->value_name("FILE"), "also write the results as CSV")
-      ("no-learning", po::bool_switch(&no_learning), "no online learning: cells keep the prior transitions");
+      ("no-learning", po::bool_switch(&no_learning),
+       "no online learning of the transitions: cells keep the prior transitions (the sensor model is still "
+       "learned unless --no-learn-sensor-model)")
+      ("learn-sensor-model", po::bool_switch(&learn_sensor_model),
+       "learn p(hit | occupied) and p(hit | free) online, shared by all cells, from --p-hit-given-occ / "
+       "--p-hit-given-free (default: on, as the node's ~learn_sensor_model)")
+      ("no-learn-sensor-model", po::bool_switch(&no_learn_sensor_model),
+       "keep the sensor model fixed at --p-hit-given-occ / --p-hit-given-free")
+      ("learn-prior", po::bool_switch(&mapper.learn_prior),
+       "empirical-Bayes prior: new cells start from the transitions pooled over the map (default off, as the "
+       "node's ~learn_prior)")
+      ("schedule", cl::converted(toSchedule, [&mapper](dog::core::StepSchedule schedule) {
+         mapper.online_em.schedule = schedule;
+       })->value_name("NAME"),
+       "step sizes of online learning: harmonic (1/t, the default) or robbins_monro (Cappe's "
+       "(n + n0)^-alpha per observed step)")
+      ("step-size-exponent",
+       cl::number(&mapper.online_em.step_size_exponent, cl::Range<double>{0.5, 1.0, true})->value_name("A"),
+       "robbins_monro: alpha in (0.5, 1] (default 0.6)")
+      ("step-size-offset", cl::number(&mapper.online_em.step_size_offset, cl::atLeast(0.0))->value_name("N0"),
+       "robbins_monro: n0 >= 0 (default 2)")
+      ("averaging-start",
+       cl::number(&mapper.online_em.averaging_start, cl::atLeast<std::uint32_t>(0))->value_name("N"),
+       "Polyak-Ruppert averaging of a cell's M-step results from its observed step N on (default 0 = off)")
+      ("retention-after", cl::number(&options.retention_after_s, cl::atLeast(0.0))->value_name("S"),
+       "the end-of-run retention is also reported on the cells last observed at least S seconds before the "
+       "end (default 10)");
   dog::bag_tools::addMappingOptions(line, &options.shared);
   // The options that tune offline EM are read (so that they are refused by name) but not
   // listed: check_bag runs no offline EM, which would learn the transitions from the very
@@ -74,7 +132,25 @@ Options parseArguments(int argc, char** argv) {
   if (bags.empty()) line.fail("no bag given");
   if (bags.size() > 1) line.fail("more than one bag given");
   options.shared.source.bag_path = bags.front();
-  if (no_learning) options.shared.mapper.learn_transitions = false;
+  if (learn_sensor_model && no_learn_sensor_model) {
+    line.fail("--learn-sensor-model and --no-learn-sensor-model contradict each other");
+  }
+  if (learn_sensor_model) mapper.learn_sensor_model = true;
+  if (no_learn_sensor_model) mapper.learn_sensor_model = false;
+  if (no_learning) {
+    for (const char* name : {"learn-prior", "schedule", "step-size-exponent", "step-size-offset", "averaging-start"}) {
+      if (values.count(name) > 0 && !values[name].defaulted()) {
+        line.fail(std::string("--") + name +
+                  " tunes online learning of the transitions, which --no-learning turns off");
+      }
+    }
+    mapper.learn_transitions = false;
+  }
+  if (mapper.online_em.schedule != dog::core::StepSchedule::kRobbinsMonro) {
+    for (const char* name : {"step-size-exponent", "step-size-offset"}) {
+      if (values.count(name) > 0) line.fail(std::string("--") + name + " applies to --schedule robbins_monro only");
+    }
+  }
   dog::bag_tools::validateSharedOptions(line, &options.shared);
   if (options.horizons_s.empty()) options.horizons_s = kDefaultHorizons_s;
   const double time_step_s = options.shared.mapper.time_step_s;
@@ -94,6 +170,9 @@ Options parseArguments(int argc, char** argv) {
     }
     options.horizons_steps.push_back(static_cast<std::int64_t>(steps));
   }
+  const double retention_steps = std::round(options.retention_after_s / time_step_s);
+  if (retention_steps > 1.0e15) line.fail("--retention-after is too many time steps");
+  options.retention_after_steps = static_cast<std::int64_t>(retention_steps);
   return options;
 }
 
@@ -115,6 +194,147 @@ std::string csvNumber(double value) {
 
 double fraction(std::size_t part, std::size_t whole) {
   return whole == 0 ? std::nan("") : static_cast<double>(part) / static_cast<double>(whole);
+}
+
+// The map the second pass built, at its last applied step.
+struct EndOfRun {
+  std::int64_t step = 0;               ///< last applied step
+  double p_hit_given_occ = 0.0;        ///< the sensor model in use (learned or fixed)
+  double p_hit_given_free = 0.0;
+  dog::core::SensorModelStats sensor_stats;
+  dog::core::TransitionParams prior;   ///< the prior a new cell would start from now
+  std::size_t observed_cells = 0;
+  // The static map's classes (clamped log-odds; occupied > 0.65, free < 0.196), and of each
+  // the cells the belief at the last step puts in the same class.
+  std::size_t static_free = 0;
+  std::size_t static_occupied = 0;
+  std::size_t kept_free = 0;
+  std::size_t kept_occupied = 0;
+  // The same, on the cells last observed at least retention_after_steps before the end.
+  std::size_t left_static_free = 0;
+  std::size_t left_static_occupied = 0;
+  std::size_t left_kept_free = 0;
+  std::size_t left_kept_occupied = 0;
+  // Static-occupied cells with a static-free 8-neighbour (a wall's edge).
+  std::size_t occupied_edge = 0;
+  // Static-occupied cells with p_free_given_occ > 0.05 (walls learned as changing), and of
+  // those the edge cells; static-free cells with p_occ_given_free > 0.05.
+  std::size_t occupied_changing = 0;
+  std::size_t occupied_changing_edge = 0;
+  std::size_t free_changing = 0;
+};
+
+// map_server's trinary reading of a probability: 1 occupied, 0 free, -1 unknown (NaN too).
+int trinary(double p) {
+  if (p > kOccupiedThreshold) return 1;
+  if (p < kFreeThreshold) return 0;
+  return -1;
+}
+
+// The static map's class of cell (x, y); -1 for unknown or never observed.
+int staticClass(const dog::core::CellGrid& grid, std::int32_t x, std::int32_t y) {
+  const dog::core::CellGrid::Tile* tile = grid.findTile(x, y);
+  if (tile == nullptr) return -1;
+  const int i = dog::core::CellGrid::offsetOf(x, y);
+  if (tile->last_step[i] == dog::core::kNeverObserved) return -1;
+  return trinary(dog::core::logOddsToProbability(tile->log_odds[i]));
+}
+
+EndOfRun summarizeEnd(const dog::core::Mapper& mapper, std::int64_t retention_after_steps) {
+  namespace core = dog::core;
+  EndOfRun end;
+  end.p_hit_given_occ = mapper.sensor().pHitGivenOcc();
+  end.p_hit_given_free = mapper.sensor().pHitGivenFree();
+  end.sensor_stats = mapper.sensorModelStats();
+  end.prior = mapper.currentPrior();
+  const std::optional<std::int64_t> last = mapper.lastAppliedStep();
+  if (!last) return end;
+  end.step = *last;
+  const core::CellGrid& grid = mapper.grid();
+  grid.forEachTile([&](const core::CellGrid::Tile& tile) {
+    for (int i = 0; i < core::CellGrid::kTileCells; ++i) {
+      if (tile.last_step[i] == core::kNeverObserved) continue;
+      ++end.observed_cells;
+      const int expected = trinary(core::logOddsToProbability(tile.log_odds[i]));
+      if (expected < 0) continue;
+      const core::TransitionParams params{tile.p_occ_given_free[i], tile.p_free_given_occ[i]};
+      // The belief layer at the last step: the cell's belief predicted over its gap.
+      const double belief = core::predictOccupancy(tile.p_occ[i], params, *last - tile.last_step[i]);
+      const bool kept = trinary(belief) == expected;
+      const bool left = tile.last_step[i] <= *last - retention_after_steps;
+      if (expected == 0) {
+        ++end.static_free;
+        end.kept_free += kept ? 1 : 0;
+        if (left) {
+          ++end.left_static_free;
+          end.left_kept_free += kept ? 1 : 0;
+        }
+        if (params.p_occ_given_free > kChangingThreshold) ++end.free_changing;
+        continue;
+      }
+      ++end.static_occupied;
+      end.kept_occupied += kept ? 1 : 0;
+      if (left) {
+        ++end.left_static_occupied;
+        end.left_kept_occupied += kept ? 1 : 0;
+      }
+      const std::int32_t x = tile.cellX(i);
+      const std::int32_t y = tile.cellY(i);
+      bool edge = false;
+      for (int dy = -1; dy <= 1 && !edge; ++dy) {
+        for (int dx = -1; dx <= 1 && !edge; ++dx) {
+          if (dx != 0 || dy != 0) edge = staticClass(grid, x + dx, y + dy) == 0;
+        }
+      }
+      end.occupied_edge += edge ? 1 : 0;
+      if (params.p_free_given_occ > kChangingThreshold) {
+        ++end.occupied_changing;
+        end.occupied_changing_edge += edge ? 1 : 0;
+      }
+    }
+  });
+  return end;
+}
+
+// "k of n (p%)".
+std::string share(std::size_t part, std::size_t whole) {
+  const double f = fraction(part, whole);
+  return std::to_string(part) + " of " + std::to_string(whole) + " (" +
+         (std::isnan(f) ? std::string("-") : tableNumber(100.0 * f, 1) + "%") + ")";
+}
+
+void printEnd(const EndOfRun& end, const Options& options) {
+  const dog::core::MapperConfig& mapper = options.shared.mapper;
+  std::printf("\nmap at the end (step %lld)\n", static_cast<long long>(end.step));
+  if (mapper.learn_sensor_model) {
+    std::printf("  sensor model: p_hit_given_occ %.4f, p_hit_given_free %.4f (learned from %.0f / %.0f beam ends "
+                "in occupied / free cells, start %g / %g)\n",
+                end.p_hit_given_occ, end.p_hit_given_free, end.sensor_stats.trials[0], end.sensor_stats.trials[1],
+                mapper.p_hit_given_occ, mapper.p_hit_given_free);
+  } else {
+    std::printf("  sensor model: p_hit_given_occ %.4f, p_hit_given_free %.4f (fixed)\n", end.p_hit_given_occ,
+                end.p_hit_given_free);
+  }
+  if (mapper.learn_transitions && mapper.learn_prior) {
+    std::printf("  learned prior: p_occ_given_free %.5f, p_free_given_occ %.5f per step\n",
+                end.prior.p_occ_given_free, end.prior.p_free_given_occ);
+  }
+  std::printf("  static map (clamped log-odds, occupied > %g, free < %g): %zu free, %zu occupied of %zu observed "
+              "cells\n",
+              kOccupiedThreshold, kFreeThreshold, end.static_free, end.static_occupied, end.observed_cells);
+  std::printf("  retention (belief at the last step, same thresholds): free %s, occupied %s\n",
+              share(end.kept_free, end.static_free).c_str(), share(end.kept_occupied, end.static_occupied).c_str());
+  std::printf("  retention of the cells last observed >= %s before the end: free %s, occupied %s\n",
+              dog::bag_tools::secondsName(static_cast<double>(options.retention_after_steps) * mapper.time_step_s)
+                  .c_str(),
+              share(end.left_kept_free, end.left_static_free).c_str(),
+              share(end.left_kept_occupied, end.left_static_occupied).c_str());
+  std::printf("  walls learned as changing (static occupied, p_free_given_occ > %g): %zu of %zu, %zu of them edge "
+              "cells (edge: a free 8-neighbour; %zu occupied cells are edge cells)\n",
+              kChangingThreshold, end.occupied_changing, end.static_occupied, end.occupied_changing_edge,
+              end.occupied_edge);
+  std::printf("  free cells learned as changing (static free, p_occ_given_free > %g): %zu of %zu\n",
+              kChangingThreshold, end.free_changing, end.static_free);
 }
 
 void printTable(const dog::core::PredictionCheckResult& result, const Options& options) {
@@ -142,13 +362,27 @@ void printTable(const dog::core::PredictionCheckResult& result, const Options& o
   }
 }
 
-void writeCsv(std::ostream& file, const dog::core::PredictionCheckResult& result, const Options& options) {
+void writeCsv(std::ostream& file, const dog::core::PredictionCheckResult& result, const EndOfRun& end,
+              const Options& options) {
   file << "horizon_s,horizon_steps,labels,unseen,occupied_labels";
   for (const char* model : {"dynamic", "static"}) {
     file << ',' << model << "_accuracy," << model << "_occupied_accuracy," << model << "_free_accuracy," << model
          << "_brier," << model << "_unclassified";
   }
+  // The map at the end: the same on every row.
+  file << ",end_step,end_p_hit_given_occ,end_p_hit_given_free,end_observed_cells,end_static_free,"
+          "end_static_occupied,end_kept_free,end_kept_occupied,end_retention_after_s,end_left_static_free,"
+          "end_left_static_occupied,end_left_kept_free,end_left_kept_occupied,end_occupied_edge,"
+          "end_occupied_changing,end_occupied_changing_edge,end_free_changing";
   file << '\n';
+  std::ostringstream end_columns;
+  end_columns << ',' << end.step << ',' << csvNumber(end.p_hit_given_occ) << ',' << csvNumber(end.p_hit_given_free)
+              << ',' << end.observed_cells << ',' << end.static_free << ',' << end.static_occupied << ','
+              << end.kept_free << ',' << end.kept_occupied << ','
+              << csvNumber(static_cast<double>(options.retention_after_steps) * options.shared.mapper.time_step_s)
+              << ',' << end.left_static_free << ',' << end.left_static_occupied << ',' << end.left_kept_free << ','
+              << end.left_kept_occupied << ',' << end.occupied_edge << ',' << end.occupied_changing << ','
+              << end.occupied_changing_edge << ',' << end.free_changing;
   for (const dog::core::HorizonScore& score : result.horizons) {
     file << csvNumber(static_cast<double>(score.horizon_steps) * options.shared.mapper.time_step_s) << ','
          << score.horizon_steps << ',' << score.labels << ',' << score.unseen << ',' << score.occupied_labels;
@@ -156,7 +390,7 @@ void writeCsv(std::ostream& file, const dog::core::PredictionCheckResult& result
       file << ',' << csvNumber(model->accuracy()) << ',' << csvNumber(model->occupiedAccuracy()) << ','
            << csvNumber(model->freeAccuracy()) << ',' << csvNumber(model->brier()) << ',' << model->unclassified;
     }
-    file << '\n';
+    file << end_columns.str() << '\n';
   }
 }
 
@@ -164,22 +398,45 @@ void writeCsv(std::ostream& file, const dog::core::PredictionCheckResult& result
 void checkAndReport(dog::ros_layer::BagScanSource& source, const Options& options) {
   const dog::core::MapperConfig& mapper = options.shared.mapper;
   std::printf("mapper: resolution %g m, time step %g s, p_hit_given_occ %g, p_hit_given_free %g, "
-              "prior p_occ_given_free %g, p_free_given_occ %g per step, online learning %s\n",
+              "prior p_occ_given_free %g, p_free_given_occ %g per step, online learning %s, "
+              "sensor model learning %s\n",
               mapper.resolution_m, mapper.time_step_s, mapper.p_hit_given_occ, mapper.p_hit_given_free,
               mapper.prior_transitions.p_occ_given_free, mapper.prior_transitions.p_free_given_occ,
-              mapper.learn_transitions ? "on" : "off");
+              mapper.learn_transitions ? "on" : "off", mapper.learn_sensor_model ? "on" : "off");
+  if (mapper.learn_transitions) {
+    const dog::core::OnlineEmConfig& em = mapper.online_em;
+    std::printf("online learning: schedule %s", scheduleName(em.schedule));
+    if (em.schedule == dog::core::StepSchedule::kRobbinsMonro) {
+      std::printf(" (step size exponent %g, offset %g)", em.step_size_exponent, em.step_size_offset);
+    }
+    if (em.averaging_start == 0) {
+      std::printf(", averaging off");
+    } else {
+      std::printf(", averaging from observed step %u", static_cast<unsigned>(em.averaging_start));
+    }
+    std::printf(", learned prior %s\n", mapper.learn_prior ? "on" : "off");
+  }
   std::fflush(stdout);
 
   dog::bag_tools::ProgressBar bar;
   int pass = 0;
   dog::ros_layer::BagScanStats first_pass;
+  // checkPredictions keeps the map it scores to itself: this mapper, with the same
+  // configuration and fed the same scans in the second pass, ends as the same map (the
+  // mapper is deterministic) for the end-of-run report.
+  dog::core::Mapper final_map(mapper);
   const dog::core::ScanReplay replay = [&](const dog::core::ScanConsumer& consumer) {
     ++pass;
     const std::string phase = "pass " + std::to_string(pass);
-    const dog::ros_layer::BagScanStats stats = source.forEachScan(consumer, [&bar, &phase](double done) {
-      bar.show(phase, done);
-      return true;
-    });
+    const dog::core::ScanConsumer both = [&consumer, &final_map](const dog::core::Scan& scan) {
+      consumer(scan);
+      final_map.integrate(scan);
+    };
+    const dog::ros_layer::BagScanStats stats =
+        source.forEachScan(pass == 2 ? both : consumer, [&bar, &phase](double done) {
+          bar.show(phase, done);
+          return true;
+        });
     if (pass > 1) return;
     first_pass = stats;
     // Said here, with what the bag reader knows (tf errors, time range), rather than as the
@@ -192,6 +449,8 @@ void checkAndReport(dog::ros_layer::BagScanSource& source, const Options& option
   };
   const auto start = std::chrono::steady_clock::now();
   const dog::core::PredictionCheckResult result = dog::core::checkPredictions(mapper, replay, options.horizons_steps);
+  final_map.finishStep();
+  const EndOfRun end = summarizeEnd(final_map, options.retention_after_steps);
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 
   std::printf("scans read: %zu, integrated: %zu, rejected: %zu", first_pass.scans_read, result.scans_integrated,
@@ -219,9 +478,10 @@ void checkAndReport(dog::ros_layer::BagScanSource& source, const Options& option
     }
   }
   printTable(result, options);
+  printEnd(end, options);
   if (!options.csv_path.empty()) {
     std::ostringstream csv;
-    writeCsv(csv, result, options);
+    writeCsv(csv, result, end, options);
     // Through a temporary file and a rename: a failure never leaves a partial file, nor
     // truncates one that was there.
     dog::core::writeFileAtomically(options.csv_path, csv.str());

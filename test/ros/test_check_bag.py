@@ -14,6 +14,14 @@ facts with margins (tolerances are test parameters, test/ros/check_bag.test): bo
 are accurate 1 s ahead, the dynamic model's Brier score is the lower one 1 s ahead on both
 bags; and the error paths (missing bag, bag without tf, no usable scan, bad options,
 unwritable CSV).
+
+The end-of-run report (the learned sensor model, the static map's classes and how many the
+belief keeps, walls learned as changing and their edge cells): stdout and CSV agree, counts
+are consistent (parts at most their wholes, edge cells among occupied ones), the learned
+sensor model is a sensor model (in (0, 1), a hit more likely in occupied cells), learning off
+learns no changing cell, and with the sensor model fixed every count equals an independent
+computation with numpy on the layers process_bag writes for the same bag (process_bag maps
+with the sensor model fixed).
 """
 
 import csv
@@ -25,6 +33,7 @@ import subprocess
 import tempfile
 import unittest
 
+import numpy as np
 import rospkg
 import rospy
 import rostest
@@ -88,9 +97,54 @@ def read_csv(path):
         rows = list(csv.DictReader(file))
     for row in rows:
         for key, value in row.items():
-            row[key] = int(value) if key in ("horizon_steps", "labels", "unseen", "occupied_labels",
-                                             "dynamic_unclassified", "static_unclassified") else float(value)
+            integer = key in ("horizon_steps", "labels", "unseen", "occupied_labels", "dynamic_unclassified",
+                              "static_unclassified") or (key.startswith("end_") and not key.startswith("end_p_")
+                                                         and key != "end_retention_after_s")
+            row[key] = int(value) if integer else float(value)
     return rows
+
+
+END_LINES = {
+    "sensor": re.compile(r"^  sensor model: p_hit_given_occ ([0-9.]+), p_hit_given_free ([0-9.]+) \((learned|fixed)"),
+    "static": re.compile(r"^  static map \(clamped log-odds, occupied > 0.65, free < 0.196\): (\d+) free, "
+                         r"(\d+) occupied of (\d+) observed cells$"),
+    "kept": re.compile(r"^  retention \(belief at the last step, same thresholds\): free (\d+) of (\d+) \(\S+\), "
+                       r"occupied (\d+) of (\d+) \(\S+\)$"),
+    "left": re.compile(r"^  retention of the cells last observed >= (\S+)s before the end: "
+                       r"free (\d+) of (\d+) \(\S+\), occupied (\d+) of (\d+) \(\S+\)$"),
+    "walls": re.compile(r"^  walls learned as changing \(static occupied, p_free_given_occ > 0.05\): (\d+) of (\d+), "
+                        r"(\d+) of them edge cells \(edge: a free 8-neighbour; (\d+) occupied cells are edge cells\)$"),
+    "free": re.compile(r"^  free cells learned as changing \(static free, p_occ_given_free > 0.05\): (\d+) of (\d+)$"),
+}
+
+
+def parse_end(stdout):
+    """The end-of-run report as a dict of the CSV's end_ names (without the prefix); asserts
+    every line is there."""
+    found = {}
+    for line in stdout.splitlines():
+        for name, pattern in END_LINES.items():
+            match = pattern.match(line)
+            if match:
+                found[name] = match.groups()
+    missing = set(END_LINES) - set(found)
+    if missing:
+        raise AssertionError(f"end-of-run lines missing: {sorted(missing)}\n{stdout}")
+    return {
+        "p_hit_given_occ": float(found["sensor"][0]), "p_hit_given_free": float(found["sensor"][1]),
+        "sensor_learned": found["sensor"][2] == "learned",
+        "static_free": int(found["static"][0]), "static_occupied": int(found["static"][1]),
+        "observed_cells": int(found["static"][2]),
+        "kept_free": int(found["kept"][0]), "kept_occupied": int(found["kept"][2]),
+        "retention_after_s": float(found["left"][0]),
+        "left_kept_free": int(found["left"][1]), "left_static_free": int(found["left"][2]),
+        "left_kept_occupied": int(found["left"][3]), "left_static_occupied": int(found["left"][4]),
+        "occupied_changing": int(found["walls"][0]), "occupied_changing_edge": int(found["walls"][2]),
+        "occupied_edge": int(found["walls"][3]), "free_changing": int(found["free"][0]),
+        # consistency of the lines themselves
+        "_kept_free_of": int(found["kept"][1]), "_kept_occupied_of": int(found["kept"][3]),
+        "_walls_of": int(found["walls"][1]), "_free_of": int(found["free"][1]),
+    }
 
 
 def parse_summary(stdout):
@@ -126,9 +180,17 @@ class TestCheckBag(unittest.TestCase):
         return self.run_once("stationary", STATIONARY_BAG,
                              STATIONARY_ARGS + ["--horizon", "0", "--horizon", "1", "--horizon", "5", "--horizon", "60"])
 
-    def neato(self, learning=True):
-        return self.run_once("neato" if learning else "neato_no_learning", NEATO_BAG,
-                             NEATO_ARGS + ([] if learning else ["--no-learning"]))
+    def neato(self, learning=True, fixed_sensor=False):
+        name = "neato" + ("" if learning else "_no_learning") + ("_fixed_sensor" if fixed_sensor else "")
+        return self.run_once(name, NEATO_BAG, NEATO_ARGS + ([] if learning else ["--no-learning"]) +
+                             (["--no-learn-sensor-model"] if fixed_sensor else []))
+
+    def neato_learners(self):
+        """The other learner: Cappe's step sizes with averaging and the empirical-Bayes prior."""
+        return self.run_once("neato_learners", NEATO_BAG,
+                             NEATO_ARGS + ["--learn-prior", "--schedule", "robbins_monro", "--step-size-exponent",
+                                           "0.7", "--step-size-offset", "3", "--averaging-start", "15",
+                                           "--retention-after", "5"])
 
     def assert_consistent(self, run, horizons_s):
         """Table and CSV: one row per horizon, the same numbers, values in range."""
@@ -207,19 +269,146 @@ class TestCheckBag(unittest.TestCase):
                         one_second)
 
     def test_learning_changes_dynamic_model_only(self):
-        # Labels come from the geometry, and the static map ignores transitions: with online
-        # learning off only the dynamic columns change.
-        learning = self.neato()[2]
-        fixed = self.neato(learning=False)[2]
+        # Labels come from the geometry, and the static map ignores transitions: with the
+        # sensor model fixed and online learning off only the dynamic columns (and the map at
+        # the end) change. (A learned sensor model weighs beam ends by the beliefs, so it, and
+        # the static map it feeds, depend on the transitions.)
+        learning = self.neato(fixed_sensor=True)[2]
+        fixed = self.neato(learning=False, fixed_sensor=True)[2]
         for with_learning, without in zip(learning, fixed):
             for key, value in with_learning.items():
-                if key.startswith("dynamic_"):
+                if key.startswith("dynamic_") or key.startswith("end_"):
                     continue
                 if isinstance(value, float) and math.isnan(value):
                     self.assertTrue(math.isnan(without[key]), key)
                 else:
                     self.assertEqual(without[key], value, key)
         self.assertNotEqual(learning[0]["dynamic_brier"], fixed[0]["dynamic_brier"])
+
+    def test_labels_do_not_depend_on_the_sensor_model(self):
+        learned = self.neato()[2]
+        fixed = self.neato(fixed_sensor=True)[2]
+        for a, b in zip(learned, fixed):
+            for key in ("horizon_steps", "labels", "unseen", "occupied_labels"):
+                self.assertEqual(a[key], b[key], key)
+        self.assertNotEqual(learned[0]["end_p_hit_given_free"], fixed[0]["end_p_hit_given_free"])
+
+    # --- the map at the end ---------------------------------------------------------------
+
+    def assert_end_report(self, run):
+        """stdout's and the CSV's end-of-run values agree, are the same on every CSV row and
+        are consistent with each other; returns them."""
+        stdout, _, rows = run
+        end = parse_end(stdout)
+        for row in rows:
+            self.assertEqual({k: v for k, v in row.items() if k.startswith("end_")},
+                             {k: v for k, v in rows[0].items() if k.startswith("end_")})
+        row = rows[0]
+        for key, value in end.items():
+            if key.startswith("_") or key == "sensor_learned":
+                continue
+            if isinstance(value, float):
+                self.assertAlmostEqual(row["end_" + key], value, delta=0.5e-4 + 1e-9, msg=key)
+            else:
+                self.assertEqual(row["end_" + key], value, key)
+        self.assertEqual(end["_kept_free_of"], end["static_free"])
+        self.assertEqual(end["_kept_occupied_of"], end["static_occupied"])
+        self.assertEqual(end["_walls_of"], end["static_occupied"])
+        self.assertEqual(end["_free_of"], end["static_free"])
+        # The map at the end is the map after the last step (steps = last applied step + 1).
+        steps = int(re.search(r"time steps: (\d+) of", stdout).group(1))
+        self.assertEqual(row["end_step"], steps - 1)
+        self.assertIn(f"map at the end (step {steps - 1})", stdout)
+        # A sensor model: both in (0, 1), a hit more likely in an occupied cell.
+        self.assertGreater(end["p_hit_given_occ"], 0.0)
+        self.assertLess(end["p_hit_given_occ"], 1.0)
+        self.assertGreater(end["p_hit_given_free"], 0.0)
+        self.assertGreater(end["p_hit_given_occ"], end["p_hit_given_free"])
+        # Parts at most their wholes.
+        self.assertGreater(end["static_free"], 0)
+        self.assertGreater(end["static_occupied"], 0)
+        self.assertLessEqual(end["static_free"] + end["static_occupied"], end["observed_cells"])
+        self.assertLessEqual(end["kept_free"], end["static_free"])
+        self.assertLessEqual(end["kept_occupied"], end["static_occupied"])
+        self.assertLessEqual(end["left_static_free"], end["static_free"])
+        self.assertLessEqual(end["left_static_occupied"], end["static_occupied"])
+        self.assertLessEqual(end["left_kept_free"], end["left_static_free"])
+        self.assertLessEqual(end["left_kept_occupied"], end["left_static_occupied"])
+        self.assertLessEqual(end["left_kept_free"], end["kept_free"])
+        self.assertLessEqual(end["occupied_edge"], end["static_occupied"])
+        self.assertLessEqual(end["occupied_changing"], end["static_occupied"])
+        self.assertLessEqual(end["occupied_changing_edge"], end["occupied_changing"])
+        self.assertLessEqual(end["occupied_changing_edge"], end["occupied_edge"])
+        self.assertLessEqual(end["free_changing"], end["static_free"])
+        return end
+
+    def test_end_report_default_learns_the_sensor_model(self):
+        stdout = self.neato()[0]
+        self.assertIn("sensor model learning on", stdout)
+        self.assertIn("online learning: schedule harmonic, averaging off, learned prior off", stdout)
+        end = self.assert_end_report(self.neato())
+        self.assertTrue(end["sensor_learned"])
+        # Learned from the bag: it moved away from its start (0.7 / 0.2).
+        self.assertNotEqual((end["p_hit_given_occ"], end["p_hit_given_free"]), (0.7, 0.2))
+        self.assertEqual(end["retention_after_s"], 10.0)
+        # Cells seen at the very end are also seen 10 s before it: the left ones are fewer.
+        self.assertLess(end["left_static_free"], end["static_free"])
+
+    def test_end_report_other_learners(self):
+        stdout = self.neato_learners()[0]
+        self.assertIn("online learning: schedule robbins_monro (step size exponent 0.7, offset 3), averaging from "
+                      "observed step 15, learned prior on", stdout)
+        self.assertRegex(stdout, r"learned prior: p_occ_given_free [0-9.]+, p_free_given_occ [0-9.]+ per step")
+        end = self.assert_end_report(self.neato_learners())
+        self.assertTrue(end["sensor_learned"])
+        self.assertEqual(end["retention_after_s"], 5.0)
+        # Another learner, other transitions: the dynamic scores differ from the default's.
+        self.assertNotEqual(self.neato_learners()[2][0]["dynamic_brier"], self.neato()[2][0]["dynamic_brier"])
+
+    def test_end_report_fixed_sensor_model_and_no_learning(self):
+        fixed = self.assert_end_report(self.neato(fixed_sensor=True))
+        self.assertFalse(fixed["sensor_learned"])
+        self.assertEqual((fixed["p_hit_given_occ"], fixed["p_hit_given_free"]), (0.7, 0.2))
+        # Learning off: every cell keeps the prior 0.01 / 0.01, none is learned as changing.
+        for run in (self.neato(learning=False), self.neato(learning=False, fixed_sensor=True)):
+            end = self.assert_end_report(run)
+            self.assertEqual(end["occupied_changing"], 0)
+            self.assertEqual(end["free_changing"], 0)
+
+    def test_end_report_matches_process_bag_layers(self):
+        """With the sensor model fixed (as process_bag maps), the counts equal numpy's on the
+        static_map, belief and transition layers process_bag writes for the same bag."""
+        end = self.assert_end_report(self.neato(fixed_sensor=True))
+        out = os.path.join(self.tmp, "process_bag")
+        result = subprocess.run([executable("process_bag"), NEATO_BAG, "--out", out] + NEATO_ARGS,
+                                capture_output=True, text=True, errors="replace", timeout=PARAMS["timeout_s"])
+        self.assertEqual(result.returncode, 0, result.stderr)
+        layer = {name: np.load(os.path.join(out, name + ".npy"))
+                 for name in ("static_map", "belief", "p_occ_given_free", "p_free_given_occ")}
+        static = layer["static_map"]
+        with np.errstate(invalid="ignore"):
+            free = static < 0.196
+            occupied = static > 0.65
+            belief_free = layer["belief"] < 0.196
+            belief_occupied = layer["belief"] > 0.65
+            walls_changing = occupied & (layer["p_free_given_occ"] > 0.05)
+            free_changing = free & (layer["p_occ_given_free"] > 0.05)
+        padded = np.pad(free, 1)
+        free_neighbour = np.zeros_like(free)
+        for dy in (-1, 0, 1):
+            for dx in (-1, 0, 1):
+                if dx or dy:
+                    free_neighbour |= padded[1 + dy:1 + dy + free.shape[0], 1 + dx:1 + dx + free.shape[1]]
+        edge = occupied & free_neighbour
+        expected = {
+            "observed_cells": int(np.count_nonzero(~np.isnan(static))),
+            "static_free": int(free.sum()), "static_occupied": int(occupied.sum()),
+            "kept_free": int((free & belief_free).sum()), "kept_occupied": int((occupied & belief_occupied).sum()),
+            "occupied_edge": int(edge.sum()), "occupied_changing": int(walls_changing.sum()),
+            "occupied_changing_edge": int((walls_changing & edge).sum()), "free_changing": int(free_changing.sum()),
+        }
+        self.assertEqual({key: end[key] for key in expected}, expected)
+        self.assertGreater(expected["occupied_edge"], 0)
 
     def test_horizon_rounded_to_steps(self):
         path = os.path.join(self.tmp, "half.csv")
@@ -264,8 +453,26 @@ class TestCheckBag(unittest.TestCase):
     def test_bad_options(self):
         for args in ([NEATO_BAG, "--horizon", "-1"], [NEATO_BAG, "--horizon", "abc"], [NEATO_BAG, "--horizon"],
                      [NEATO_BAG, "--resolution", "0"], [NEATO_BAG, "--no-such-option"], [NEATO_BAG, NEATO_BAG],
-                     [NEATO_BAG, "--csv", ""], [NEATO_BAG, "--horizon", "0.4"], []):
+                     [NEATO_BAG, "--csv", ""], [NEATO_BAG, "--horizon", "0.4"], [],
+                     [NEATO_BAG, "--schedule", "constant"], [NEATO_BAG, "--averaging-start", "-1"],
+                     [NEATO_BAG, "--retention-after", "-1"],
+                     [NEATO_BAG, "--schedule", "robbins_monro", "--step-size-exponent", "0.5"],
+                     [NEATO_BAG, "--schedule", "robbins_monro", "--step-size-exponent", "1.1"],
+                     [NEATO_BAG, "--schedule", "robbins_monro", "--step-size-offset", "-1"]):
             self.assert_fails(args, 2, "usage: check_bag")
+
+    def test_learner_options_that_contradict(self):
+        self.assert_fails([NEATO_BAG, "--learn-sensor-model", "--no-learn-sensor-model"], 2, "contradict")
+        for option in (["--learn-prior"], ["--schedule", "harmonic"], ["--averaging-start", "5"]):
+            self.assert_fails([NEATO_BAG, "--no-learning"] + option, 2, option[0], "--no-learning turns off")
+        for option in (["--step-size-exponent", "0.7"], ["--step-size-offset", "1"]):
+            self.assert_fails([NEATO_BAG] + option, 2, option[0] + " applies to --schedule robbins_monro only")
+        rc, stdout, _ = check_bag(["--help"])
+        self.assertEqual(rc, 0)
+        for option in ("--learn-sensor-model", "--no-learn-sensor-model", "--learn-prior", "--schedule",
+                       "--step-size-exponent", "--step-size-offset", "--averaging-start", "--retention-after"):
+            self.assertIn(option, stdout)
+        self.assertIn("(default: on, as the node's ~learn_sensor_model)", " ".join(stdout.split()))
 
     def test_refuses_offline_em_options(self):
         """The options of the bag tools that only tune offline EM are refused and not in the usage."""
