@@ -88,6 +88,9 @@ struct Scratch {
   // scaledLikelihood(hits, misses) at [hits * kTabulatedCounts + misses], where table_filled.
   std::vector<ScaledLikelihood> table;
   std::vector<char> table_filled;
+  // Whether the backward pass also gathers the sensor model's E-step (its cost is only paid
+  // where the sensor model is learned).
+  bool emissions = true;
 };
 
 void prepare(const StepObservation* begin, const StepObservation* end, Scratch& scratch) {
@@ -218,7 +221,7 @@ ForwardBackwardResult forwardBackwardPrepared(Scratch& scratch, const Transition
     const Prepared& o = obs[k];
     const double c = scratch.normaliser[k];
     const double w[2] = {o.b_occ * beta[0] / c, o.b_free * beta[1] / c};
-    {
+    if (scratch.emissions) {
       // The smoothed state at this observation, alpha_k o beta_k: the sensor model's E-step.
       const std::array<double, 2>& filtered = scratch.alpha[k + 1];
       const double occ = filtered[0] * beta[0];
@@ -463,6 +466,7 @@ OfflineEmResult runOfflineEmMrf(const ObservationSequences& sequences, const Obs
     const auto worker = [&]() {
       try {
         Scratch scratch(sensor);
+        scratch.emissions = false;  // the MRF does not learn the sensor model
         for (std::size_t chunk = next_chunk++; chunk < chunks; chunk = next_chunk++) {
           const std::size_t last = std::min(cells, (chunk + 1) * chunk_cells);
           for (std::size_t c = chunk * chunk_cells; c < last; ++c) {
@@ -661,6 +665,7 @@ OfflineEmResult runPerCellEm(const ObservationSequences& sequences, const Observ
   const auto worker = [&]() {
     try {
       Scratch scratch(sensor);
+      scratch.emissions = config.learn_sensor_model;
       for (std::size_t chunk = next_chunk++; chunk < chunks && !cancelled; chunk = next_chunk++) {
         run_chunk(chunk, scratch);
       }
