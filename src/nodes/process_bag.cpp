@@ -18,6 +18,7 @@
 #include "dynamic_occupancy_grid/core/model_io.h"
 #include "dynamic_occupancy_grid/ros/bag_offline_em.h"
 #include "dynamic_occupancy_grid/ros/bag_scan_source.h"
+#include "dynamic_occupancy_grid/ros/parameters.h"
 
 namespace dog = dynamic_occupancy_grid;
 
@@ -37,6 +38,9 @@ Options parseArguments(int argc, char** argv) {
   namespace cl = dog::command_line;
   Options options;
   bool no_learning = false;
+  bool no_learn_sensor_model = false;
+  // As the node: the sensor model is learned (~learn_sensor_model).
+  options.shared.mapper.learn_sensor_model = dog::ros_layer::kDefaultLearnSensorModel;
   std::vector<std::string> bags;
   cl::CommandLine line("process_bag", "usage: process_bag BAG [options]\n");
   line.options().add_options()
@@ -49,6 +53,9 @@ Options parseArguments(int argc, char** argv) {
        "final beliefs)")
       ("no-learning", boost::program_options::bool_switch(&no_learning),
        "no online learning: cells keep the prior transitions")
+      ("no-learn-sensor-model", boost::program_options::bool_switch(&no_learn_sensor_model),
+       "keep the sensor model fixed at --p-hit-given-occ / --p-hit-given-free (default: learned online from "
+       "them, as the node's ~learn_sensor_model)")
       ("snapshot-every", cl::number(&options.snapshot_every_s, cl::above(0.0))->value_name("S"),
        "also write all layers every S seconds of bag time into DIR/snapshots/<t>s/")
       ("prediction-horizon", cl::number(&options.prediction_horizon_s, cl::between(0.0, 1.0e9))->value_name("S"),
@@ -64,6 +71,7 @@ Options parseArguments(int argc, char** argv) {
   if (bags.size() > 1) line.fail("more than one bag given");
   options.shared.source.bag_path = bags.front();
   if (no_learning) options.shared.mapper.learn_transitions = false;
+  if (no_learn_sensor_model) options.shared.mapper.learn_sensor_model = false;
   dog::bag_tools::validateSharedOptions(line, &options.shared);
   if (options.model_path.empty()) options.model_path = (std::filesystem::path(options.out_dir) / "model.dogm").string();
   return options;
