@@ -91,6 +91,7 @@ void MapperConfig::validate() const {
 Mapper::Mapper(const MapperConfig& config)
     : config_(validated(config)),
       sensor_(config.p_hit_given_occ, config.p_hit_given_free),
+      static_sensor_(config.p_hit_given_occ, config.p_hit_given_free),
       clock_(config.time_step_s),
       grid_(config.resolution_m, config.origin_x_m, config.origin_y_m, fixedCells(config),
             maxCellsPerSide(config),
@@ -256,7 +257,10 @@ void Mapper::applyGatheredStep() {
                                 : predictOccupancy(tile.p_occ[i], params, std::int64_t{step} - 1 - last);
       tile.p_occ[i] = static_cast<float>(filterStep(before, params, evidence));
     }
-    tile.log_odds[i] = static_cast<float>(updateLogOdds(tile.log_odds[i], evidence, config_.static_clamp));
+    // The static baseline weighs the step with the configured sensor model, learned or not:
+    // it stays the textbook grid its clamp was chosen for.
+    const double static_evidence = static_sensor_.logLikelihoodRatio(hits, misses);
+    tile.log_odds[i] = static_cast<float>(updateLogOdds(tile.log_odds[i], static_evidence, config_.static_clamp));
     if (recorder_ != nullptr) recorder_->add(tile.cellX(i), tile.cellY(i), step, hits, misses);
     tile.last_step[i] = step;
     tile.last_hits[i] = static_cast<std::uint8_t>(std::min<std::uint32_t>(hits, 255));
@@ -534,6 +538,7 @@ void Mapper::setCellTransitions(std::int32_t x, std::int32_t y, const Transition
 void Mapper::setSensorModel(double p_hit_given_occ, double p_hit_given_free) {
   const ObservationModel sensor(p_hit_given_occ, p_hit_given_free);  // throws for a bad model
   sensor_ = sensor;
+  static_sensor_ = sensor;
   config_.p_hit_given_occ = p_hit_given_occ;
   config_.p_hit_given_free = p_hit_given_free;
   // With learn_sensor_model the new values are where learning starts again.

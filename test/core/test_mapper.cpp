@@ -1658,13 +1658,30 @@ TEST(MapperSensorModel, LearnsTheHitRatesAndKeepsThemWhenTurnedOff) {
   dog::MapperConfig config = sensorConfig();
   config.sensor_model_prior_weight = 5.0;
   dog::Mapper mapper(config);
+  dog::MapperConfig fixed_config = config;
+  fixed_config.learn_sensor_model = false;
+  dog::Mapper fixed(fixed_config);
   EXPECT_EQ(mapper.sensor().pHitGivenOcc(), kHitOcc);
   int step = 0;
   for (; step < 400; ++step) {
     if (!SensorScenario::observed(step)) continue;
     ASSERT_EQ(mapper.integrate(makeScan(step, {SensorScenario::range(step)})).status, dog::ScanStatus::kIntegrated);
+    ASSERT_EQ(fixed.integrate(makeScan(step, {SensorScenario::range(step)})).status, dog::ScanStatus::kIntegrated);
   }
   mapper.finishStep();
+  fixed.finishStep();
+  // The static baseline keeps the configured model: the same log-odds as without learning.
+  const dog::CellBox bounds = mapper.grid().bounds();
+  int compared = 0;
+  for (std::int32_t y = bounds.min_y; y <= bounds.max_y; ++y) {
+    for (std::int32_t x = bounds.min_x; x <= bounds.max_x; ++x) {
+      const auto learned = mapper.grid().cell(x, y);
+      if (!learned) continue;
+      ASSERT_EQ(learned->log_odds, fixed.grid().cell(x, y)->log_odds) << x << ", " << y;
+      ++compared;
+    }
+  }
+  EXPECT_GE(compared, 5);
   // The wall is hit in 9 steps of 10; free cells never: the floor p_min.
   EXPECT_NEAR(mapper.sensor().pHitGivenOcc(), 0.9, 0.02);
   EXPECT_DOUBLE_EQ(mapper.sensor().pHitGivenFree(), config.sensor_model_p_min);

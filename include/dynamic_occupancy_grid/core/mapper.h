@@ -29,7 +29,9 @@ struct MapperConfig {
   /// sensor_model_prior_weight beam ends per state; every cell step then adds its hits and
   /// misses, weighed by the cell's state one observation later (fixed-lag smoothing). The
   /// model in use is always the one the start and the sums give (Mapper::sensor()); the
-  /// flag says whether steps add to the sums. The
+  /// flag says whether steps add to the sums. The static baseline (static_map) always
+  /// weighs steps with the configured model: its clamp is chosen for it, and a learned
+  /// near-perfect laser would make one miss clear a wall there. The
   /// node turns it on by default (~learn_sensor_model); off here, so the core's default is
   /// the fixed model of THEORY.md §1.
   bool learn_sensor_model = false;
@@ -204,6 +206,9 @@ class Mapper {
 
   MapperConfig config_;
   ObservationModel sensor_;
+  /// The configured sensor model (p_hit_given_* of the config), which the static baseline
+  /// (log_odds) always uses: a learned model does not change what static_map means.
+  ObservationModel static_sensor_;
   StepClock clock_;
   CellGrid grid_;
   std::optional<std::int64_t> gathering_step_;
