@@ -282,7 +282,7 @@ void Mapper::addSensorEvidence(const CellGrid::Tile& tile, int i, std::int32_t s
   if (trials == 0) return;
   const TransitionParams params{tile.p_occ_given_free[i], tile.p_free_given_occ[i]};
   const std::int64_t k = std::int64_t{step} - tile.last_step[i];
-  // Only where the next observation says much about the state then: lambda^k >= 0.9 (the
+  // Only where the next observation says much about the state then: lambda^k >= 0.95 (the
   // cell is expected to keep its state in between). Elsewhere the smoothed state is mostly
   // the step's own evidence, and counting it would teach the model what it already assumes.
   // A learning cell still on the prior transitions (fewer than min_observed_steps) has not
@@ -449,11 +449,16 @@ OfflineEmApplied Mapper::applyOfflineEm(const ObservationSequences& sequences, c
     ++applied.cells_applied;
   }
   updatePrior();
-  // A sensor model offline EM learned with the transitions is the one they belong to: it
-  // becomes this mapper's, as a new start (setSensorModel).
-  if (result.p_hit_given_occ > 0.0 && result.sensor_model_rounds > 1 &&
-      (result.p_hit_given_occ != sensor_.pHitGivenOcc() || result.p_hit_given_free != sensor_.pHitGivenFree())) {
-    setSensorModel(result.p_hit_given_occ, result.p_hit_given_free);
+  // A sensor model offline EM learned with the transitions is the one they belong to: its
+  // sums become this mapper's (online learning goes on from them; the configured start and
+  // the static baseline stay).
+  if (result.sensor_trials[0] + result.sensor_trials[1] > 0.0) {
+    SensorModelStats stats;
+    for (int state = 0; state < 2; ++state) {
+      stats.trials[state] = result.sensor_trials[state];
+      stats.hits[state] = std::min(result.sensor_hits[state], result.sensor_trials[state]);
+    }
+    restoreSensorModelStats(stats);
   }
   return applied;
 }

@@ -733,6 +733,8 @@ OfflineEmResult runOfflineEm(const ObservationSequences& sequences, const Observ
     result.sensor_model_rounds = round == 0 ? 1 : rounds_before + 1;
     result.p_hit_given_occ = current.pHitGivenOcc();
     result.p_hit_given_free = current.pHitGivenFree();
+    result.sensor_trials = emission.expected_trials;
+    result.sensor_hits = emission.expected_hits;
     if (result.cancelled || cells == 0) break;
     const double lo = config.sensor_model_p_min;
     const auto rate = [&](int state, double fallback) {

@@ -1406,6 +1406,36 @@ TEST(MapperOfflineEm, AppliedResultSetsTransitionsBeliefsAndStatisticsThatReprod
   EXPECT_NE(mapper.grid().cell(2, 0)->p_occ_given_free, static_cast<float>(config.prior_transitions.p_occ_given_free));
 }
 
+// A sensor model learned offline becomes the mapper's through its sums; the configured start
+// and the static baseline's model stay.
+TEST(MapperOfflineEm, LearnedSensorModelSumsReplaceTheOnlineOnes) {
+  dog::MapperConfig config = learningConfig();
+  config.sensor_model_prior_weight = 1.0;
+  dog::Mapper mapper(config);
+  RecordedRun run = recordAndLearn(mapper, 200);
+  dog::OfflineEmConfig em;
+  em.max_iterations = 30;
+  em.p_min = config.online_em.p_min;
+  em.p_max = config.online_em.p_max;
+  em.learn_sensor_model = true;
+  run.result = dog::runOfflineEm(run.sequences, mapper.sensor(), em);
+  ASSERT_GT(run.result.sensor_trials[0] + run.result.sensor_trials[1], 0.0);
+  mapper.applyOfflineEm(run.sequences, run.result, true);
+  for (int state = 0; state < 2; ++state) {
+    EXPECT_EQ(mapper.sensorModelStats().trials[state], run.result.sensor_trials[state]);
+  }
+  // The sums' M-step (with the small prior weight) is offline EM's next sensor model.
+  const double occ = run.result.sensor_hits[0] / run.result.sensor_trials[0];
+  EXPECT_NEAR(mapper.sensor().pHitGivenOcc(), std::clamp(occ, 0.01, 0.99), 0.02);
+  EXPECT_EQ(mapper.config().p_hit_given_occ, config.p_hit_given_occ);
+  // Without learning the sensor model, nothing changes.
+  dog::Mapper other(config);
+  RecordedRun plain = recordAndLearn(other, 200);
+  other.applyOfflineEm(plain.sequences, plain.result, true);
+  EXPECT_EQ(other.sensorModelStats().trials[0], 0.0);
+  EXPECT_EQ(other.sensor().pHitGivenOcc(), config.p_hit_given_occ);
+}
+
 TEST(MapperOfflineEm, ParamsOnlyKeepsBeliefsAndSkipsCellsTheMapNeverSaw) {
   dog::MapperConfig config = learningConfig();
   dog::Mapper source(config);

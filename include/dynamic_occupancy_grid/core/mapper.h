@@ -148,7 +148,8 @@ class Mapper {
   /// from there. With `use_final_beliefs` (the sequences are this map's own history, as in
   /// process_bag) each cell's belief also becomes the offline filter's at its last step. A
   /// sensor model the result learned (OfflineEmConfig::learn_sensor_model) becomes the
-  /// mapper's, as with setSensorModel.
+  /// mapper's: its sums replace the online ones (sensorModelStats), the configured start and
+  /// the static baseline stay.
   OfflineEmApplied applyOfflineEm(const ObservationSequences& sequences, const OfflineEmResult& result,
                                   bool use_final_beliefs);
 

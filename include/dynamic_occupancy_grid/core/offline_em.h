@@ -167,6 +167,10 @@ struct OfflineEmResult {
   double p_hit_given_free = 0.0;
   /// learn_sensor_model: rounds of per-cell EM run (1 without).
   int sensor_model_rounds = 1;
+  /// learn_sensor_model: the sensor model's E-step of the last round, summed over all cells
+  /// (expected beam ends and hits per state, 0 = occ); all zero without.
+  std::array<double, 2> sensor_trials{};
+  std::array<double, 2> sensor_hits{};
 };
 
 /// Called now and then (from a worker thread, never concurrently) with cells done / total;
