@@ -230,7 +230,7 @@ void writeFileAtomically(const std::string& path, const std::string& contents, c
     }
     replacing = true;
   } else if (errno != ENOENT) {
-    throw fail("cannot examine it", errno);
+    throw refuse(errnoText(errno));  // e.g. "Not a directory": a file where a directory should be
   }
   const std::string directory = directoryOf(target);
   const std::string name = baseNameOf(target);
