@@ -12,6 +12,7 @@ import shutil
 import stat
 import sys
 import tempfile
+import threading
 import time
 import unittest
 
@@ -51,11 +52,27 @@ class TestRobustness(unittest.TestCase):
         shutil.rmtree(cls.tmp, ignore_errors=True)
 
     def timed_call(self, name, **request):
-        """The service's response and the wall seconds it took."""
+        """The service's response and the wall seconds it took; fails if no answer comes
+        within 6 QUICK (a node stuck in the request)."""
         service = self.scene.service(name)
+        result = {}
+
+        def call():
+            try:
+                result['response'] = service(**request)
+            except Exception as error:  # noqa: BLE001 - reported below
+                result['error'] = error
+
         start = time.monotonic()
-        response = service(**request)
-        return response, time.monotonic() - start
+        caller = threading.Thread(target=call, daemon=True)
+        caller.start()
+        caller.join(6 * QUICK)
+        seconds = time.monotonic() - start
+        if caller.is_alive():
+            self.fail('%s(%s): no answer in %.0f s (the node is stuck in the request)' % (name, request, seconds))
+        if 'error' in result:
+            raise result['error']
+        return result['response'], seconds
 
     def alive(self):
         """The node answers a service call."""
