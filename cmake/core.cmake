@@ -21,7 +21,8 @@ add_library(dynamic_occupancy_grid_core
   ${DOG_ROOT}/src/core/step_clock.cpp
   ${DOG_ROOT}/src/core/mapper.cpp
   ${DOG_ROOT}/src/core/memory_model.cpp
-  # what leaves the map: layers and files
+  # what leaves the map: layers and files (file_io: regular files only, atomic writes)
+  ${DOG_ROOT}/src/core/file_io.cpp
   ${DOG_ROOT}/src/core/layers.cpp
   ${DOG_ROOT}/src/core/map_export.cpp
   ${DOG_ROOT}/src/core/model_io.cpp

@@ -1,7 +1,5 @@
 #include "dynamic_occupancy_grid/core/map_export.h"
 
-#include <cerrno>
-#include <cstdio>
 #include <cstdint>
 #include <cstring>
 #include <iomanip>
@@ -11,28 +9,6 @@
 
 namespace dynamic_occupancy_grid {
 namespace core {
-
-void writeFileAtomically(const std::string& path, const std::string& contents) {
-  const std::string temporary = path + ".tmp";
-  std::FILE* file = std::fopen(temporary.c_str(), "wb");
-  if (file == nullptr) {
-    throw std::runtime_error("cannot open " + temporary + " for writing: " + std::strerror(errno));
-  }
-  const bool written = std::fwrite(contents.data(), 1, contents.size(), file) == contents.size();
-  const int write_errno = errno;
-  // fclose flushes: a full disk may only show here.
-  const bool closed = std::fclose(file) == 0;
-  if (!written || !closed) {
-    const int error = written ? errno : write_errno;
-    std::remove(temporary.c_str());
-    throw std::runtime_error("cannot write " + temporary + ": " + std::strerror(error));
-  }
-  if (std::rename(temporary.c_str(), path.c_str()) != 0) {
-    const int error = errno;
-    std::remove(temporary.c_str());
-    throw std::runtime_error("cannot rename " + temporary + " to " + path + ": " + std::strerror(error));
-  }
-}
 
 std::string npyFloat32(const std::vector<float>& values, std::int64_t rows, std::int64_t cols) {
   if (rows < 0 || cols < 0 || static_cast<std::int64_t>(values.size()) != rows * cols) {

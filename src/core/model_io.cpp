@@ -3,6 +3,7 @@
 // atomic replace, which the C++17 standard library cannot express; the checksum is zlib's.
 
 #include "dynamic_occupancy_grid/core/model_io.h"
+#include "dynamic_occupancy_grid/core/file_io.h"
 
 #include <fcntl.h>
 #include <sys/stat.h>
@@ -341,107 +342,54 @@ std::unique_ptr<Mapper> deserializeChecked(const std::string& bytes) {
 }
 
 // ---- files -----------------------------------------------------------------------------
+// Opening, reading and writing are core/file_io.h's (regular files only, an atomic and
+// durable replace through a unique temporary); here: how much of a model file is read.
 
-std::string errnoText(int error) { return std::strerror(error); }
+std::string saveError(const std::string& path) { return "cannot save model file " + path; }
+std::string loadError(const std::string& path) { return "cannot load model file " + path; }
 
-class FileDescriptor {
- public:
-  explicit FileDescriptor(int fd) : fd_(fd) {}
-  FileDescriptor(const FileDescriptor&) = delete;
-  FileDescriptor& operator=(const FileDescriptor&) = delete;
-  ~FileDescriptor() {
-    if (fd_ >= 0) ::close(fd_);
+// The bytes of the model file at `path`, read in two steps so that nothing is allocated
+// beyond what its header promises (whatever the file's size): first the longest header
+// and a checksum, then exactly the rest the header's cell count promises. A file whose
+// size differs from that promise is refused with deserializeModel's own words, without
+// reading its body; a file too short for a header, without the magic or of another
+// version is handed to deserializeModel whole (it is at most a header long), to say so.
+std::string readModelFile(const std::string& path) {
+  RegularFileReader file(path, loadError(path));
+  const auto fail = [&path](const std::string& what) { return std::runtime_error(loadError(path) + ": " + what); };
+  std::string bytes;
+  const std::size_t first = kHeaderSizeV2 + kChecksumSize;
+  if (file.read(first, &bytes) < first) return bytes;  // all of it
+  const auto* data = reinterpret_cast<const unsigned char*>(bytes.data());
+  if (std::memcmp(data, kMagic, kMagicSize) != 0) return bytes;
+  Reader reader(data + kMagicSize);
+  const std::uint32_t version = reader.u32();
+  if (version != 1 && version != kModelFormatVersion) return bytes;
+  const Layout layout = layoutOf(version);
+  const std::size_t minimum_size = layout.header + kChecksumSize;
+  Reader count_reader(data + layout.header - 8);
+  const std::uint64_t cell_count = count_reader.u64();
+  const std::uint64_t size = std::max<std::uint64_t>(file.size(), bytes.size());
+  const std::uint64_t max_cells = (std::numeric_limits<std::uint64_t>::max() - minimum_size) / layout.cell;
+  if (cell_count > max_cells) {
+    throw fail("corrupt model file: absurd cell count " + std::to_string(cell_count) + " in " + std::to_string(size) +
+               " bytes");
   }
-  int get() const { return fd_; }
-  /// Closes now; false (errno set) if closing failed (a delayed write error).
-  bool close() {
-    const int fd = fd_;
-    fd_ = -1;
-    return ::close(fd) == 0;
-  }
-
- private:
-  int fd_;
-};
-
-std::string directoryOf(const std::string& path) {
-  const std::size_t slash = path.find_last_of('/');
-  if (slash == std::string::npos) return ".";
-  if (slash == 0) return "/";
-  return path.substr(0, slash);
-}
-
-// writeFileAtomically (map_export.h) plus fsync of the file before the rename and of the
-// directory after it: a model may hold hours of mapping, and without fsync a crash soon
-// after saving can leave an empty file in place of both the old and the new model.
-void writeFileDurably(const std::string& path, const std::string& contents) {
-  const std::string temporary = path + ".tmp";
-  const auto fail = [&path](const std::string& what, int error) {
-    return std::runtime_error("cannot save model file " + path + ": " + what + ": " + errnoText(error));
+  const std::uint64_t expected = minimum_size + cell_count * layout.cell;
+  const auto trailing = [&](const std::string& how_many) {
+    return fail("invalid model file: " + how_many + " trailing bytes after the checksum (" + std::to_string(expected) +
+                " bytes expected for " + std::to_string(cell_count) + " cells)");
   };
-  FileDescriptor file(::open(temporary.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0666));
-  if (file.get() < 0) throw fail("cannot create " + temporary, errno);
-  const auto discard = [&temporary](FileDescriptor& open_file) {
-    if (open_file.get() >= 0) open_file.close();
-    ::unlink(temporary.c_str());
-  };
-  const char* data = contents.data();
-  std::size_t left = contents.size();
-  while (left > 0) {
-    const ssize_t written = ::write(file.get(), data, left);
-    if (written < 0 && errno == EINTR) continue;
-    if (written <= 0) {
-      const int error = written < 0 ? errno : ENOSPC;
-      discard(file);
-      throw fail("writing " + temporary + " failed", error);
-    }
-    data += written;
-    left -= static_cast<std::size_t>(written);
+  if (size < expected) {
+    throw fail("truncated model file: expected " + std::to_string(expected) + " bytes for " +
+               std::to_string(cell_count) + " cells, " + std::to_string(size) + " available");
   }
-  if (::fsync(file.get()) != 0) {
-    const int error = errno;
-    discard(file);
-    throw fail("writing " + temporary + " to disk failed", error);
-  }
-  if (!file.close()) {
-    const int error = errno;
-    ::unlink(temporary.c_str());
-    throw fail("closing " + temporary + " failed", error);
-  }
-  if (std::rename(temporary.c_str(), path.c_str()) != 0) {
-    const int error = errno;
-    ::unlink(temporary.c_str());
-    throw fail("cannot rename " + temporary + " to it", error);
-  }
-  // The rename itself is durable once the directory is; best effort (some file systems
-  // refuse fsync on a directory, and the new file is in place either way).
-  FileDescriptor directory(::open(directoryOf(path).c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC));
-  if (directory.get() >= 0) static_cast<void>(::fsync(directory.get()));
-}
-
-std::string readWholeFile(const std::string& path) {
-  const auto fail = [&path](const std::string& what, int error) {
-    return std::runtime_error("cannot load model file " + path + ": " + what + errnoText(error));
-  };
-  FileDescriptor file(::open(path.c_str(), O_RDONLY | O_CLOEXEC));
-  if (file.get() < 0) throw fail("", errno);
-  struct stat status {};
-  if (::fstat(file.get(), &status) != 0) throw fail("", errno);
-  if (S_ISDIR(status.st_mode)) throw fail("", EISDIR);
-  std::string contents;
-  // One allocation of the file's size (plus a byte to see the end); more if it grows.
-  contents.resize(S_ISREG(status.st_mode) ? static_cast<std::size_t>(status.st_size) + 1 : 65536);
-  std::size_t used = 0;
-  while (true) {
-    if (used == contents.size()) contents.resize(contents.size() * 2);
-    const ssize_t got = ::read(file.get(), &contents[used], contents.size() - used);
-    if (got < 0 && errno == EINTR) continue;
-    if (got < 0) throw fail("read failed: ", errno);
-    if (got == 0) break;
-    used += static_cast<std::size_t>(got);
-  }
-  contents.resize(used);
-  return contents;
+  if (size > expected) throw trailing(std::to_string(size - expected));
+  if (expected > bytes.max_size()) throw std::bad_alloc();
+  // Fewer bytes than that: the file shrank meanwhile, and deserializeModel says it is truncated.
+  file.read(static_cast<std::size_t>(expected) - bytes.size(), &bytes);
+  if (bytes.size() == expected && file.hasMore()) throw trailing("some");  // it grew meanwhile
+  return bytes;
 }
 
 }  // namespace
@@ -536,16 +484,24 @@ std::unique_ptr<Mapper> deserializeModel(const std::string& bytes) {
   }
 }
 
-void saveModelBytes(const std::string& bytes, const std::string& path) { writeFileDurably(path, bytes); }
+void saveModelBytes(const std::string& bytes, const std::string& path) {
+  writeFileAtomically(path, bytes, saveError(path));
+}
 
-void saveModel(const Mapper& mapper, const std::string& path) { writeFileDurably(path, serializeModel(mapper)); }
+void saveModel(const Mapper& mapper, const std::string& path) { saveModelBytes(serializeModel(mapper), path); }
 
 std::unique_ptr<Mapper> loadModel(const std::string& path) {
-  const std::string bytes = readWholeFile(path);
+  std::string bytes;
+  try {
+    bytes = readModelFile(path);
+  } catch (const std::bad_alloc&) {
+    // Only a file that is as large as its header says, and larger than memory, gets here.
+    throw std::runtime_error(loadError(path) + ": model file needs more memory than is available");
+  }
   try {
     return deserializeModel(bytes);
   } catch (const std::runtime_error& error) {
-    throw std::runtime_error("cannot load model file " + path + ": " + error.what());
+    throw std::runtime_error(loadError(path) + ": " + error.what());
   }
 }
 

@@ -20,6 +20,7 @@
 
 #include "dynamic_occupancy_grid/core/cell_grid.h"
 #include "dynamic_occupancy_grid/core/cell_model.h"
+#include "dynamic_occupancy_grid/core/file_io.h"
 #include "dynamic_occupancy_grid/core/map_export.h"
 #include "dynamic_occupancy_grid/core/model_io.h"
 #include "dynamic_occupancy_grid/core/online_em.h"
@@ -92,9 +93,14 @@ void logLearners(const core::MapperConfig& config) {
 }  // namespace
 
 MappingNode::MappingNode(const ros::NodeHandle& nh, const ros::NodeHandle& private_nh)
-    : nh_(nh), private_nh_(private_nh) {}
+    : nh_(nh), private_nh_(private_nh), service_nh_(private_nh) {
+  service_nh_.setCallbackQueue(&service_queue_);
+}
 
 MappingNode::~MappingNode() {
+  // No request is served once this returns (it waits for those being served).
+  if (service_spinner_) service_spinner_->stop();
+  services_.clear();
   offline_em_cancel_ = true;
   if (offline_em_thread_.joinable()) offline_em_thread_.join();
 }
@@ -109,6 +115,7 @@ bool MappingNode::start() {
   for (const std::string& name : unknown) {
     ROS_WARN("parameter %s is not one of this node's parameters (a typo?); it is ignored", name.c_str());
   }
+  if (!prepareFiles()) return false;
   if (parameters_.runsHmm() && !parameters_.model_file.empty()) {
     try {
       mapper_ = core::loadModel(parameters_.model_file);
@@ -150,7 +157,7 @@ bool MappingNode::start() {
   if (mapper_) advertiseHmm();
   if (memory_) advertiseMemory();
   startDiagnostics();
-  services_.push_back(private_nh_.advertiseService("reset", &MappingNode::reset, this));
+  services_.push_back(service_nh_.advertiseService("reset", &MappingNode::reset, this));
 
   tf_listener_ = std::make_unique<tf2_ros::TransformListener>(tf_buffer_, nh_);
   for (const std::string& topic : parameters_.scan_topics) {
@@ -168,6 +175,9 @@ bool MappingNode::start() {
   }
   publish_timer_ = private_nh_.createTimer(ros::Duration(parameters_.publish_period_s), &MappingNode::publishTimer, this);
   startReconfigure();
+  // The services from here on, on their own threads (scans and tf stay on nh_'s queue).
+  service_spinner_ = std::make_unique<ros::AsyncSpinner>(kServiceThreads, &service_queue_);
+  service_spinner_->start();
 
   std::ostringstream topics;
   for (const std::string& topic : parameters_.scan_topics) topics << " " << nh_.resolveName(topic);
@@ -228,12 +238,12 @@ void MappingNode::advertiseHmm() {
   }
 
   offline_em_progress_ = private_nh_.advertise<OfflineEmProgress>("offline_em_progress", 10, true);
-  services_.push_back(private_nh_.advertiseService("run_offline_em", &MappingNode::runOfflineEm, this));
-  services_.push_back(private_nh_.advertiseService("save_model", &MappingNode::saveModel, this));
-  services_.push_back(private_nh_.advertiseService("load_model", &MappingNode::loadModel, this));
-  services_.push_back(private_nh_.advertiseService("export_layers", &MappingNode::exportLayers, this));
-  services_.push_back(private_nh_.advertiseService("get_cell", &MappingNode::getCell, this));
-  services_.push_back(private_nh_.advertiseService("predict_map", &MappingNode::predictMap, this));
+  services_.push_back(service_nh_.advertiseService("run_offline_em", &MappingNode::runOfflineEm, this));
+  services_.push_back(service_nh_.advertiseService("save_model", &MappingNode::saveModel, this));
+  services_.push_back(service_nh_.advertiseService("load_model", &MappingNode::loadModel, this));
+  services_.push_back(service_nh_.advertiseService("export_layers", &MappingNode::exportLayers, this));
+  services_.push_back(service_nh_.advertiseService("get_cell", &MappingNode::getCell, this));
+  services_.push_back(service_nh_.advertiseService("predict_map", &MappingNode::predictMap, this));
 }
 
 void MappingNode::advertiseMemory() {
@@ -732,6 +742,13 @@ void MappingNode::replaceMapper(std::unique_ptr<core::Mapper> mapper) {
 }
 
 bool MappingNode::runOfflineEm(RunOfflineEm::Request& request, RunOfflineEm::Response& response) {
+  // The services have threads of their own: another request may be opening its bag.
+  std::unique_lock<std::mutex> request_lock(offline_em_request_mutex_, std::try_to_lock);
+  if (!request_lock.owns_lock()) {
+    response.success = false;
+    response.message = "another run_offline_em request is being handled; try again when it has been answered";
+    return true;
+  }
   if (offline_em_running_) {
     response.success = false;
     response.message = "an offline EM run is already in progress; wait for phase 'done' or 'failed' on " +
@@ -754,6 +771,13 @@ bool MappingNode::runOfflineEm(RunOfflineEm::Request& request, RunOfflineEm::Res
     return true;
   };
   if (request.bag_path.empty()) return refuse("bag_path is empty");
+  try {
+    options.source.bag_path = requestPath(request.bag_path);
+    // rosbag opens the bag by its name: a FIFO would block that open, a device be read.
+    core::requireRegularFile(options.source.bag_path, "cannot read bag " + options.source.bag_path);
+  } catch (const std::exception& e) {
+    return refuse(e.what());
+  }
   if (!std::isfinite(request.tolerance)) return refuse("tolerance must be a finite number");
   // 0 is the field's value when a caller leaves it out, so it means the node's parameter.
   if (!std::isfinite(request.mrf_temperature) || request.mrf_temperature < 0.0) {
@@ -858,19 +882,70 @@ bool MappingNode::runOfflineEm(RunOfflineEm::Request& request, RunOfflineEm::Res
     offline_em_running_ = false;
   });
   response.success = true;
-  response.message = "offline EM started on " + request.bag_path + "; progress on " + offline_em_progress_.getTopic();
+  response.message =
+      "offline EM started on " + options.source.bag_path + "; progress on " + offline_em_progress_.getTopic();
   return true;
 }
 
 namespace {
 
-// A service's path as the node resolves it: relative to the node's working directory (as
+// A service's path without ~file_directory: relative to the node's working directory (as
 // any file the node opens; ~/.ros under roslaunch), made absolute for the reply.
 std::string absoluteServicePath(const std::string& path) {
   return std::filesystem::absolute(std::filesystem::path(path)).lexically_normal().string();
 }
 
 }  // namespace
+
+bool MappingNode::prepareFiles() {
+  namespace fs = std::filesystem;
+  std::vector<std::string> directories;
+  if (!parameters_.file_directory.empty()) {
+    try {
+      const fs::path directory = fs::absolute(fs::path(parameters_.file_directory));
+      if (!fs::exists(directory)) {
+        fs::create_directories(directory);
+        ROS_INFO("~file_directory: created %s", directory.string().c_str());
+      }
+      if (!fs::is_directory(directory)) {
+        ROS_FATAL("~file_directory: %s is not a directory", directory.string().c_str());
+        return false;
+      }
+      file_directory_ = fs::canonical(directory).string();
+    } catch (const fs::filesystem_error& e) {
+      ROS_FATAL("~file_directory: cannot use %s: %s", parameters_.file_directory.c_str(), e.code().message().c_str());
+      return false;
+    }
+    ROS_INFO("the services' paths are confined to %s (~file_directory)", file_directory_.c_str());
+    directories.push_back(file_directory_);
+  }
+  if (!parameters_.model_file.empty()) {
+    directories.push_back(fs::absolute(fs::path(parameters_.model_file)).lexically_normal().parent_path().string());
+  }
+  // Temporaries of saves killed mid-write (only the package's own pattern, only those no
+  // writer holds), in the directories the node is configured to write to.
+  std::sort(directories.begin(), directories.end());
+  directories.erase(std::unique(directories.begin(), directories.end()), directories.end());
+  for (const std::string& directory : directories) {
+    const std::vector<std::string> removed = core::removeStaleTemporaries(directory);
+    if (removed.empty()) continue;
+    std::string names;
+    for (const std::string& name : removed) names += (names.empty() ? "" : ", ") + name;
+    ROS_WARN("removed %zu stale temporary file%s of interrupted saves from %s: %s", removed.size(),
+             removed.size() == 1 ? "" : "s", directory.c_str(), names.c_str());
+  }
+  return true;
+}
+
+std::string MappingNode::requestPath(const std::string& path) const {
+  if (path.empty()) throw std::runtime_error("path is empty");
+  if (file_directory_.empty()) return absoluteServicePath(path);
+  try {
+    return core::resolveWithin(path, file_directory_);
+  } catch (const std::runtime_error& e) {
+    throw std::runtime_error("refused by ~file_directory: " + std::string(e.what()));
+  }
+}
 
 bool MappingNode::saveModel(SaveModel::Request& request, SaveModel::Response& response) {
   if (request.path.empty()) {
@@ -880,13 +955,14 @@ bool MappingNode::saveModel(SaveModel::Request& request, SaveModel::Response& re
   }
   std::string path;
   try {
-    path = absoluteServicePath(request.path);
+    path = requestPath(request.path);
   } catch (const std::exception& e) {
     response.success = false;
-    response.message = "cannot resolve " + request.path + ": " + e.what();
+    response.message = "cannot save model file " + request.path + ": " + e.what();
     ROS_ERROR("save_model: %s", response.message.c_str());
     return true;
   }
+  // Only the in-memory part under the map's lock; the file is written after.
   std::string bytes;
   {
     std::lock_guard<std::mutex> lock(mutex_);
@@ -906,19 +982,30 @@ bool MappingNode::saveModel(SaveModel::Request& request, SaveModel::Response& re
 }
 
 bool MappingNode::loadModel(LoadModel::Request& request, LoadModel::Response& response) {
-  std::unique_ptr<core::Mapper> loaded;
-  try {
-    loaded = core::loadModel(request.path);
-  } catch (const std::exception& e) {
+  const auto fail = [&response](const std::string& why) {
     response.success = false;
-    response.message = std::string(e.what()) + "; the live model is unchanged";
+    response.message = why + "; the live model is unchanged";
     ROS_ERROR("load_model: %s", response.message.c_str());
     return true;
+  };
+  std::string path;
+  try {
+    path = requestPath(request.path);
+  } catch (const std::exception& e) {
+    return fail("cannot load model file " + request.path + ": " + e.what());
+  }
+  // Reading and checking the file without the map's lock: mapping goes on meanwhile.
+  std::unique_ptr<core::Mapper> loaded;
+  try {
+    loaded = core::loadModel(path);
+  } catch (const std::exception& e) {
+    return fail(e.what());
   }
   std::ostringstream message;
-  message << "loaded " << request.path << ": " << loaded->config().resolution_m << " m cells, time step "
+  message << "loaded " << path << ": " << loaded->config().resolution_m << " m cells, time step "
           << loaded->config().time_step_s << " s";
   if (loaded->lastAppliedStep()) message << ", steps up to " << *loaded->lastAppliedStep();
+  std::lock_guard<std::mutex> load_lock(load_mutex_);
   DynamicOccupancyGridConfig values;
   {
     std::lock_guard<std::mutex> lock(mutex_);
@@ -966,11 +1053,18 @@ bool MappingNode::exportLayers(ExportLayers::Request& request, ExportLayers::Res
       exports.push_back(std::move(layer));
     }
   }
+  // The files are written without the map's lock: mapping goes on meanwhile.
   std::string directory;
   try {
     if (request.directory.empty()) throw std::runtime_error("directory is empty");
-    directory = absoluteServicePath(request.directory);
+    directory = requestPath(request.directory);
     std::filesystem::create_directories(directory);
+    if (!file_directory_.empty()) {
+      // Each file too (before any is written): one may be a link leading out of it.
+      for (const Export& layer : exports) {
+        for (const char* extension : {".pgm", ".yaml", ".npy"}) requestPath(directory + "/" + layer.name + extension);
+      }
+    }
     for (const Export& layer : exports) {
       core::writeMapServerFiles(directory, layer.name, window, layer.occupancy);
       core::writeNpyLayer(directory, layer.name, window, layer.values);

@@ -1,5 +1,8 @@
 // The mapping node as a nodelet (dynamic_occupancy_grid/MappingNodelet): same class, same
-// topics, services and parameters as mapping_node.
+// topics, services and parameters as mapping_node. Scans, tf and the timers run on the
+// nodelet's own (single-threaded) queue; the services on MappingNode's queue with threads of
+// its own, so that a stuck request delays neither this nodelet's scans nor, by holding one of
+// the manager's worker threads, other nodelets.
 #include <nodelet/nodelet.h>
 #include <pluginlib/class_list_macros.hpp>
 

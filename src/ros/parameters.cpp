@@ -197,6 +197,7 @@ bool readParameters(const ros::NodeHandle& private_nh, NodeParameters* parameter
   read.number("time_jump_threshold", &p.time_jump_threshold_s);
   read.number("max_range", &p.max_range_m);
   read.text("model_file", &p.model_file);
+  read.text("file_directory", &p.file_directory);
   std::string model = "hmm";
   read.text("model", &model);
   if (model == "hmm") {

@@ -9,6 +9,8 @@
 #include "dynamic_occupancy_grid/core/map_export.h"
 
 #include <gtest/gtest.h>
+#include <sys/stat.h>
+#include <unistd.h>
 
 #include <cctype>
 #include <cmath>
@@ -334,13 +336,46 @@ TEST(MapExport, FailedWriteKeepsTheOlderFile) {
   dog::writeMapServerFiles(dir.str(), "map", window, std::vector<std::int8_t>(4, 100));
   const std::string old_pgm = readFile(dir.path() / "map.pgm");
   const std::string old_yaml = readFile(dir.path() / "map.yaml");
-  // Block the temporary file of the image with a directory of that name: the open fails.
-  fs::create_directory(dir.path() / "map.pgm.tmp");
-  EXPECT_THROW(dog::writeMapServerFiles(dir.str(), "map", window, std::vector<std::int8_t>(4, 0)),
-               std::runtime_error);
+  // A read-only directory: no temporary can be created (as root, whom permissions do not
+  // bind, the export runs as the user nobody).
+  fs::permissions(dir.path(), fs::perms::owner_read | fs::perms::owner_exec | fs::perms::group_read |
+                                  fs::perms::group_exec | fs::perms::others_read | fs::perms::others_exec);
+  const bool root = ::geteuid() == 0;
+  if (root) ASSERT_EQ(::seteuid(65534), 0);
+  std::string message = "NO EXCEPTION";
+  try {
+    dog::writeMapServerFiles(dir.str(), "map", window, std::vector<std::int8_t>(4, 0));
+  } catch (const std::runtime_error& e) {
+    message = e.what();
+  }
+  if (root) ASSERT_EQ(::seteuid(0), 0);
+  fs::permissions(dir.path(), fs::perms::owner_all, fs::perm_options::add);
+  EXPECT_NE(message.find("cannot write " + (dir.path() / "map.pgm").string()), std::string::npos) << message;
   EXPECT_EQ(readFile(dir.path() / "map.pgm"), old_pgm);
   EXPECT_EQ(readFile(dir.path() / "map.yaml"), old_yaml);
-  EXPECT_EQ(listDir(dir.path()), (std::set<std::string>{"map.pgm", "map.pgm.tmp", "map.yaml"}));
+  EXPECT_EQ(listDir(dir.path()), (std::set<std::string>{"map.pgm", "map.yaml"}));
+}
+
+TEST(MapExport, OnlyRegularFilesAreReplaced) {
+  // A FIFO where an export file goes is refused (not replaced, not blocked on); the files
+  // before it are written.
+  TempDir dir;
+  const dog::MapWindow window = makeWindow(0, 0, 1, 1, 0.1, 0.0, 0.0);
+  const fs::path fifo = dir.path() / "map.yaml";
+  ASSERT_EQ(::mkfifo(fifo.c_str(), 0600), 0);
+  try {
+    dog::writeMapServerFiles(dir.str(), "map", window, std::vector<std::int8_t>(4, 0));
+    FAIL() << "no exception";
+  } catch (const std::runtime_error& e) {
+    EXPECT_EQ(std::string(e.what()),
+              "cannot write " + fifo.string() + ": it is a FIFO (named pipe), not a regular file; it is left as it is");
+  }
+  EXPECT_TRUE(fs::is_fifo(fifo));
+  EXPECT_EQ(listDir(dir.path()), (std::set<std::string>{"map.pgm", "map.yaml"}));
+  const fs::path directory = dir.path() / "belief.npy";
+  fs::create_directory(directory);
+  EXPECT_THROW(dog::writeNpyLayer(dir.str(), "belief", window, std::vector<float>(4, 0.5f)), std::runtime_error);
+  EXPECT_TRUE(fs::is_directory(directory));
 }
 
 TEST(MapExport, WrongNumberOfValuesIsRejectedBeforeWriting) {

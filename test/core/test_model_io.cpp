@@ -3,7 +3,9 @@
 // time), and it goes on mapping exactly as the original does; the file's bytes are the ones
 // documented; every damaged file (any truncation, any single flipped byte, other versions,
 // bad values, trailing bytes, absurd counts) is refused with a clear std::runtime_error; the
-// file is replaced atomically and errors name it.
+// file is replaced atomically and errors name it; what is not a regular file (a FIFO, a
+// device, a directory) is refused before anything is read or replaced, and a file is read
+// no further than its header promises.
 //
 // The checksum is checked against a bit-by-bit CRC-32 written here, independent of the
 // zlib the library calls (the file promises the CRC-32 of zlib, which the Python reader
@@ -15,10 +17,13 @@
 #include <signal.h>
 #include <sys/resource.h>
 #include <sys/stat.h>
+#include <sys/sysmacros.h>
+#include <sys/types.h>
 #include <unistd.h>
 
 #include <algorithm>
 #include <atomic>
+#include <chrono>
 #include <cmath>
 #include <cstdint>
 #include <cstring>
@@ -970,25 +975,34 @@ TEST(ModelIoFiles, SavingIntoAMissingDirectoryThrowsNamingTheFile) {
   EXPECT_TRUE(dir.entries().empty());
 }
 
-TEST(ModelIoFiles, FailedSaveKeepsTheOldFile_TemporaryNotWritable) {
-  // The temporary path (path + ".tmp") is a directory: it cannot be opened for writing, not
-  // even by root.
+TEST(ModelIoFiles, FailedSaveKeepsTheOldFile_DirectoryNotWritable) {
+  // No temporary can be created beside the file: the directory is read-only (as root, whom
+  // permissions do not bind, the save runs as the user nobody).
   TempDir dir;
   const std::string path = dir.file("model.dogm");
   dog::Mapper old_mapper(fixedStaticConfig());
   dog::saveModel(old_mapper, path);
   const std::string old_bytes = readFile(path);
-  fs::create_directory(path + ".tmp");
   dog::Mapper new_mapper(growingLearningConfig());
   runSteps(new_mapper, 0, 3, 0.0);
   new_mapper.finishStep();
+  const fs::path directory = fs::path(path).parent_path();
+  fs::permissions(directory, fs::perms::owner_read | fs::perms::owner_exec | fs::perms::group_read |
+                                 fs::perms::group_exec | fs::perms::others_read | fs::perms::others_exec);
+  const bool root = ::geteuid() == 0;
+  if (root) ASSERT_EQ(::seteuid(65534), 0);
+  std::string message = "NO EXCEPTION";
   try {
     dog::saveModel(new_mapper, path);
-    FAIL() << "no exception";
   } catch (const std::runtime_error& error) {
-    EXPECT_TRUE(contains(error.what(), path)) << error.what();
+    message = error.what();
   }
+  if (root) ASSERT_EQ(::seteuid(0), 0);
+  fs::permissions(directory, fs::perms::owner_all, fs::perm_options::add);
+  EXPECT_TRUE(contains(message, "cannot save model file " + path + ": cannot create a temporary file in ")) << message;
+  EXPECT_TRUE(contains(message, "Permission denied")) << message;
   EXPECT_EQ(readFile(path), old_bytes);
+  EXPECT_EQ(dir.entries(), std::vector<std::string>{"model.dogm"});
   EXPECT_NO_THROW(dog::loadModel(path));
 }
 
@@ -1028,4 +1042,187 @@ TEST(ModelIoFiles, FailedSaveKeepsTheOldFile_DiskFull) {
   // And with room again, the save goes through.
   dog::saveModel(new_mapper, path);
   EXPECT_EQ(readFile(path), new_bytes);
+}
+
+// ---- files that are not model files: refused before anything is read or replaced ----------
+
+namespace {
+
+std::string loadErrorOf(const std::string& path) {
+  try {
+    dog::loadModel(path);
+  } catch (const std::runtime_error& error) {
+    return error.what();
+  } catch (const std::exception& error) {
+    return std::string("WRONG EXCEPTION TYPE: ") + error.what();
+  }
+  return "NO EXCEPTION";
+}
+
+std::string saveErrorOf(const std::string& path) {
+  try {
+    dog::Mapper mapper(growingLearningConfig());
+    dog::saveModel(mapper, path);
+  } catch (const std::runtime_error& error) {
+    return error.what();
+  }
+  return "NO EXCEPTION";
+}
+
+// Seconds a call takes (on the steady clock).
+template <class Fn>
+double secondsOf(Fn&& fn) {
+  const auto start = std::chrono::steady_clock::now();
+  fn();
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+}
+
+}  // namespace
+
+TEST(ModelIoSpecialFiles, AFifoIsRefusedAtOnce) {
+  // Nobody writes to it: a plain open() would wait for a writer forever.
+  TempDir dir;
+  const std::string fifo = dir.file("fifo");
+  ASSERT_EQ(::mkfifo(fifo.c_str(), 0600), 0);
+  std::string message;
+  EXPECT_LT(secondsOf([&] { message = loadErrorOf(fifo); }), 2.0);
+  EXPECT_EQ(message, "cannot load model file " + fifo + ": it is a FIFO (named pipe), not a regular file");
+  // Saving to it neither blocks nor replaces it.
+  EXPECT_LT(secondsOf([&] { message = saveErrorOf(fifo); }), 2.0);
+  EXPECT_EQ(message, "cannot save model file " + fifo +
+                         ": it is a FIFO (named pipe), not a regular file; it is left as it is");
+  struct stat status {};
+  ASSERT_EQ(::lstat(fifo.c_str(), &status), 0);
+  EXPECT_TRUE(S_ISFIFO(status.st_mode));
+  EXPECT_EQ(dir.entries(), std::vector<std::string>{"fifo"});
+}
+
+TEST(ModelIoSpecialFiles, DevZeroIsRefusedWithoutReading) {
+  // An endless file: reading "until the end" would allocate without bound.
+  std::string message;
+  EXPECT_LT(secondsOf([&] { message = loadErrorOf("/dev/zero"); }), 2.0);
+  EXPECT_EQ(message, "cannot load model file /dev/zero: it is a character device, not a regular file");
+  EXPECT_EQ(loadErrorOf("/dev/null"), "cannot load model file /dev/null: it is a character device, not a regular file");
+}
+
+TEST(ModelIoSpecialFiles, ADirectoryIsRefused) {
+  TempDir dir;
+  const std::string directory = dir.file("a_directory");
+  fs::create_directory(directory);
+  EXPECT_EQ(loadErrorOf(directory), "cannot load model file " + directory + ": it is a directory, not a regular file");
+  EXPECT_EQ(saveErrorOf(directory),
+            "cannot save model file " + directory + ": it is a directory, not a regular file; it is left as it is");
+  EXPECT_TRUE(fs::is_directory(directory));
+  EXPECT_TRUE(fs::is_empty(directory));
+}
+
+TEST(ModelIoSpecialFiles, DeviceNodesAreNeverReplaced) {
+  // rename() over /dev/null would put a regular file in its place (as root: the system's).
+  const std::string message = saveErrorOf("/dev/null");
+  EXPECT_EQ(message, "cannot save model file /dev/null: it is a character device, not a regular file; it is left "
+                     "as it is");
+  struct stat status {};
+  ASSERT_EQ(::stat("/dev/null", &status), 0);
+  EXPECT_TRUE(S_ISCHR(status.st_mode));
+  EXPECT_EQ(saveErrorOf("/dev/full"), "cannot save model file /dev/full: it is a character device, not a regular "
+                                      "file; it is left as it is");
+  // A device node of one's own (mknod needs CAP_MKNOD: root, outside some containers).
+  TempDir dir;
+  const std::string node = dir.file("null_device");
+  if (::mknod(node.c_str(), S_IFCHR | 0600, ::makedev(1, 3)) != 0) GTEST_SKIP() << "mknod: " << std::strerror(errno);
+  EXPECT_EQ(saveErrorOf(node), "cannot save model file " + node +
+                                   ": it is a character device, not a regular file; it is left as it is");
+  EXPECT_EQ(loadErrorOf(node), "cannot load model file " + node + ": it is a character device, not a regular file");
+  ASSERT_EQ(::lstat(node.c_str(), &status), 0);
+  EXPECT_TRUE(S_ISCHR(status.st_mode));
+  EXPECT_EQ(dir.entries(), std::vector<std::string>{"null_device"});
+}
+
+TEST(ModelIoSpecialFiles, SymbolicLinksAreFollowed) {
+  // Loading a link loads the file it points to; saving to a link replaces that file (and
+  // keeps the link); a link to something else, or to nothing, is refused as that is.
+  TempDir dir;
+  const std::string real = dir.file("real.dogm");
+  dog::Mapper first(fixedStaticConfig());
+  dog::saveModel(first, real);
+  const std::string link = dir.file("current.dogm");
+  fs::create_symlink(real, link);
+  EXPECT_NO_THROW(dog::loadModel(link));
+  dog::Mapper second(growingLearningConfig());
+  runSteps(second, 0, 3, 0.0);
+  second.finishStep();
+  dog::saveModel(second, link);
+  EXPECT_TRUE(fs::is_symlink(link));
+  EXPECT_EQ(readFile(real), dog::serializeModel(second));
+  EXPECT_EQ(dir.entries(), (std::vector<std::string>{"current.dogm", "real.dogm"}));
+
+  const std::string to_device = dir.file("to_null.dogm");
+  fs::create_symlink("/dev/null", to_device);
+  EXPECT_EQ(saveErrorOf(to_device), "cannot save model file " + to_device +
+                                        ": the symbolic link's target /dev/null is a character device, not a "
+                                        "regular file; it is left as it is");
+  EXPECT_EQ(loadErrorOf(to_device),
+            "cannot load model file " + to_device + ": it is a character device, not a regular file");
+  const std::string dangling = dir.file("dangling.dogm");
+  fs::create_symlink(dir.file("nothing_here"), dangling);
+  EXPECT_TRUE(contains(saveErrorOf(dangling), "it is a symbolic link that cannot be followed")) << saveErrorOf(dangling);
+  EXPECT_TRUE(contains(loadErrorOf(dangling), "No such file or directory")) << loadErrorOf(dangling);
+  EXPECT_FALSE(fs::exists(dir.file("nothing_here")));
+}
+
+TEST(ModelIoSpecialFiles, AHugeFileIsNotRead) {
+  // A valid model followed by a terabyte (sparse: no disk used) of zeros: refused from its
+  // size, nothing of it allocated or read.
+  TempDir dir;
+  const std::string path = dir.file("huge.dogm");
+  const std::string bytes = smallModel();
+  writeFile(path, bytes);
+  const std::uint64_t huge = std::uint64_t{1} << 40;
+  if (::truncate(path.c_str(), static_cast<off_t>(huge)) != 0) GTEST_SKIP() << "truncate: " << std::strerror(errno);
+  const std::uint64_t count = getLE<std::uint64_t>(bytes, kCountOffset);
+  std::string message;
+  EXPECT_LT(secondsOf([&] { message = loadErrorOf(path); }), 2.0);
+  EXPECT_EQ(message, "cannot load model file " + path + ": invalid model file: " +
+                         std::to_string(huge - bytes.size()) + " trailing bytes after the checksum (" +
+                         std::to_string(bytes.size()) + " bytes expected for " + std::to_string(count) + " cells)");
+  // A header that promises a terabyte of cells in a small file: refused from the size too.
+  std::string promising = bytes;
+  putLE<std::uint64_t>(promising, kCountOffset, huge / 64);
+  fixChecksum(promising);
+  writeFile(path, promising);
+  EXPECT_EQ(loadErrorOf(path), "cannot load model file " + path + ": " + errorOf(promising));
+  EXPECT_TRUE(contains(loadErrorOf(path), "truncated model file: expected")) << loadErrorOf(path);
+}
+
+TEST(ModelIoSpecialFiles, FileErrorsAreTheSerialisationsOwn) {
+  // Reading a file in two steps (its header, then what the header promises) says exactly
+  // what deserializeModel says of the same bytes: for every truncation and every byte
+  // changed in the header, then for every 13th.
+  TempDir dir;
+  const std::string path = dir.file("damaged.dogm");
+  const std::string bytes = smallModel();
+  const auto expect_same = [&path](const std::string& content, const std::string& what) {
+    // A new file each time (ext4 flushes a file truncated and rewritten when it is closed).
+    writeFile(path, content);
+    ASSERT_EQ(loadErrorOf(path), "cannot load model file " + path + ": " + errorOf(content)) << what;
+    fs::remove(path);
+  };
+  const auto next = [](std::size_t i) { return i < kCellsOffset + 8 ? i + 1 : i + 13; };
+  for (std::size_t length = 0; length < bytes.size(); length = next(length)) {
+    expect_same(bytes.substr(0, length), "truncated");
+  }
+  expect_same(bytes.substr(0, bytes.size() - 1), "the last byte missing");
+  for (std::size_t i = 0; i < bytes.size(); i = next(i)) {
+    std::string damaged = bytes;
+    damaged[i] = static_cast<char>(static_cast<unsigned char>(damaged[i]) ^ 0xFF);
+    expect_same(damaged, "byte " + std::to_string(i));
+  }
+  expect_same(bytes + "x", "one trailing byte");
+  expect_same(bytes + bytes, "twice");
+  std::string version1 = bytes;
+  putLE<std::uint32_t>(version1, kVersionOffset, 1);
+  fixChecksum(version1);
+  expect_same(version1, "version 1 layout of other bytes");
+  writeFile(path, bytes);
+  EXPECT_NO_THROW(dog::loadModel(path));
 }

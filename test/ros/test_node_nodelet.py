@@ -1,9 +1,12 @@
 #!/usr/bin/env python3
 """dynamic_occupancy_grid/MappingNodelet in a nodelet manager maps the wall scene as
-mapping_node does (same topics, services and parameters)."""
+mapping_node does (same topics, services and parameters), and, as mapping_node, maps on
+while a request is stuck (its services have a queue and threads of their own)."""
 
 import os
+import shutil
 import sys
+import tempfile
 import unittest
 
 import dynamic_reconfigure.client
@@ -67,6 +70,14 @@ class TestNodelet(unittest.TestCase):
         client = dynamic_reconfigure.client.Client(NODE, timeout=15.0)
         self.assertAlmostEqual(client.get_configuration(timeout=10.0)['publish_period'], 0.1)
         self.assertAlmostEqual(client.update_configuration({'publish_period': 0.2})['publish_period'], 0.2)
+
+        # A request stuck in open() (a bag this test holds a lease on) stops neither the
+        # nodelet's scans nor its other services.
+        tmp = tempfile.mkdtemp(prefix='dog_nodelet_')
+        try:
+            wall_scene.assert_mapping_goes_on_during_stuck_request(self, scene, belief, tmp)
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
 
 
 if __name__ == '__main__':

@@ -1,11 +1,19 @@
 #!/usr/bin/env python3
 """mapping_node against bad input: bad parameters stop it with an error naming the
 parameter; malformed scans, scans without transform and time jumping back leave it alive
-and mapping. The tests run in the order of their names and share the node."""
+and mapping; files that are not regular files (a FIFO, /dev/zero, /dev/null, a device node)
+are refused at once by the services, which never replace them; ~file_directory confines the
+services' paths; a request stuck in the kernel does not stop the mapping. The tests run in
+the order of their names and share the node."""
 
 import math
 import os
+import shutil
+import stat
 import sys
+import tempfile
+import threading
+import time
 import unittest
 
 import rospy
@@ -15,6 +23,7 @@ from std_srvs.srv import Trigger
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import wall_scene  # noqa: E402
+import dynamic_occupancy_grid.srv as dog_srv  # noqa: E402
 from wall_scene import (ANGLE_INCREMENT, ANGLE_MAX, ANGLE_MIN, BEAMS, RESOLUTION, WALL_POINTS, WALL_X,  # noqa: E402
                         grid_value, wall_problems, wall_ranges)
 
@@ -23,6 +32,8 @@ MAX_MAP_SIZE = 40.0          # robustness.test
 TIME_JUMP_THRESHOLD = 2.0    # robustness.test
 NAN = float('nan')
 INF = float('inf')
+# A refusal of a file that is not a regular file takes no time; a blocked open() forever.
+QUICK = 5.0
 
 
 class TestRobustness(unittest.TestCase):
@@ -33,7 +44,35 @@ class TestRobustness(unittest.TestCase):
         cls.scene = wall_scene.WallScene(NODE)
         cls.belief = wall_scene.TopicRecorder(NODE + '/belief', OccupancyGrid)
         cls.scene.wait_for_node()
+        cls.tmp = tempfile.mkdtemp(prefix='dog_robustness_')
         # No transform yet: test_02 sends a scan before it.
+
+    @classmethod
+    def tearDownClass(cls):
+        shutil.rmtree(cls.tmp, ignore_errors=True)
+
+    def timed_call(self, name, **request):
+        """The service's response and the wall seconds it took; fails if no answer comes
+        within 6 QUICK (a node stuck in the request)."""
+        service = self.scene.service(name)
+        result = {}
+
+        def call():
+            try:
+                result['response'] = service(**request)
+            except Exception as error:  # noqa: BLE001 - reported below
+                result['error'] = error
+
+        start = time.monotonic()
+        caller = threading.Thread(target=call, daemon=True)
+        caller.start()
+        caller.join(6 * QUICK)
+        seconds = time.monotonic() - start
+        if caller.is_alive():
+            self.fail('%s(%s): no answer in %.0f s (the node is stuck in the request)' % (name, request, seconds))
+        if 'error' in result:
+            raise result['error']
+        return result['response'], seconds
 
     def alive(self):
         """The node answers a service call."""
@@ -271,6 +310,171 @@ class TestRobustness(unittest.TestCase):
                              'one zero-stamped scan moved the map %d steps ahead (%s -> %s)' % (
                                  after.last_observed_step - before.last_observed_step,
                                  before.last_observed_step, after.last_observed_step))
+
+    def fresh_map(self):
+        """An empty map (~reset) and a new sequence of scans: the map's steps start at its
+        first scan again, so the scene's step stamps are the map's (after test_07's new
+        sequence they need not be)."""
+        reset = rospy.ServiceProxy(NODE + '/reset', Trigger)()
+        self.assertTrue(reset.success, reset.message)
+        self.scene.start_sequence(self.scene.clock.now)
+        self.scene.first_scan()
+        return self.map_wall(steps=2)
+
+    # --- files that are not regular files -------------------------------------------------------------
+    def assert_refused_quickly(self, name, named, kind, **request):
+        """`name` with `request` fails within QUICK s with a message naming the file `named`
+        and what it is."""
+        response, seconds = self.timed_call(name, **request)
+        self.assertFalse(response.success, '%s(%s) succeeded: %s' % (name, request, response.message))
+        self.assertLess(seconds, QUICK, '%s(%s) took %.1f s' % (name, request, seconds))
+        self.assertIn(named, response.message)
+        self.assertIn('it is %s, not a regular file' % kind, response.message)
+        return response
+
+    def test_08_special_files_are_refused(self):
+        """load_model on a FIFO (the node used to hang in open() until someone wrote to it)
+        and on /dev/zero (it used to read without end); save_model on /dev/null, a FIFO and a
+        device node (it used to replace them with a regular file); export_layers onto a FIFO;
+        run_offline_em on a FIFO. Each fails at once, names the file and what it is; nothing
+        is replaced; the node maps on."""
+        self.fresh_map()
+        before = self.alive()
+        self.assertTrue(before.observed)
+        fifo = os.path.join(self.tmp, 'model_fifo')
+        os.mkfifo(fifo)
+        response = self.assert_refused_quickly('load_model', fifo, 'a FIFO (named pipe)', path=fifo)
+        self.assertIn('unchanged', response.message)
+        response = self.assert_refused_quickly('load_model', '/dev/zero', 'a character device', path='/dev/zero')
+        self.assertIn('unchanged', response.message)
+        self.assert_refused_quickly('run_offline_em', fifo, 'a FIFO (named pipe)', bag_path=fifo)
+        self.assert_refused_quickly('save_model', fifo, 'a FIFO (named pipe)', path=fifo)
+        self.assertTrue(stat.S_ISFIFO(os.lstat(fifo).st_mode), 'save_model replaced the FIFO')
+        for device in ('/dev/null', '/dev/full'):
+            response = self.assert_refused_quickly('save_model', device, 'a character device', path=device)
+            self.assertIn('left as it is', response.message)
+            self.assertTrue(stat.S_ISCHR(os.lstat(device).st_mode), 'save_model replaced %s' % device)
+        # A device node of the test's own (mknod needs CAP_MKNOD: root, outside some containers).
+        node = os.path.join(self.tmp, 'device_node')
+        try:
+            os.mknod(node, 0o600 | stat.S_IFCHR, os.makedev(1, 7))  # as /dev/full
+        except OSError:
+            node = None
+        if node is not None:
+            self.assert_refused_quickly('save_model', node, 'a character device', path=node)
+            self.assertTrue(stat.S_ISCHR(os.lstat(node).st_mode), 'save_model replaced the device node')
+        # An export onto a FIFO: refused, the FIFO stays, no temporaries are left.
+        directory = os.path.join(self.tmp, 'export')
+        os.mkdir(directory)
+        os.mkfifo(os.path.join(directory, 'belief.npy'))
+        response, seconds = self.timed_call('export_layers', directory=directory)
+        self.assertFalse(response.success, response.message)
+        self.assertLess(seconds, QUICK)
+        self.assertIn(os.path.join(directory, 'belief.npy'), response.message)
+        self.assertIn('FIFO', response.message)
+        self.assertTrue(stat.S_ISFIFO(os.lstat(os.path.join(directory, 'belief.npy')).st_mode))
+        for name in os.listdir(self.tmp) + os.listdir(directory):
+            self.assertNotIn('.dogtmp.', name)
+        # The map is the one it was, and mapping goes on.
+        self.assertEqual(self.alive().last_observed_step, before.last_observed_step)
+        self.map_wall(steps=2)
+
+    # --- ~file_directory ------------------------------------------------------------------------------
+    def test_09_file_directory(self):
+        """A second node with ~file_directory (and ~model_file in another directory): at start
+        it removes the stale temporaries of its own pattern from both directories and nothing
+        else; relative paths resolve in ~file_directory; `..`, absolute paths and symbolic
+        links leading out of it are refused; replies name absolute paths."""
+        root = os.path.join(self.tmp, 'files')
+        models = os.path.join(self.tmp, 'models')
+        os.makedirs(root)
+        os.makedirs(models)
+        outside = os.path.join(self.tmp, 'outside')
+        os.makedirs(outside)
+        os.symlink(outside, os.path.join(root, 'link_out'))
+        model = os.path.join(models, 'start.dogm')
+        response = self.scene.service('save_model')(path=model)
+        self.assertTrue(response.success, response.message)
+        stale = ['.start.dogm.dogtmp.Ab12Cd', '.saved.dogm.dogtmp.zzZZ09']
+        kept = ['.start.dogm.tmp', 'notes.dogtmp.Ab12Cd', '.start.dogm.dogtmp.Ab12Cd.bak']
+        for directory in (root, models):
+            for name in stale + kept:
+                with open(os.path.join(directory, name), 'w') as f:
+                    f.write('x')
+        # Its own scan topic (a list: not expressible as a rosrun argument).
+        rospy.set_param('/file_node/scan_topics', ['file_node_scans'])
+        node = wall_scene.NodeProcess('file_node', ['_file_directory:=' + root, '_model_file:=' + model])
+        try:
+            try:
+                rospy.wait_for_service('/file_node/save_model', 30.0)
+            except rospy.ROSException:
+                self.fail('the node with ~file_directory offers no services:\n' + node.output())
+            self.assertTrue(node.wait_for_line('stale temporary file'), node.output())
+            for directory in (root, models):
+                for name in stale:
+                    self.assertFalse(os.path.exists(os.path.join(directory, name)), name)
+                for name in kept:
+                    self.assertTrue(os.path.exists(os.path.join(directory, name)), name)
+            self.assertIn('confined to ' + os.path.realpath(root), node.output())
+
+            def call(name, srv_type, **request):
+                return rospy.ServiceProxy('/file_node/' + name, srv_type)(**request)
+
+            saved = os.path.join(os.path.realpath(root), 'sub', 'saved.dogm')
+            os.makedirs(os.path.dirname(saved))
+            response = call('save_model', dog_srv.SaveModel, path='sub/../sub/saved.dogm')
+            self.assertTrue(response.success, response.message)
+            self.assertTrue(response.message.endswith(' to ' + saved), response.message)
+            response = call('load_model', dog_srv.LoadModel, path='sub/saved.dogm')
+            self.assertTrue(response.success, response.message)
+            self.assertTrue(response.message.startswith('loaded ' + saved + ':'), response.message)
+            response = call('export_layers', dog_srv.ExportLayers, directory='layers')
+            self.assertTrue(response.success, response.message)
+            self.assertTrue(response.message.endswith(' ' + os.path.join(os.path.realpath(root), 'layers')),
+                            response.message)
+            self.assertEqual(len(response.files), 18)
+            refused = [
+                ('save_model', dog_srv.SaveModel, dict(path='../escaped.dogm')),
+                ('save_model', dog_srv.SaveModel, dict(path=os.path.join(outside, 'escaped.dogm'))),
+                ('save_model', dog_srv.SaveModel, dict(path='link_out/escaped.dogm')),
+                ('load_model', dog_srv.LoadModel, dict(path=model)),
+                ('load_model', dog_srv.LoadModel, dict(path='../models/start.dogm')),
+                ('export_layers', dog_srv.ExportLayers, dict(directory='link_out')),
+                ('export_layers', dog_srv.ExportLayers, dict(directory='../outside')),
+                ('run_offline_em', dog_srv.RunOfflineEm, dict(bag_path='../outside/x.bag')),
+            ]
+            for name, srv_type, request in refused:
+                response = call(name, srv_type, **request)
+                self.assertFalse(response.success, '%s(%s): %s' % (name, request, response.message))
+                self.assertIn('refused by ~file_directory', response.message)
+                self.assertIn('is outside ' + os.path.realpath(root), response.message)
+            self.assertEqual(os.listdir(outside), [])
+            # A link inside that leads out is refused for an export's files too, before any is written.
+            target = os.path.join(outside, 'target.pgm')
+            with open(target, 'w') as f:
+                f.write('not to be replaced')
+            os.remove(os.path.join(root, 'layers', 'static_map.pgm'))
+            os.symlink(target, os.path.join(root, 'layers', 'static_map.pgm'))
+            written = os.stat(os.path.join(root, 'layers', 'belief.npy')).st_mtime_ns
+            response = call('export_layers', dog_srv.ExportLayers, directory='layers')
+            self.assertFalse(response.success, response.message)
+            self.assertIn(target + ' is outside', response.message)
+            self.assertEqual(open(target).read(), 'not to be replaced')
+            self.assertEqual(os.listdir(outside), ['target.pgm'])
+            self.assertEqual(os.stat(os.path.join(root, 'layers', 'belief.npy')).st_mtime_ns, written)
+        finally:
+            node.stop()
+            rospy.delete_param('/file_node')
+
+    # --- a request stuck in the kernel -----------------------------------------------------------------
+    def test_10_stuck_request_does_not_stop_mapping(self):
+        """The node used to serve scans and requests on one thread: a request stuck in a
+        system call stopped all mapping. Here run_offline_em waits in open() for a bag
+        another process (this test) holds a lease on; scans are mapped and the layers
+        published meanwhile, get_cell answers, and the request ends once the bag is free."""
+        self.fresh_map()
+        wall_scene.assert_mapping_goes_on_during_stuck_request(self, self.scene, self.belief, self.tmp)
+        self.map_wall(steps=2)
 
 
 if __name__ == '__main__':

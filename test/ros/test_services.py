@@ -249,8 +249,8 @@ class TestServices(unittest.TestCase):
                 self.assertIn(path, response.message)
         self.assertEqual(open(blocker).read(), 'not a directory')
         self.assertTrue(os.path.isdir(directory))
-        # Failed saves leave no temporary files behind.
-        self.assertEqual(sorted(f for f in os.listdir(self.tmp) if f.endswith('.tmp')), [])
+        # Failed saves leave no temporary files behind (.<name>.dogtmp.XXXXXX).
+        self.assertEqual(sorted(f for f in os.listdir(self.tmp) if '.dogtmp.' in f or f.endswith('.tmp')), [])
 
     def test_06_load_bad_models(self):
         good = self.save('good.dogm')

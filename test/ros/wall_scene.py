@@ -12,6 +12,8 @@ never depends on rounding. Waiting always advances the clock, so that the node's
 timer keeps running while the test waits for a message or a condition.
 """
 
+import errno
+import fcntl
 import math
 import os
 import queue
@@ -20,11 +22,13 @@ import subprocess
 import threading
 import time
 
+import rosbag
 import rospy
 import tf2_ros
 from geometry_msgs.msg import TransformStamped
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import LaserScan
+from tf2_msgs.msg import TFMessage
 
 import dynamic_occupancy_grid.srv as dog_srv
 
@@ -438,3 +442,161 @@ class WallScene(object):
 
         self.wait_until(applied, timeout)
         return result.get('response')
+
+
+# --- files and requests that block ----------------------------------------------------------
+# fcntl's lease commands (Linux; Python's fcntl module has them from 3.12).
+F_SETLEASE = getattr(fcntl, 'F_SETLEASE', 1024)
+F_GETLEASE = getattr(fcntl, 'F_GETLEASE', 1025)
+
+
+def write_bag_without_scans(path):
+    """A valid bag with one message on /other and no LaserScan topic."""
+    with rosbag.Bag(path, 'w') as bag:
+        bag.write('/other', TFMessage(), rospy.Time(1))
+
+
+class LeasedFile(object):
+    """A write lease (fcntl F_SETLEASE, F_WRLCK) held by this process on the file `path` it
+    owns: another process's open() of the file waits until the lease is released, or
+    /proc/sys/fs/lease-break-time (45 s) has passed -- a real "blocked file" (Samba holds such
+    leases), one this test can release when it likes. Use as a context manager, in the main
+    thread (it handles SIGIO, the kernel's notice that an open is waiting)."""
+
+    def __init__(self, path):
+        self.path = path
+        self._fd = None
+        self._previous_handler = None
+
+    def __enter__(self):
+        # The kernel tells the holder with SIGIO, whose default action ends the process.
+        self._previous_handler = signal.signal(signal.SIGIO, lambda signum, frame: None)
+        self._fd = os.open(self.path, os.O_RDONLY)
+        try:
+            fcntl.fcntl(self._fd, F_SETLEASE, fcntl.F_WRLCK)
+        except OSError:
+            self.release()
+            raise
+        return self
+
+    def opener_waits(self):
+        """True while another process's open() for reading waits for the lease: the kernel
+        asks for the lease to drop to a read lease, and F_GETLEASE says F_RDLCK (F_UNLCK once
+        the kernel gave up waiting for it, after lease-break-time)."""
+        return self._fd is not None and fcntl.fcntl(self._fd, F_GETLEASE) == fcntl.F_RDLCK
+
+    def release(self):
+        if self._fd is not None:
+            try:
+                fcntl.fcntl(self._fd, F_SETLEASE, fcntl.F_UNLCK)
+            except OSError as error:
+                if error.errno != errno.EBADF:
+                    raise
+            os.close(self._fd)
+            self._fd = None
+        if self._previous_handler is not None:
+            signal.signal(signal.SIGIO, self._previous_handler)
+            self._previous_handler = None
+
+    def __exit__(self, *exc):
+        self.release()
+        return False
+
+
+def assert_mapping_goes_on_during_stuck_request(test, scene, belief, tmp_dir, steps=3):
+    """Holds a run_offline_em request stuck in the node -- rosbag's open() of the bag waits
+    for a lease this test holds (LeasedFile) -- and checks that meanwhile `steps` new steps
+    of scans are mapped and published on `belief` (a TopicRecorder of the node's ~belief)
+    one after the other, and that get_cell still answers; then releases the lease and
+    checks that the request ends with its own answer. With one spinner for scans and
+    services, no scan can be mapped while a request is being served."""
+    bag = os.path.join(tmp_dir, 'held_by_another_process.bag')
+    write_bag_without_scans(bag)
+    answered = threading.Event()
+    result = {}
+
+    def request():
+        try:
+            result['response'] = scene.service('run_offline_em')(bag_path=bag)
+        except Exception as error:  # noqa: BLE001 - reported by the test below
+            result['error'] = error
+        answered.set()
+
+    with LeasedFile(bag) as lease:
+        caller = threading.Thread(target=request, daemon=True)
+        caller.start()
+        # The request is in the node's open() of the bag once the lease holder is told.
+        deadline = time.monotonic() + DEFAULT_TIMEOUT
+        while not lease.opener_waits() and not answered.is_set() and time.monotonic() < deadline:
+            answered.wait(0.02)
+        test.assertFalse(answered.is_set(), 'run_offline_em returned without opening the bag: %s' % result)
+        test.assertTrue(lease.opener_waits(), 'the node never opened the bag')
+        for _ in range(steps):
+            last = scene.feed_steps(1)
+            scene.finish()
+            stamp = scene.step_end(last)
+            grid = belief.wait_for(lambda msg: abs(msg.header.stamp.to_sec() - stamp) < 1e-3 and msg.info.width > 0,
+                                   clock=scene.clock)
+            test.assertIsNotNone(grid, 'step %d was not mapped and published while run_offline_em was stuck in '
+                                       'open() (%s)' % (last, 'answered meanwhile' if answered.is_set() else 'still stuck'))
+            test.assertFalse(answered.is_set(), 'the request was answered before the lease was released: %s' % result)
+        cell = scene.get_cell(*WALL_POINTS[2])
+        test.assertTrue(cell.observed)
+        test.assertEqual(cell.last_observed_step, last + scene.step_offset, 'get_cell during the stuck request')
+        test.assertFalse(answered.is_set())
+        test.assertTrue(lease.opener_waits(), 'the node stopped waiting for the bag before the lease was released')
+    # Released: the open goes on, and the request gets its answer (the bag has no scans).
+    test.assertTrue(answered.wait(DEFAULT_TIMEOUT), 'run_offline_em did not answer once the bag was released')
+    caller.join(1.0)
+    test.assertNotIn('error', result)
+    response = result['response']
+    test.assertFalse(response.success, response.message)
+    test.assertIn(bag, response.message)
+    test.assertIn('no messages on topic', response.message)
+
+
+class NodeProcess(object):
+    """mapping_node started by a test (rosrun) as `name` with `arguments`; its output lines
+    are collected (stdout and stderr) while it runs."""
+
+    def __init__(self, name, arguments):
+        self.name = name
+        self.command = ['rosrun', PKG, 'mapping_node', '__name:=' + name] + list(arguments)
+        env = dict(os.environ, ROSCONSOLE_STDOUT_LINE_BUFFERED='1')
+        self.process = subprocess.Popen(self.command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                        universal_newlines=True, env=env)
+        self._lines = []
+        self._condition = threading.Condition()
+        self._reader = threading.Thread(target=self._pump, daemon=True)
+        self._reader.start()
+
+    def _pump(self):
+        for line in self.process.stdout:
+            with self._condition:
+                self._lines.append(line)
+                self._condition.notify_all()
+
+    def output(self):
+        with self._condition:
+            return ''.join(self._lines)
+
+    def wait_for_line(self, text, timeout=30.0):
+        """True once a line holds `text`; False if the node exits or `timeout` passes first."""
+        deadline = time.monotonic() + timeout
+        with self._condition:
+            while not any(text in line for line in self._lines):
+                left = deadline - time.monotonic()
+                if left <= 0 or self.process.poll() is not None:
+                    return any(text in line for line in self._lines)
+                self._condition.wait(min(left, 0.1))
+            return True
+
+    def stop(self):
+        if self.process.poll() is None:
+            self.process.send_signal(signal.SIGINT)
+            try:
+                self.process.wait(timeout=15.0)
+            except subprocess.TimeoutExpired:
+                self.process.kill()
+                self.process.wait()
+        self._reader.join(timeout=5.0)

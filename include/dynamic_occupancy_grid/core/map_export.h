@@ -1,8 +1,8 @@
 #pragma once
 // map_server-compatible export: a PGM image plus the YAML map_server loads it with, in the
-// convention of map_saver (trinary: occupied 0, free 254, unknown 205). Both files are
-// written atomically (temporary file, then rename), so a failed export leaves any older
-// files intact.
+// convention of map_saver (trinary: occupied 0, free 254, unknown 205). Every file is
+// written by writeFileAtomically (core/file_io.h: a unique temporary, fsync, rename; only a
+// regular file is ever replaced), so a failed export leaves any older files intact.
 //
 // The values themselves: a NumPy .npy file per layer (format version 1.0, float32
 // little-endian '<f4', C order, shape (rows, cols)), NaN for unknown cells, row 0 the
@@ -15,6 +15,8 @@
 #include <vector>
 
 #include "dynamic_occupancy_grid/core/cell_grid.h"
+// writeFileAtomically, which the tools also use for their own files.
+#include "dynamic_occupancy_grid/core/file_io.h"
 
 namespace dynamic_occupancy_grid {
 namespace core {
@@ -42,9 +44,6 @@ std::string npyFloat32(const std::vector<float>& values, std::int64_t rows, std:
 /// for a size mismatch, std::runtime_error naming the file on any I/O failure.
 void writeNpyLayer(const std::string& directory, const std::string& name, const MapWindow& window,
                    const std::vector<float>& values);
-
-/// Writes `contents` to `path` through `path.tmp` + rename; throws std::runtime_error.
-void writeFileAtomically(const std::string& path, const std::string& contents);
 
 }  // namespace core
 }  // namespace dynamic_occupancy_grid

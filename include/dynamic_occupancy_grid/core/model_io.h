@@ -36,14 +36,21 @@ std::string serializeModel(const Mapper& mapper);
 /// the last applied one.
 std::unique_ptr<Mapper> deserializeModel(const std::string& bytes);
 
-/// serializeModel to `path`, atomically (temporary file `path`.tmp, fsync, rename): a
-/// failure (full disk, missing directory) throws std::runtime_error naming the file and
-/// leaves any older file at `path` intact. Not for two saves to the same path at once.
+/// serializeModel to `path` by writeFileAtomically (core/file_io.h: a unique temporary
+/// `.<name>.dogtmp.XXXXXX` beside it, fsync, rename): a failure (full disk, missing
+/// directory) throws std::runtime_error "cannot save model file <path>: ..." and leaves any
+/// older file at `path` intact; anything at `path` but a regular file (a device, a FIFO, a
+/// directory) is refused and left alone. A symbolic link is followed (the file it points
+/// to is replaced).
 void saveModel(const Mapper& mapper, const std::string& path);
 /// The file half of saveModel, for bytes from serializeModel (a node serializes under its
 /// map's lock and writes after releasing it).
 void saveModelBytes(const std::string& bytes, const std::string& path);
-/// deserializeModel of the file at `path`; errors name the file.
+/// deserializeModel of the file at `path`; errors "cannot load model file <path>: ...".
+/// Only a regular file is opened (core/file_io.h: a FIFO or a device is refused without
+/// waiting or reading), and it is read in two steps: the header, then exactly the size its
+/// cell count promises; a file of another size is refused from its size, so neither an
+/// endless nor a huge file makes it allocate more than the header promises.
 std::unique_ptr<Mapper> loadModel(const std::string& path);
 
 }  // namespace core

@@ -6,12 +6,21 @@
 // parameters that may change while mapping through dynamic_reconfigure. One class for the
 // node (src/nodes/mapping_node.cpp) and the nodelet (src/ros/mapping_nodelet.cpp). Topics,
 // services and parameters: README.md.
+//
+// Threads: scans, tf, the publish timer and dynamic_reconfigure run on the callback queues
+// of the node handles given (the node's global queue, a nodelet's own); the services run
+// on a queue of their own, served by kServiceThreads threads of their own, so that a slow
+// or stuck request (a big file, a slow disk, a file another process holds) never delays a
+// scan, and one stuck request leaves the other services answering. Everything they share
+// is under mutex_, held only for the in-memory part of a request (never for file I/O).
 
 #include <diagnostic_updater/diagnostic_updater.h>
 #include <diagnostic_updater/publisher.h>
 #include <dynamic_reconfigure/server.h>
 #include <message_filters/subscriber.h>
+#include <ros/callback_queue.h>
 #include <ros/ros.h>
+#include <ros/spinner.h>
 #include <sensor_msgs/LaserScan.h>
 #include <std_srvs/Trigger.h>
 #include <tf2_ros/buffer.h>
@@ -46,9 +55,13 @@ namespace ros_layer {
 
 class MappingNode {
  public:
+  /// Threads serving the services' callback queue.
+  static constexpr int kServiceThreads = 2;
+
   /// `nh` for the `map` topic (publish_map_topic), `private_nh` for everything else.
   MappingNode(const ros::NodeHandle& nh, const ros::NodeHandle& private_nh);
-  /// Stops a running offline EM and waits for it.
+  /// Stops the services' threads (waiting for requests being served) and a running
+  /// offline EM (waiting for it).
   ~MappingNode();
   MappingNode(const MappingNode&) = delete;
   MappingNode& operator=(const MappingNode&) = delete;
@@ -114,6 +127,13 @@ class MappingNode {
   ros::Time memoryStamp() const;
   /// Puts `mapper` in place of the live one (load, reset); caller holds mutex_.
   void replaceMapper(std::unique_ptr<core::Mapper> mapper);
+  /// ~file_directory made absolute (created if missing) and the stale temporaries of
+  /// interrupted saves removed from the directories the node writes to; false (logged)
+  /// if ~file_directory cannot be used.
+  bool prepareFiles();
+  /// A request's path as the node uses it: absolute; with ~file_directory, relative to it,
+  /// `..` and symbolic links resolved, and refused (std::runtime_error) outside it.
+  std::string requestPath(const std::string& path) const;
 
   bool runOfflineEm(RunOfflineEm::Request& request, RunOfflineEm::Response& response);
   bool saveModel(SaveModel::Request& request, SaveModel::Response& response);
@@ -125,7 +145,11 @@ class MappingNode {
 
   ros::NodeHandle nh_;
   ros::NodeHandle private_nh_;
+  /// The services' queue and private_nh_ on it; served by service_spinner_.
+  ros::CallbackQueue service_queue_;
+  ros::NodeHandle service_nh_;
   NodeParameters parameters_;
+  std::string file_directory_;  ///< ~file_directory, absolute and canonical; empty: none
 
   // Diagnostics; declared before the subscriptions, which tick them, so they outlive them.
   std::unique_ptr<diagnostic_updater::Updater> diagnostics_;
@@ -164,6 +188,7 @@ class MappingNode {
   ros::Publisher hypotheses_;
   ros::Publisher offline_em_progress_;
   std::vector<ros::ServiceServer> services_;
+  std::unique_ptr<ros::AsyncSpinner> service_spinner_;  ///< kServiceThreads on service_queue_
   ros::Timer publish_timer_;
 
   /// Guards everything below (scans, services, the timer and the offline EM thread).
@@ -180,6 +205,11 @@ class MappingNode {
   core::CellBox memory_published_bounds_;
   ros::Time memory_last_full_publish_;
 
+  /// Held by the load_model request putting its model in place and telling
+  /// dynamic_reconfigure (two loads at once end as the later one, everywhere).
+  std::mutex load_mutex_;
+  /// Held by the run_offline_em request being handled (a second one is refused meanwhile).
+  std::mutex offline_em_request_mutex_;
   std::thread offline_em_thread_;
   std::atomic<bool> offline_em_running_{false};
   std::atomic<bool> offline_em_cancel_{false};

@@ -39,6 +39,8 @@ struct NodeParameters {
   double time_jump_threshold_s = 3.0;  ///< a scan this much older than the newest restarts time
   double max_range_m = 50.0;           ///< longer readings count as no return
   std::string model_file;              ///< loaded at start-up when set
+  /// ~file_directory: when set, the services' paths are confined to it (relative ones in it).
+  std::string file_directory;
   double diagnostics_period_s = 1.0;   ///< ~diagnostics/period: /diagnostics this often
   double min_scan_rate_hz = 1.0;       ///< ~diagnostics/min_scan_rate_hz, per scan topic
   double max_scan_rate_hz = 100.0;     ///< ~diagnostics/max_scan_rate_hz, per scan topic
