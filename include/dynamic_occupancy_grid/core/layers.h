@@ -4,6 +4,7 @@
 // requested step in closed form when read.
 
 #include <cstdint>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -52,6 +53,28 @@ struct OccupancyThresholds {
 /// Probabilities (NaN = unknown) to OccupancyGrid values by `thresholds`.
 void toThresholdedOccupancyValues(const std::vector<float>& values, const OccupancyThresholds& thresholds,
                                   std::vector<std::int8_t>* occupancy);
+
+/// One value of toOccupancyValues / toThresholdedOccupancyValues (they call these).
+std::int8_t occupancyValue(float value, float full_scale);
+std::int8_t thresholdedOccupancyValue(float value, const OccupancyThresholds& thresholds);
+
+/// How layer values become OccupancyGrid values: toOccupancyValues with `full_scale`, or
+/// toThresholdedOccupancyValues with `thresholds` when set (full_scale is then unused).
+struct OccupancyScaling {
+  float full_scale = 1.0f;
+  std::optional<OccupancyThresholds> thresholds;
+};
+
+/// `layer` over `box` straight to OccupancyGrid values (row-major like evaluateLayer), in one
+/// pass per row without a float buffer, rows split over `threads` threads (0: one per core;
+/// boxes under 512 x 512 cells use the calling thread only). The values are exactly those of
+/// evaluateLayer followed by toOccupancyValues / toThresholdedOccupancyValues, for every cell
+/// state: a cell is decided by a fast path only when that path proves the reference's value
+/// (exact integer thresholds of the scaling, an error bound on the prediction); the rest is
+/// computed the reference's way. Never-observed and unallocated cells are -1.
+void layerOccupancy(const CellGrid& grid, Layer layer, std::int64_t step, std::int64_t horizon_steps,
+                    const CellBox& box, const OccupancyScaling& scaling, std::vector<std::int8_t>* occupancy,
+                    unsigned threads = 0);
 
 }  // namespace core
 }  // namespace dynamic_occupancy_grid
