@@ -515,12 +515,10 @@ DOG_AVX2_INLINE __m128i classify4(__m256d x, __m256d m, const ClassifierLanes& k
     __m256d y = _mm256_fmadd_pd(x, k.c, k.c0);
     y = _mm256_min_pd(k.y_max, _mm256_max_pd(k.y_min, y));  // a NaN stays NaN (the second operand)
     const __m128i k32 = _mm256_cvttpd_epi32(y);            // y > 0: truncation is floor
-    const __m256d half = _mm256_set1_pd(0.5);
-    const __m256d f = _mm256_sub_pd(y, _mm256_cvtepi32_pd(k32));
-    const __m256d t = _mm256_andnot_pd(_mm256_set1_pd(-0.0), _mm256_sub_pd(f, half));  // |f - 1/2|
+    // Decided where y is more than eps from the nearest integer (eps < y - floor(y) < 1 - eps).
+    const __m256d to_nearest = _mm256_sub_pd(y, _mm256_round_pd(y, _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC));
     const __m256d eps = _mm256_fmadd_pd(m, k.c, k.eps0);
-    // eps < f < 1 - eps
-    const __m256d ok = _mm256_cmp_pd(t, _mm256_sub_pd(half, eps), _CMP_LT_OQ);
+    const __m256d ok = _mm256_cmp_pd(_mm256_andnot_pd(_mm256_set1_pd(-0.0), to_nearest), eps, _CMP_GT_OQ);
     return _mm_blendv_epi8(_mm_set1_epi32(kResolve), k32, narrow(_mm256_castpd_si256(ok)));
   }
   const __m256d x_low = _mm256_sub_pd(x, m);
@@ -752,12 +750,11 @@ DOG_AVX512_INLINE void predict32(const CellGrid::Tile& tile, int first, const Ro
   }
   const std::uint64_t all = static_cast<std::uint64_t>(_mm512_reduce_or_epi64(any));
   const int rounds = all == 0 ? 0 : 64 - __builtin_clzll(all);
-  const __m512i low_bit = _mm512_set1_epi64(1);
   for (int r = 0; r < rounds; ++r) {
+    const __m512i bit = _mm512_set1_epi64(std::int64_t{1} << r);
     for (int v = 0; v < kV; ++v) {
-      power[v] = _mm512_mask_mul_pd(power[v], _mm512_test_epi64_mask(e[v], low_bit), power[v], base[v]);
+      power[v] = _mm512_mask_mul_pd(power[v], _mm512_test_epi64_mask(e[v], bit), power[v], base[v]);
       base[v] = _mm512_mul_pd(base[v], base[v]);
-      e[v] = _mm512_srli_epi64(e[v], 1);
     }
   }
   constexpr double u = std::numeric_limits<double>::epsilon() / 2.0;
@@ -766,22 +763,20 @@ DOG_AVX512_INLINE void predict32(const CellGrid::Tile& tile, int first, const Ro
   const __m512d eps0 = _mm512_set1_pd(k.eps0);
   const __m512d y_min = _mm512_set1_pd(k.kmin + 0.5);
   const __m512d y_max = _mm512_set1_pd(k.kmax + 0.5);
-  const __m512d half = _mm512_set1_pd(0.5);
   for (int v = 0; v < kV; ++v) {
     const __m512d ld = _mm512_mul_pd(power[v], d[v]);
     const __m512d x = _mm512_mask_blend_pd(trivial[v], _mm512_add_pd(pi[v], ld), p[v]);
-    const __m512d bound =
+    const __m512d m =
         _mm512_fmadd_pd(_mm512_abs_pd(ld), _mm512_fmadd_pd(gap_d[v], _mm512_set1_pd(16.0 * u), _mm512_set1_pd(512.0 * u)),
                         _mm512_set1_pd(128.0 * u));
-    const __m512d m = _mm512_maskz_mov_pd(static_cast<__mmask8>(~trivial[v]), bound);
-    // The all-linear classification (classify4's first branch).
+    // The all-linear classification (classify4's first branch): floor(y), decided where y
+    // is more than eps = c m + eps0 (eps0 where x is exact) from the nearest integer.
     __m512d y = _mm512_fmadd_pd(x, c, c0);
     y = _mm512_min_pd(y_max, _mm512_max_pd(y_min, y));
     const __m256i k32 = _mm512_cvttpd_epi32(y);
-    const __m512d f = _mm512_sub_pd(y, _mm512_cvtepi32_pd(k32));
-    const __m512d eps = _mm512_fmadd_pd(m, c, eps0);
-    const __mmask8 ok =
-        _mm512_cmp_pd_mask(_mm512_abs_pd(_mm512_sub_pd(f, half)), _mm512_sub_pd(half, eps), _CMP_LT_OQ) & sane[v];
+    const __m512d to_nearest = _mm512_reduce_pd(y, _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC);  // y - round(y), exact
+    const __m512d eps = _mm512_mask3_fmadd_pd(m, c, eps0, static_cast<__mmask8>(~trivial[v]));
+    const __mmask8 ok = _mm512_cmp_pd_mask(_mm512_abs_pd(to_nearest), eps, _CMP_GT_OQ) & sane[v];
     __m256i value = _mm256_mask_blend_epi32(ok, _mm256_set1_epi32(kResolve), k32);
     value = _mm256_mask_blend_epi32(never[v], value, _mm256_set1_epi32(-1));
     _mm_storel_epi64(reinterpret_cast<__m128i*>(out + (8 * v)), _mm256_cvtsepi32_epi8(value));
@@ -885,7 +880,11 @@ void fillBlock(const RowJob& job, std::int64_t y_begin, std::int64_t y_end) {
   }
 }
 
+std::atomic<int> g_layer_kernel{static_cast<int>(LayerKernel::kAuto)};
+
 }  // namespace
+
+void setLayerKernel(LayerKernel kernel) { g_layer_kernel = static_cast<int>(kernel); }
 
 void layerOccupancy(const CellGrid& grid, Layer layer, std::int64_t step, std::int64_t horizon_steps,
                     const CellBox& box, const OccupancyScaling& scaling, std::vector<std::int8_t>* occupancy,
@@ -903,8 +902,9 @@ void layerOccupancy(const CellGrid& grid, Layer layer, std::int64_t step, std::i
   job.scaling = tables->scaling;
   static const bool avx2 = cpuHasAvx2();
   static const bool avx512 = avx2 && cpuHasAvx512();
-  job.fast = tables->fast && avx2;
-  job.avx512 = avx512 && tables->classifier.all_linear;
+  const auto kernel = static_cast<LayerKernel>(g_layer_kernel.load());
+  job.fast = tables->fast && avx2 && kernel != LayerKernel::kReference;
+  job.avx512 = avx512 && tables->classifier.all_linear && kernel == LayerKernel::kAuto;
   job.classifier = &tables->classifier;
   job.out = occupancy->data();
   switch (layer) {

@@ -475,11 +475,14 @@ std::vector<dog::OccupancyScaling> allScalings() {
           thresholded(dog::ThresholdMode::kTrinary, 0.7, 0.6)};
 }
 
-// Compares layerOccupancy with the reference for every layer, horizon, scaling and thread
-// count given; stops at the first difference with the cell's state.
+// Compares layerOccupancy with the reference for every layer, horizon, scaling, thread
+// count and loop (the CPU's best, AVX2 only; the reference loop where asked) given; stops at
+// the first difference with the cell's state.
 void expectSameAsReference(const dog::CellGrid& grid, const dog::CellBox& b, const std::vector<std::int64_t>& steps,
                            const std::vector<dog::OccupancyScaling>& scalings, const std::vector<unsigned>& threads,
-                           const std::vector<dog::Layer>& layers = allLayers()) {
+                           const std::vector<dog::Layer>& layers = allLayers(),
+                           const std::vector<dog::LayerKernel>& kernels = {dog::LayerKernel::kAuto,
+                                                                           dog::LayerKernel::kAvx2}) {
   for (const dog::OccupancyScaling& scaling : scalings) {
     for (dog::Layer layer : layers) {
       for (std::int64_t step : steps) {
@@ -487,8 +490,11 @@ void expectSameAsReference(const dog::CellGrid& grid, const dog::CellBox& b, con
           if (horizon != 0 && layer != dog::Layer::kPredicted) continue;
           const std::vector<std::int8_t> expected = referenceOccupancy(grid, layer, step, horizon, b, scaling);
           for (unsigned t : threads) {
+           for (const dog::LayerKernel kernel : kernels) {
             std::vector<std::int8_t> actual{1, 2, 3};  // replaced by the call
+            dog::setLayerKernel(kernel);
             dog::layerOccupancy(grid, layer, step, horizon, b, scaling, &actual, t);
+            dog::setLayerKernel(dog::LayerKernel::kAuto);
             ASSERT_EQ(actual.size(), expected.size());
             for (std::size_t i = 0; i < expected.size(); ++i) {
               if (actual[i] == expected[i]) continue;
@@ -504,10 +510,11 @@ void expectSameAsReference(const dog::CellGrid& grid, const dog::CellBox& b, con
                 state << "never observed";
               }
               FAIL() << dog::layerName(layer) << ", step " << step << ", horizon " << horizon << ", "
-                     << describe(scaling) << ", threads " << t << ": cell (" << x << ", " << y << ") "
-                     << static_cast<int>(actual[i]) << " instead of " << static_cast<int>(expected[i]) << "; "
-                     << state.str();
+                     << describe(scaling) << ", threads " << t << ", kernel " << static_cast<int>(kernel) << ": cell ("
+                     << x << ", " << y << ") " << static_cast<int>(actual[i]) << " instead of "
+                     << static_cast<int>(expected[i]) << "; " << state.str();
             }
+           }
           }
         }
       }
@@ -837,7 +844,8 @@ TEST(LayerOccupancy, ThreadsAndUnallocatedTiles) {
   });
   const dog::CellBox b = box(-380, -300, 420, 350);
   expectSameAsReference(grid, b, {700}, {dog::OccupancyScaling{}, allScalings()[5]}, {1, 2, 3, 0},
-                        {dog::Layer::kBelief, dog::Layer::kStatic, dog::Layer::kOccGivenFree});
+                        {dog::Layer::kBelief, dog::Layer::kStatic, dog::Layer::kOccGivenFree},
+                        {dog::LayerKernel::kAuto, dog::LayerKernel::kAvx2, dog::LayerKernel::kReference});
 }
 
 TEST(LayerOccupancy, EmptyUnknownAndEdgeBoxes) {
@@ -883,5 +891,6 @@ TEST(LayerOccupancy, MapperLayersMatchReference) {
     mapper.finishStep();
   }
   const dog::CellBox b = mapper.grid().bounds();
-  expectSameAsReference(mapper.grid(), b, {29, 40, 500}, allScalings(), {1, 2});
+  expectSameAsReference(mapper.grid(), b, {29, 40, 500}, allScalings(), {1, 2}, allLayers(),
+                        {dog::LayerKernel::kAuto, dog::LayerKernel::kAvx2, dog::LayerKernel::kReference});
 }

@@ -76,5 +76,11 @@ void layerOccupancy(const CellGrid& grid, Layer layer, std::int64_t step, std::i
                     const CellBox& box, const OccupancyScaling& scaling, std::vector<std::int8_t>* occupancy,
                     unsigned threads = 0);
 
+/// The loop layerOccupancy runs, process-wide (for tests and benchmarks: all give the same
+/// values): kAuto the best the CPU has (AVX-512 for the prediction, else AVX2), kAvx2 at most
+/// AVX2, kReference every cell the reference's way. Without AVX2 it is always kReference.
+enum class LayerKernel { kAuto, kAvx2, kReference };
+void setLayerKernel(LayerKernel kernel);
+
 }  // namespace core
 }  // namespace dynamic_occupancy_grid
