@@ -1,6 +1,7 @@
 #include "dynamic_occupancy_grid/core/layers.h"
 
 #include <algorithm>
+#include <array>
 #include <atomic>
 #include <cmath>
 #include <cstring>
@@ -886,12 +887,11 @@ std::atomic<int> g_layer_kernel{static_cast<int>(LayerKernel::kAuto)};
 
 void setLayerKernel(LayerKernel kernel) { g_layer_kernel = static_cast<int>(kernel); }
 
-void layerOccupancy(const CellGrid& grid, Layer layer, std::int64_t step, std::int64_t horizon_steps,
-                    const CellBox& box, const OccupancyScaling& scaling, std::vector<std::int8_t>* occupancy,
-                    unsigned threads) {
-  // Every value is written below (unallocated tiles as -1): no fill first.
-  occupancy->resize(static_cast<std::size_t>(box.width() * box.height()));
-  if (box.empty()) return;
+namespace {
+
+/// layerOccupancy into out[0 .. width * height) (row-major over a non-empty box).
+void fillOccupancy(const CellGrid& grid, Layer layer, std::int64_t step, std::int64_t horizon_steps,
+                   const CellBox& box, const OccupancyScaling& scaling, std::int8_t* out, unsigned threads) {
   const std::shared_ptr<ScalingTables> tables = tablesFor(scaling);
   RowJob job;
   job.grid = &grid;
@@ -906,7 +906,7 @@ void layerOccupancy(const CellGrid& grid, Layer layer, std::int64_t step, std::i
   job.fast = tables->fast && avx2 && kernel != LayerKernel::kReference;
   job.avx512 = avx512 && tables->classifier.all_linear && kernel == LayerKernel::kAuto;
   job.classifier = &tables->classifier;
-  job.out = occupancy->data();
+  job.out = out;
   switch (layer) {
     case Layer::kBelief:
     case Layer::kPredicted: {
@@ -950,6 +950,124 @@ void layerOccupancy(const CellGrid& grid, Layer layer, std::int64_t step, std::i
       const std::int64_t block_y = (first_block + b) * kBlockRows;
       fillBlock(job, std::max<std::int64_t>(box.min_y, block_y),
                 std::min<std::int64_t>(std::int64_t{box.max_y} + 1, block_y + kBlockRows));
+    }
+  });
+}
+
+std::uint64_t tileKey(std::int32_t tile_x, std::int32_t tile_y) {
+  return (static_cast<std::uint64_t>(static_cast<std::uint32_t>(tile_x)) << 32) | static_cast<std::uint32_t>(tile_y);
+}
+
+unsigned threadsFor(unsigned threads) { return threads == 0 ? std::max(1U, std::thread::hardware_concurrency()) : threads; }
+
+}  // namespace
+
+void layerOccupancy(const CellGrid& grid, Layer layer, std::int64_t step, std::int64_t horizon_steps,
+                    const CellBox& box, const OccupancyScaling& scaling, std::vector<std::int8_t>* occupancy,
+                    unsigned threads) {
+  // Every value is written (unallocated tiles as -1): no fill first.
+  occupancy->resize(static_cast<std::size_t>(box.width() * box.height()));
+  if (box.empty()) return;
+  fillOccupancy(grid, layer, step, horizon_steps, box, scaling, occupancy->data(), threads);
+}
+
+// ---- LayerTileCache -----------------------------------------------------------------
+
+void TileVersions::bump(std::int32_t tile_x, std::int32_t tile_y) { versions_[tileKey(tile_x, tile_y)] = ++counter_; }
+
+std::uint64_t TileVersions::version(std::int32_t tile_x, std::int32_t tile_y) const {
+  const auto it = versions_.find(tileKey(tile_x, tile_y));
+  return std::max(epoch_, it == versions_.end() ? std::uint64_t{0} : it->second);
+}
+
+struct LayerTileCache::Entry {
+  const CellGrid::Tile* tile = nullptr;  // the tile the values were computed from
+  std::uint64_t version = 0;
+  bool valid = false;
+  std::array<std::int8_t, CellGrid::kTileCells> values;  // row-major, 64 x 64
+};
+
+LayerTileCache::LayerTileCache(Layer layer, const OccupancyScaling& scaling) : layer_(layer), scaling_(scaling) {
+  if (layer == Layer::kBelief || layer == Layer::kPredicted) {
+    throw std::invalid_argument("LayerTileCache: " + layerName(layer) + " changes with the step; it cannot be cached");
+  }
+}
+LayerTileCache::~LayerTileCache() = default;
+LayerTileCache::LayerTileCache(LayerTileCache&&) noexcept = default;
+LayerTileCache& LayerTileCache::operator=(LayerTileCache&&) noexcept = default;
+
+void LayerTileCache::occupancy(const CellGrid& grid, const TileVersions& versions, const CellBox& box,
+                               std::vector<std::int8_t>* occupancy, unsigned threads) {
+  occupancy->resize(static_cast<std::size_t>(box.width() * box.height()));
+  last_computed_ = 0;
+  if (box.empty()) return;
+  constexpr int kBits = CellGrid::kTileBits;
+  const std::int32_t tx0 = box.min_x >> kBits;
+  const std::int32_t ty0 = box.min_y >> kBits;
+  const std::int64_t tiles_w = std::int64_t{box.max_x >> kBits} - tx0 + 1;
+  const std::int64_t tiles_h = std::int64_t{box.max_y >> kBits} - ty0 + 1;
+  // The entries of the box's tiles (nullptr: no tile in the grid), and those to compute.
+  std::vector<Entry*> entries(static_cast<std::size_t>(tiles_w * tiles_h), nullptr);
+  std::vector<std::pair<Entry*, std::uint64_t>> stale;
+  for (std::int64_t ty = 0; ty < tiles_h; ++ty) {
+    for (std::int64_t tx = 0; tx < tiles_w; ++tx) {
+      const auto tile_x = static_cast<std::int32_t>(tx0 + tx);
+      const auto tile_y = static_cast<std::int32_t>(ty0 + ty);
+      const CellGrid::Tile* tile = grid.findTile(tile_x * CellGrid::kTileSize, tile_y * CellGrid::kTileSize);
+      if (tile == nullptr) continue;
+      std::unique_ptr<Entry>& entry = entries_[tileKey(tile_x, tile_y)];
+      if (!entry) entry = std::make_unique<Entry>();
+      const std::uint64_t version = versions.version(tile_x, tile_y);
+      if (!(entry->valid && entry->tile == tile && entry->version == version)) {
+        entry->tile = tile;
+        entry->version = version;
+        entry->valid = false;
+        stale.emplace_back(entry.get(), tileKey(tile_x, tile_y));
+      }
+      entries[static_cast<std::size_t>((ty * tiles_w) + tx)] = entry.get();
+    }
+  }
+  last_computed_ = stale.size();
+  threads = threadsFor(threads);
+  {
+    std::atomic<std::size_t> next{0};
+    runOnThreads(std::min<std::size_t>(threads, (stale.size() + 15) / 16), [&] {
+      for (std::size_t i = next++; i < stale.size(); i = next++) {
+        const auto tile_x = static_cast<std::int32_t>(stale[i].second >> 32);
+        const auto tile_y = static_cast<std::int32_t>(stale[i].second & 0xFFFFFFFFu);
+        CellBox tile_box;
+        tile_box.include(tile_x * CellGrid::kTileSize, tile_y * CellGrid::kTileSize);
+        tile_box.include((tile_x * CellGrid::kTileSize) + CellGrid::kTileSize - 1,
+                         (tile_y * CellGrid::kTileSize) + CellGrid::kTileSize - 1);
+        fillOccupancy(grid, layer_, 0, 0, tile_box, scaling_, stale[i].first->values.data(), 1);
+        stale[i].first->valid = true;
+      }
+    });
+  }
+  // The copy, by rows of tiles.
+  const std::int64_t width = box.width();
+  std::atomic<std::int64_t> next{0};
+  runOnThreads(box.width() * box.height() < std::int64_t{512} * 512 ? 1 : std::min<std::int64_t>(threads, tiles_h), [&] {
+    for (std::int64_t ty = next++; ty < tiles_h; ty = next++) {
+      const std::int64_t row_begin = std::max<std::int64_t>(box.min_y, (ty0 + ty) * CellGrid::kTileSize);
+      const std::int64_t row_end =
+          std::min<std::int64_t>(std::int64_t{box.max_y} + 1, ((ty0 + ty) + 1) * CellGrid::kTileSize);
+      for (std::int64_t tx = 0; tx < tiles_w; ++tx) {
+        const Entry* entry = entries[static_cast<std::size_t>((ty * tiles_w) + tx)];
+        const std::int64_t x_begin = std::max<std::int64_t>(box.min_x, (tx0 + tx) * CellGrid::kTileSize);
+        const std::int64_t x_end = std::min<std::int64_t>(std::int64_t{box.max_x} + 1, ((tx0 + tx) + 1) * CellGrid::kTileSize);
+        const auto n = static_cast<std::size_t>(x_end - x_begin);
+        for (std::int64_t y = row_begin; y < row_end; ++y) {
+          std::int8_t* out = occupancy->data() + ((y - box.min_y) * width) + (x_begin - box.min_x);
+          if (entry == nullptr) {
+            std::memset(out, -1, n);
+          } else {
+            std::memcpy(out, entry->values.data() + ((y & (CellGrid::kTileSize - 1)) * CellGrid::kTileSize) +
+                                 (x_begin & (CellGrid::kTileSize - 1)),
+                        n);
+          }
+        }
+      }
     }
   });
 }

@@ -894,3 +894,78 @@ TEST(LayerOccupancy, MapperLayersMatchReference) {
   expectSameAsReference(mapper.grid(), b, {29, 40, 500}, allScalings(), {1, 2}, allLayers(),
                         {dog::LayerKernel::kAuto, dog::LayerKernel::kAvx2, dog::LayerKernel::kReference});
 }
+
+// =====================================================================================
+// LayerTileCache: per-tile int8 values of the step-independent layers
+// =====================================================================================
+
+TEST(LayerTileCache, CopiesWhatLayerOccupancyGivesAndRecomputesBumpedTiles) {
+  RandomCells random(21, 50);
+  const dog::CellBox written = box(-150, -100, 260, 200);
+  dog::CellGrid grid = gridOf(written, random);
+  const dog::CellBox b = box(-200, -130, 300, 230);  // beyond the tiles: -1 there
+  const dog::OccupancyScaling thresholds = allScalings()[5];
+  for (const dog::Layer layer :
+       {dog::Layer::kStatic, dog::Layer::kOccGivenFree, dog::Layer::kFreeGivenOcc, dog::Layer::kStationary}) {
+    for (const dog::OccupancyScaling& scaling : {dog::OccupancyScaling{}, dog::OccupancyScaling{0.1f, std::nullopt}, thresholds}) {
+      SCOPED_TRACE(dog::layerName(layer) + ", " + describe(scaling));
+      dog::TileVersions versions;
+      dog::LayerTileCache cache(layer, scaling);
+      std::vector<std::int8_t> expected;
+      std::vector<std::int8_t> cached;
+      dog::layerOccupancy(grid, layer, 50, 0, b, scaling, &expected);
+      cache.occupancy(grid, versions, b, &cached);
+      EXPECT_EQ(cached, expected);
+      const std::size_t tiles = cache.tiles();
+      EXPECT_EQ(cache.lastComputed(), tiles);
+      EXPECT_EQ(tiles, grid.allocatedTiles());  // every allocated tile of the box: 8 x 6
+      EXPECT_EQ(tiles, 48u);
+      // Nothing written: all copied.
+      cache.occupancy(grid, versions, b, &cached, 2);
+      EXPECT_EQ(cache.lastComputed(), 0u);
+      EXPECT_EQ(cached, expected);
+      // A sub-box: the same values.
+      const dog::CellBox sub = box(-70, 3, 100, 90);
+      std::vector<std::int8_t> sub_expected;
+      dog::layerOccupancy(grid, layer, 50, 0, sub, scaling, &sub_expected);
+      cache.occupancy(grid, versions, sub, &cached);
+      EXPECT_EQ(cached, sub_expected);
+      EXPECT_EQ(cache.lastComputed(), 0u);
+      // Write cells of two tiles and bump them: those two are computed again.
+      dog::CellGrid::Tile* tile = grid.findTile(10, 10);
+      for (int i = 0; i < dog::CellGrid::kTileCells; i += 3) {
+        tile->log_odds[i] = -tile->log_odds[i];
+        tile->p_occ_given_free[i] = 0.5f * tile->p_occ_given_free[i];
+        tile->p_free_given_occ[i] = 1.0f - tile->p_free_given_occ[i];
+        tile->p_occ[i] = 1.0f - tile->p_occ[i];
+      }
+      versions.bump(0, 0);
+      grid.findTile(-150, 200)->log_odds[7] = 3.0f;
+      grid.findTile(-150, 200)->p_occ_given_free[7] = 0.03f;
+      versions.bump(-150 >> 6, 200 >> 6);
+      dog::layerOccupancy(grid, layer, 50, 0, b, scaling, &expected);
+      cache.occupancy(grid, versions, b, &cached);
+      EXPECT_EQ(cache.lastComputed(), 2u);
+      EXPECT_EQ(cached, expected);
+      // Everything may have changed: all computed again, same values.
+      versions.bumpAll();
+      cache.occupancy(grid, versions, b, &cached);
+      EXPECT_EQ(cache.lastComputed(), tiles);
+      EXPECT_EQ(cached, expected);
+      // A grid made anew (new tiles) for the next round.
+      grid = gridOf(written, RandomCells(21, 50));
+    }
+  }
+}
+
+TEST(LayerTileCache, RefusesLayersOfTheStep) {
+  EXPECT_THROW(dog::LayerTileCache(dog::Layer::kBelief, dog::OccupancyScaling{}), std::invalid_argument);
+  EXPECT_THROW(dog::LayerTileCache(dog::Layer::kPredicted, dog::OccupancyScaling{}), std::invalid_argument);
+  dog::LayerTileCache cache(dog::Layer::kStatic, dog::OccupancyScaling{});
+  const dog::CellGrid grid = makeGrid();
+  std::vector<std::int8_t> v{1};
+  cache.occupancy(grid, dog::TileVersions{}, dog::CellBox{}, &v);
+  EXPECT_TRUE(v.empty());
+  cache.occupancy(grid, dog::TileVersions{}, box(0, 0, 2, 1), &v);
+  EXPECT_EQ(v, std::vector<std::int8_t>(6, -1));
+}
