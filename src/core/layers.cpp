@@ -463,7 +463,7 @@ struct RowJob {
   std::int64_t horizon_steps = 0;
   OccupancyScaling scaling;
   bool fast = false;  // the vector loop; else every observed cell the reference's way
-  bool avx512 = false;  // the prediction's AVX-512 loop (all-linear classifiers)
+  bool avx512 = false;  // the prediction's AVX-512 loop
   Kind kind = Kind::kPredict;
   std::int32_t predict_step = 0;   // step (+ horizon) of the prediction
   std::int32_t min_last_step = 0;  // cells with a last step outside [min, max]: the reference
@@ -705,10 +705,12 @@ DOG_AVX2 void runAvx2Of(const CellGrid::Tile& tile, std::int32_t x0, std::int32_
 #define DOG_AVX512 __attribute__((target(DOG_AVX512_TARGET)))
 #define DOG_AVX512_INLINE inline __attribute__((always_inline, target(DOG_AVX512_TARGET)))
 
-/// Belief / predicted with AVX-512 and an all-linear classifier: 32 cells (four vectors of
-/// eight from `first`) into out[0..32). As predict16, with masked multiplies for the
-/// squaring and p_of / (p_of + p_fo) from rcp14 and two Newton steps (relative error
-/// <= 2^-56 + a few roundings: |pi' - pi| <= 5u, so |x - x_ref| gains <= 10u, inside m).
+/// Belief / predicted with AVX-512: 32 cells (four vectors of eight from `first`) into
+/// out[0..32). As predict16, with masked multiplies for the squaring and p_of / (p_of + p_fo)
+/// from rcp14 and two Newton steps (relative error <= 2^-56 + a few roundings:
+/// |pi' - pi| <= 5u, so |x - x_ref| gains <= 10u, inside m). kAllLinear: the 0..100
+/// scalings; otherwise the general classifier (map_server's thresholds).
+template <bool kAllLinear>
 DOG_AVX512_INLINE void predict32(const CellGrid::Tile& tile, int first, const RowJob& job, std::int8_t* out) {
   constexpr int kV = 4;
   const DoubleClassifier& k = *job.classifier;
@@ -764,38 +766,74 @@ DOG_AVX512_INLINE void predict32(const CellGrid::Tile& tile, int first, const Ro
   const __m512d eps0 = _mm512_set1_pd(k.eps0);
   const __m512d y_min = _mm512_set1_pd(k.kmin + 0.5);
   const __m512d y_max = _mm512_set1_pd(k.kmax + 0.5);
+  const __m512d lo = _mm512_set1_pd(k.lo);
+  const __m512d hi = _mm512_set1_pd(k.hi);
   for (int v = 0; v < kV; ++v) {
     const __m512d ld = _mm512_mul_pd(power[v], d[v]);
     const __m512d x = _mm512_mask_blend_pd(trivial[v], _mm512_add_pd(pi[v], ld), p[v]);
     const __m512d m =
         _mm512_fmadd_pd(_mm512_abs_pd(ld), _mm512_fmadd_pd(gap_d[v], _mm512_set1_pd(16.0 * u), _mm512_set1_pd(512.0 * u)),
                         _mm512_set1_pd(128.0 * u));
-    // The all-linear classification (classify4's first branch): floor(y), decided where y
-    // is more than eps = c m + eps0 (eps0 where x is exact) from the nearest integer.
-    __m512d y = _mm512_fmadd_pd(x, c, c0);
-    y = _mm512_min_pd(y_max, _mm512_max_pd(y_min, y));
-    const __m256i k32 = _mm512_cvttpd_epi32(y);
-    const __m512d to_nearest = _mm512_reduce_pd(y, _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC);  // y - round(y), exact
+    // floor(y) decided where y is more than eps = c m + eps0 (eps0 where x is exact) from
+    // the nearest integer, y clamped to [kmin + 1/2, kmax + 1/2] (classify4's first branch);
+    // in general between the outer thresholds only (classify4's second).
     const __m512d eps = _mm512_mask3_fmadd_pd(m, c, eps0, static_cast<__mmask8>(~trivial[v]));
-    const __mmask8 ok = _mm512_cmp_pd_mask(_mm512_abs_pd(to_nearest), eps, _CMP_GT_OQ) & sane[v];
-    __m256i value = _mm256_mask_blend_epi32(ok, _mm256_set1_epi32(kResolve), k32);
+    __m256i value;
+    if constexpr (kAllLinear) {
+      __m512d y = _mm512_fmadd_pd(x, c, c0);
+      y = _mm512_min_pd(y_max, _mm512_max_pd(y_min, y));
+      const __m256i k32 = _mm512_cvttpd_epi32(y);
+      const __m512d to_nearest = _mm512_reduce_pd(y, _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC);  // y - round(y), exact
+      const __mmask8 ok = _mm512_cmp_pd_mask(_mm512_abs_pd(to_nearest), eps, _CMP_GT_OQ) & sane[v];
+      value = _mm256_mask_blend_epi32(ok, _mm256_set1_epi32(kResolve), k32);
+    } else {
+      const __m512d m_or_zero = _mm512_maskz_mov_pd(static_cast<__mmask8>(~trivial[v]), m);
+      const __m512d x_low = _mm512_sub_pd(x, m_or_zero);
+      const __m512d x_high = _mm512_add_pd(x, m_or_zero);
+      const __mmask8 below = _mm512_cmp_pd_mask(x_high, lo, _CMP_LT_OQ);
+      const __mmask8 above = _mm512_cmp_pd_mask(x_low, hi, _CMP_GE_OQ);
+      __mmask8 mid = _mm512_cmp_pd_mask(x_low, lo, _CMP_GE_OQ) & _mm512_cmp_pd_mask(x_high, hi, _CMP_LT_OQ);
+      __m256i mid_value = _mm256_set1_epi32(k.mid);
+      if (k.linear) {
+        __m512d y = _mm512_fmadd_pd(x, c, c0);
+        y = _mm512_min_pd(y_max, _mm512_max_pd(y_min, y));
+        mid_value = _mm512_cvttpd_epi32(y);
+        const __m512d to_nearest = _mm512_reduce_pd(y, _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC);
+        mid &= _mm512_cmp_pd_mask(_mm512_abs_pd(to_nearest), eps, _CMP_GT_OQ);
+      }
+      value = _mm256_mask_blend_epi32(mid, _mm256_set1_epi32(kResolve), mid_value);
+      value = _mm256_mask_blend_epi32(above, value, _mm256_set1_epi32(k.above));
+      value = _mm256_mask_blend_epi32(below, value, _mm256_set1_epi32(k.below));
+      value = _mm256_mask_blend_epi32(sane[v], _mm256_set1_epi32(kResolve), value);
+    }
     value = _mm256_mask_blend_epi32(never[v], value, _mm256_set1_epi32(-1));
     _mm_storel_epi64(reinterpret_cast<__m128i*>(out + (8 * v)), _mm256_cvtsepi32_epi8(value));
   }
 }
 
-/// The cells [x0, x0 + n) of row y, all in one allocated tile (belief / predicted, all-linear).
+/// The cells [x0, x0 + n) of row y, all in one allocated tile (belief / predicted).
 DOG_AVX512 void predictRunAvx512(const CellGrid::Tile& tile, std::int32_t x0, std::int32_t y, int n,
                                  const RowJob& job, std::int8_t* out) {
   const int i0 = CellGrid::offsetOf(x0, y);
   int j = 0;
-  for (; j + 32 <= n; j += 32) predict32(tile, i0 + j, job, out + j);
+  const bool all_linear = job.classifier->all_linear;
+  for (; j + 32 <= n; j += 32) {
+    if (all_linear) {
+      predict32<true>(tile, i0 + j, job, out + j);
+    } else {
+      predict32<false>(tile, i0 + j, job, out + j);
+    }
+  }
   if (j < n) {
     // The last few: 32 cells of the tile's arrays that include them (forward where the
     // arrays allow, else ending at the run's end); only the run's cells are kept.
     std::int8_t tail[32];
     const int first = (i0 + j + 32 <= CellGrid::kTileCells) ? i0 + j : i0 + n - 32;
-    predict32(tile, first, job, tail);
+    if (all_linear) {
+      predict32<true>(tile, first, job, tail);
+    } else {
+      predict32<false>(tile, first, job, tail);
+    }
     std::memcpy(out + j, tail + (i0 + j - first), static_cast<std::size_t>(n - j));
   }
 }
@@ -904,7 +942,7 @@ void fillOccupancy(const CellGrid& grid, Layer layer, std::int64_t step, std::in
   static const bool avx512 = avx2 && cpuHasAvx512();
   const auto kernel = static_cast<LayerKernel>(g_layer_kernel.load());
   job.fast = tables->fast && avx2 && kernel != LayerKernel::kReference;
-  job.avx512 = avx512 && tables->classifier.all_linear && kernel == LayerKernel::kAuto;
+  job.avx512 = avx512 && kernel == LayerKernel::kAuto;
   job.classifier = &tables->classifier;
   job.out = out;
   switch (layer) {
