@@ -6,15 +6,21 @@
 //   Issue 6: the same scan into a fixed 4000 x 4000 map (200 m x 200 m, sensor in the
 //   middle), scan + step as one figure, the per-scan cost against the map's size, and (when
 //   CMake found OctoMap) OctoMap inserting the same scan as a point cloud.
+//   Issue 18: the textbook log-odds occupancy grid update of the same scan
+//   (BM_TextbookLogOddsScan), the price of the HMM as a ratio to what gmapping or
+//   costmap_2d pay per cell.
 
 #include <benchmark/benchmark.h>
 
 #include <cmath>
 #include <algorithm>
 #include <cstdint>
+#include <cstdlib>
 #include <random>
+#include <utility>
 #include <vector>
 
+#include "dynamic_occupancy_grid/core/cell_model.h"
 #include "dynamic_occupancy_grid/core/mapper.h"
 #include "dynamic_occupancy_grid/core/offline_em.h"
 #include "dynamic_occupancy_grid/core/online_em.h"
@@ -142,6 +148,101 @@ void BM_ScanMapSize(benchmark::State& state) {
   state.SetLabel("12 m scan, integrate + step, " + std::to_string(state.range(0)) + "^2 map");
 }
 BENCHMARK(BM_ScanMapSize)->Arg(500)->Arg(8000)->Unit(benchmark::kMicrosecond);
+
+// Issue 18's second peer: the textbook occupancy grid update of the same scan, what gmapping
+// or costmap_2d pay per cell. A dense 4000 x 4000 grid (200 m x 200 m, sensor in the middle
+// as for BM_ScanAndStep) of log-odds, each beam traced by Bresenham's line from the sensor's
+// cell to its end cell; every cell before the end gets the miss log-odds added, the end cell
+// the hit's, each clamped to the static baseline's [-2, 3.5] at once. The sensor model is the
+// mapper's (hit +1.25, miss -0.98). No time steps, no per-scan de-duplication (a cell crossed
+// by two beams is updated twice), no learning. Argument 0: float log-odds (64 MB grid);
+// 1: int8 log-odds in steps of 1/32 (16 MB grid, costmap_2d's byte per cell).
+template <class T>
+struct TextbookGrid {
+  static constexpr std::int32_t kSide = 4000;
+  std::vector<T> cells = std::vector<T>(static_cast<std::size_t>(kSide) * kSide, T{});
+  T hit;
+  T miss;
+  T min;
+  T max;
+
+  void update(std::int32_t x, std::int32_t y, T delta) {
+    if (x < 0 || y < 0 || x >= kSide || y >= kSide) return;
+    T& cell = cells[(static_cast<std::size_t>(y) * kSide) + x];
+    cell = std::clamp<T>(static_cast<T>(cell + delta), min, max);
+  }
+
+  // Bresenham from (x0, y0) to (x1, y1): misses before the end, a hit at the end.
+  void beam(std::int32_t x0, std::int32_t y0, std::int32_t x1, std::int32_t y1) {
+    const std::int32_t dx = std::abs(x1 - x0);
+    const std::int32_t dy = -std::abs(y1 - y0);
+    const std::int32_t sx = x0 < x1 ? 1 : -1;
+    const std::int32_t sy = y0 < y1 ? 1 : -1;
+    std::int32_t error = dx + dy;
+    while (x0 != x1 || y0 != y1) {
+      update(x0, y0, miss);
+      const std::int32_t e2 = 2 * error;
+      if (e2 >= dy) {
+        error += dy;
+        x0 += sx;
+      }
+      if (e2 <= dx) {
+        error += dx;
+        y0 += sy;
+      }
+    }
+    update(x1, y1, hit);
+  }
+};
+
+template <class T>
+void textbookScan(benchmark::State& state, double quantum) {
+  const dog::Scan scan = makeScan(0.0);
+  const dog::MapperConfig config = fixedMapConfig(TextbookGrid<T>::kSide);
+  const dog::ObservationModel sensor(config.p_hit_given_occ, config.p_hit_given_free);
+  TextbookGrid<T> grid;
+  // In units of `quantum` (1 for floats: the log-odds themselves).
+  const auto in_units = [quantum](double log_odds) {
+    return static_cast<T>(quantum == 1.0 ? log_odds : static_cast<double>(std::lround(log_odds / quantum)));
+  };
+  grid.hit = in_units(sensor.hitLogOdds());
+  grid.miss = in_units(sensor.missLogOdds());
+  grid.min = in_units(config.static_clamp.min_log_odds);
+  grid.max = in_units(config.static_clamp.max_log_odds);
+  // Grid coordinates: cell (0, 0) at the map's lower-left corner, as the mapper's fixed map.
+  const double u0 = (scan.laser_pose.x_m - config.origin_x_m) / kResolution;
+  const double v0 = (scan.laser_pose.y_m - config.origin_y_m) / kResolution;
+  std::vector<std::pair<std::int32_t, std::int32_t>> ends;
+  for (int i = 0; i < kBeams; ++i) {
+    const double angle = scan.laser_pose.yaw_rad + scan.angle_min_rad + i * scan.angle_increment_rad;
+    const double range = scan.ranges_m[static_cast<std::size_t>(i)];
+    ends.emplace_back(static_cast<std::int32_t>(std::floor(u0 + std::cos(angle) * range / kResolution)),
+                      static_cast<std::int32_t>(std::floor(v0 + std::sin(angle) * range / kResolution)));
+  }
+  const auto x0 = static_cast<std::int32_t>(std::floor(u0));
+  const auto y0 = static_cast<std::int32_t>(std::floor(v0));
+  for (const auto& [x1, y1] : ends) grid.beam(x0, y0, x1, y1);  // the area is "allocated"
+  for (auto _ : state) {
+    for (const auto& [x1, y1] : ends) grid.beam(x0, y0, x1, y1);
+    benchmark::ClobberMemory();
+  }
+  benchmark::DoNotOptimize(grid.cells.data());
+  double updates = 0.0;  // Bresenham visits max(|dx|, |dy|) + 1 cells per beam
+  for (const auto& [x1, y1] : ends) updates += std::max(std::abs(x1 - x0), std::abs(y1 - y0)) + 1;
+  state.counters["cell_updates"] = updates;
+  state.SetItemsProcessed(state.iterations() * kBeams);  // beams per second
+}
+
+void BM_TextbookLogOddsScan(benchmark::State& state) {
+  if (state.range(0) == 0) {
+    textbookScan<float>(state, 1.0);
+    state.SetLabel("dense 4000^2 float log-odds, Bresenham, add + clamp");
+  } else {
+    textbookScan<std::int8_t>(state, 1.0 / 32.0);
+    state.SetLabel("dense 4000^2 int8 log-odds (1/32), Bresenham, add + clamp");
+  }
+}
+BENCHMARK(BM_TextbookLogOddsScan)->Arg(0)->Arg(1)->Unit(benchmark::kMicrosecond);
 
 #ifdef DOG_BENCHMARK_OCTOMAP
 // Issue 6's peer: OctoMap (Debian liboctomap-dev) inserting the same scan as a point cloud

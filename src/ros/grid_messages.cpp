@@ -8,14 +8,11 @@ namespace ros_layer {
 
 std::vector<std::int8_t> layerValues(const core::CellGrid& grid, const LayerView& view, std::int64_t step,
                                      const core::CellBox& box) {
-  std::vector<float> values;
-  core::evaluateLayer(grid, view.layer, step, view.horizon_steps, box, &values);
+  // One pass to int8, rows over the cores; the same values as evaluateLayer followed by
+  // toOccupancyValues / toThresholdedOccupancyValues (core/layers.h).
   std::vector<std::int8_t> occupancy;
-  if (view.thresholds) {
-    core::toThresholdedOccupancyValues(values, *view.thresholds, &occupancy);
-  } else {
-    core::toOccupancyValues(values, view.full_scale, &occupancy);
-  }
+  core::layerOccupancy(grid, view.layer, step, view.horizon_steps, box,
+                       core::OccupancyScaling{view.full_scale, view.thresholds}, &occupancy);
   return occupancy;
 }
 

@@ -30,7 +30,9 @@ struct LayerView {
   std::optional<core::OccupancyThresholds> thresholds;
 };
 
-/// `view` over `box` at `step` as 0..100 / -1 values (row-major, OccupancyGrid order).
+/// `view` over `box` at `step` as 0..100 / -1 values (row-major, OccupancyGrid order), by
+/// core::layerOccupancy (one pass, rows over the cores; values identical to evaluateLayer +
+/// toOccupancyValues / toThresholdedOccupancyValues).
 std::vector<std::int8_t> layerValues(const core::CellGrid& grid, const LayerView& view, std::int64_t step,
                                      const core::CellBox& box);
 
