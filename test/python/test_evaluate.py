@@ -240,7 +240,8 @@ class EvaluateTool(unittest.TestCase):
                              text=True, timeout=300)
         self.assertEqual(run.returncode, 0, run.stderr)
         for name in ["accuracy_dynamic_5_5.png", "accuracy_redraw_100.png", "parameter_error.png",
-                     "path_planning.png", "mrf_rmse.png", "mrf_maps.png"]:
+                     "path_planning.png", "mrf_rmse.png", "mrf_maps.png", "murphy_corridor_fig2.png",
+                     "murphy_corridor_fig3.png", "murphy_corridor_fig4.png", "murphy_corridor_tv.png"]:
             with open(os.path.join(self.out, name), "rb") as file:
                 self.assertEqual(file.read(8), b"\x89PNG\r\n\x1a\n", name)
 
