@@ -297,15 +297,9 @@ class TestPlotEvaluation(unittest.TestCase):
                 "1,1,1,1,1,1,1,1\n1,1,1,1,1,1,1,1\n",                            # a (t, cell) twice
                 "t,cell," + ",".join(plot_evaluation.MURPHY_POSITION_COLUMNS) + "\n"
                 "1,1,1,1.5,1,1,1,1\n",                                            # not a probability
-                "t,cell," + ",".join(plot_evaluation.MURPHY_POSITION_COLUMNS) + "\n"
-                "0,1,1,1,1,1,1,1\n",                                              # t is 1-based
             ],
             "murphy_corridor_fig2_maps.csv": [
                 "t,map,labels,probability\n1,0,00,0.5\n1,2,01,0.5\n",             # map 1 missing
-            ],
-            "murphy_corridor_errors.csv": [
-                "variant,estimator,t,position_tv_mean,position_tv_std,truth_mass_mean,runs\n"
-                "paper,rbpf,1,x,0,1,3\n",                                         # not a number
             ],
             "mrf_maps.csv": [
                 MRF_MAPS_HEADER + "\n0,0,1,0,0,0.1,0.1,0.1,0.1\n0,0,1,0,0,0.1,0.1,0.1,0.1\n",  # a cell twice
