@@ -15,6 +15,16 @@ From OUT_DIR:
                                 the MRF next to the truth, as Fig. 5 of Li, Barão & Rato)
     mrf_rmse.csv             -> mrf_rmse.png (their error on sparsely and well observed
                                 cells, and the EM's time)
+    murphy_corridor_fig2_maps.csv, murphy_corridor_fig2_cells.csv
+                             -> murphy_corridor_fig2.png (Murphy 1999, Fig. 2: the map posterior
+                                over the 256 maps, its per-cell marginals, online and offline EM)
+    murphy_corridor_fig3_position.csv
+                             -> murphy_corridor_fig3.png (Fig. 3: the position, exact / dead
+                                reckoning / online EM)
+    murphy_corridor_fig4_rbpf.csv
+                             -> murphy_corridor_fig4.png (Fig. 4(a-b): the RBPF's position and map)
+    murphy_corridor_errors.csv
+                             -> murphy_corridor_tv.png (each estimator's distance to exact Bayes)
 From --layers DIR: <layer>.pgm + <layer>.yaml (map_server files) -> <layer>.png and
 layers.png (all of them, in metres).
 
@@ -79,6 +89,17 @@ MRF_MAP_NUMBERS = ("x", "y", "observed_steps") + tuple(f"truth_{parameter}" for 
 # The maps' colour scale: the EM's bounds on the learned probabilities (evaluationOfflineEmConfig:
 # p_min, p_max); a true 0 (a static cell) is drawn at the lower bound.
 MRF_MAP_RANGE = (1e-4, 0.5)
+
+# Murphy's corridor (evaluation/murphy_corridor.h): 1-based steps and cells.
+MURPHY_CELL_COLUMNS = ("truth", "exact", "online_em", "offline_em", "rbpf")
+MURPHY_POSITION_COLUMNS = ("truth", "exact", "dead_reckoning", "online_em", "offline_em", "rbpf")
+MURPHY_RBPF_COLUMNS = ("true_position", "exact_position", "rbpf_position", "true_label", "exact_p_one", "rbpf_p_one")
+MURPHY_ERROR_NUMBERS = ("t", "position_tv_mean", "position_tv_std", "truth_mass_mean", "runs")
+# The estimators drawn in murphy_corridor_tv.png, with their colours.
+MURPHY_TV_ESTIMATORS = (("dead_reckoning", "dead reckoning", "#7f7f7f"), ("online_em", "online EM", "#1f77b4"),
+                        ("offline_em", "offline EM (per prefix)", "#d62728"), ("rbpf", "RBPF", "#2ca02c"),
+                        ("rbpf_optimal", "RBPF, optimal proposal", "#ff7f0e"))
+MURPHY_RETURN_T = 10  # the robot turns back at t = 10 (kMurphyReturnStep + 1)
 
 # The layers process_bag writes (core/layers.cpp, layerName), in its order.
 LAYERS = (("belief", "belief: p(occ) now"), ("predicted", "predicted p(occ)"),
@@ -169,6 +190,52 @@ def read_mrf_maps(path):
         grid[index] = table[name]
         grids[name] = grid.reshape(height, width)
     return grids
+
+
+def read_step_grid(path, columns, key="cell"):
+    """A Murphy corridor table with one row per (t, key) as {column: 2D array [key - 1, t - 1]}
+    (1-based t and cells, as in the paper); every (t, key) once, values in [0, 1]."""
+    table = read_table(path, number_columns=("t", key) + columns)
+    t, k = table["t"], table[key]
+    if not (np.all(t == np.round(t)) and np.all(k == np.round(k)) and t.min() >= 1 and k.min() >= 0):
+        raise InputError(f"{path}: t and {key} must be whole numbers (t >= 1)")
+    offset = 1 if key == "cell" else 0  # cells are 1-based, maps 0-based
+    if k.min() < offset:
+        raise InputError(f"{path}: {key} must be >= {offset}")
+    steps, size = int(t.max()), int(k.max()) + 1 - offset
+    index = (k.astype(int) - offset) * steps + (t.astype(int) - 1)
+    if index.size != steps * size or np.unique(index).size != index.size:
+        raise InputError(f"{path}: expected one row per step and {key} ({steps} x {size}), got {index.size} rows")
+    grids = {}
+    for name in columns:
+        values = table[name]
+        if np.any(values < -1e-9) or np.any(values > 1.0 + 1e-9):
+            raise InputError(f"{path}: {name} must be probabilities in [0, 1]")
+        grid = np.full(steps * size, math.nan)
+        grid[index] = values
+        grids[name] = grid.reshape(size, steps)
+    return grids
+
+
+def read_murphy(out_dir):
+    """Murphy's corridor tables of `out_dir`: {name: grids or table}, a note per missing one."""
+    readers = {
+        "fig2_maps": lambda path: read_step_grid(path, ("probability",), key="map"),
+        "fig2_cells": lambda path: read_step_grid(path, MURPHY_CELL_COLUMNS),
+        "fig3_position": lambda path: read_step_grid(path, MURPHY_POSITION_COLUMNS),
+        "fig4_rbpf": lambda path: read_step_grid(path, MURPHY_RBPF_COLUMNS),
+        "errors": lambda path: read_table(path, ("variant", "estimator"), MURPHY_ERROR_NUMBERS),
+    }
+    figures = {"fig2_maps": "fig2", "fig2_cells": "fig2", "fig3_position": "fig3", "fig4_rbpf": "fig4",
+               "errors": "tv"}
+    murphy = {}
+    for name, reader in readers.items():
+        path = os.path.join(out_dir, f"murphy_corridor_{name}.csv")
+        if os.path.exists(path):
+            murphy[name] = reader(path)
+        else:
+            print(f"note: murphy_corridor_{figures[name]}.png skipped: no {path}")
+    return murphy
 
 
 def read_pgm(path):
@@ -420,10 +487,92 @@ def plot_mrf_rmse(out_dir, table):
     save(figure, os.path.join(out_dir, "mrf_rmse.png"))
 
 
+def show_corridor(axes, grid, title, light_is_one, truth=None):
+    """A corridor quantity over time as the paper draws it: cells down, time across, grey
+    levels (light = 1 or light = 0); red dots on the true cells where given."""
+    cells, steps = grid.shape
+    axes.imshow(grid, cmap="gray" if light_is_one else "gray_r", vmin=0.0, vmax=1.0, interpolation="nearest",
+                origin="upper", aspect="auto", extent=(0.5, steps + 0.5, cells + 0.5, 0.5))
+    if truth is not None:
+        cell, t = np.nonzero(truth > 0.5)
+        axes.plot(t + 1, cell + 1, "o", color="#d62728", markersize=3, label="truth")
+    axes.set_xlabel("t")
+    axes.set_ylabel("cell")
+    axes.set_title(title, fontsize=10)
+
+
+def plot_murphy(out_dir, murphy):
+    """Murphy 1999, Figs. 2-4, and the distance of each estimator to exact Bayes."""
+    if "fig2_maps" in murphy and "fig2_cells" in murphy:
+        cells = murphy["fig2_cells"]
+        figure, panels = plt.subplots(1, 4, figsize=(16.0, 4.2), layout="constrained",
+                                      gridspec_kw={"width_ratios": (1.6, 1, 1, 1)})
+        maps = murphy["fig2_maps"]["probability"]
+        panels[0].imshow(maps, cmap="viridis", interpolation="nearest", origin="lower", aspect="auto",
+                         extent=(0.5, maps.shape[1] + 0.5, -0.5, maps.shape[0] - 0.5))
+        panels[0].set_xlabel("t")
+        panels[0].set_ylabel("map (bit i = cell i + 1; the paper's number is map + 1)")
+        panels[0].set_title("(a) exact p(M_t | y_1:t) over the maps", fontsize=10)
+        for axes, (name, label) in zip(panels[1:], (("exact", "(b) exact marginals"), ("online_em", "(c) online EM"),
+                                                     ("offline_em", "(d) offline EM"))):
+            # The paper: light cells are more likely 0, so the truth 01010101 is light in the odd cells.
+            show_corridor(axes, cells[name], label, light_is_one=False)
+        figure.suptitle("Murphy 1999, Fig. 2: the map; light = more likely 0 (truth 01010101)")
+        save(figure, os.path.join(out_dir, "murphy_corridor_fig2.png"))
+    if "fig3_position" in murphy:
+        position = murphy["fig3_position"]
+        figure, panels = plt.subplots(1, 3, figsize=(13.0, 4.2), layout="constrained")
+        for axes, (name, label) in zip(panels, (("exact", "(a) exact Bayes"), ("dead_reckoning", "(b) dead reckoning"),
+                                                ("online_em", "(c) online EM, maximal window"))):
+            show_corridor(axes, position[name], label, light_is_one=True, truth=position["truth"])
+        panels[0].legend(fontsize=8, loc="lower left")
+        figure.suptitle("Murphy 1999, Fig. 3: the position; light = more likely the robot's cell (red: the truth)")
+        save(figure, os.path.join(out_dir, "murphy_corridor_fig3.png"))
+    if "fig4_rbpf" in murphy:
+        rbpf = murphy["fig4_rbpf"]
+        figure, panels = plt.subplots(1, 4, figsize=(16.0, 4.2), layout="constrained")
+        show_corridor(panels[0], rbpf["exact_position"], "exact position", True, truth=rbpf["true_position"])
+        show_corridor(panels[1], rbpf["rbpf_position"], "(a) RBPF position", True, truth=rbpf["true_position"])
+        show_corridor(panels[2], rbpf["exact_p_one"], "exact map", False)
+        show_corridor(panels[3], rbpf["rbpf_p_one"], "(b) RBPF map", False)
+        figure.suptitle("Murphy 1999, Fig. 4(a-b): the RBPF against exact Bayes (one seed)")
+        save(figure, os.path.join(out_dir, "murphy_corridor_fig4.png"))
+    if "errors" in murphy:
+        table = murphy["errors"]
+        variants = np.array(table["variant"])
+        estimators = np.array(table["estimator"])
+        figure, panels = plt.subplots(1, 2, figsize=(12.0, 4.4), layout="constrained")
+        for name, label, colour in MURPHY_TV_ESTIMATORS:
+            mine = (variants == "paper") & (estimators == name)
+            if not mine.any():
+                continue
+            t = table["t"][mine]
+            tv, spread = table["position_tv_mean"][mine], table["position_tv_std"][mine]
+            panels[0].plot(t, tv, color=colour, label=label)
+            panels[0].fill_between(t, tv - spread, tv + spread, color=colour, alpha=0.2, linewidth=0)
+            panels[1].plot(t, table["truth_mass_mean"][mine], color=colour, label=label)
+        exact = (variants == "paper") & (estimators == "exact")
+        if exact.any():
+            panels[1].plot(table["t"][exact], table["truth_mass_mean"][exact], color="black", label="exact")
+        runs = int(table["runs"][0])
+        panels[0].set_ylabel("total variation distance to exact p(L_t | y_1:t)")
+        panels[0].set_title(f"Position error per step (mean and std over {runs} seeds)", fontsize=10)
+        panels[1].set_ylabel("p(L_t = true cell)")
+        panels[1].set_title("Mass on the robot's true cell", fontsize=10)
+        for axes in panels:
+            axes.axvline(MURPHY_RETURN_T, color="black", linestyle="--", linewidth=0.8)
+            axes.set_xlabel("t (dashed: the robot turns back)")
+            axes.set_ylim(0.0, 1.0)
+            axes.grid(True, alpha=0.3)
+        panels[1].legend(fontsize=8)
+        figure.suptitle("Murphy's corridor, the paper's run: each estimator against exact Bayes")
+        save(figure, os.path.join(out_dir, "murphy_corridor_tv.png"))
+
+
 def read_evaluation(out_dir):
     """The CSV files of `out_dir` that exist: (accuracy by scenario, parameter error table or
-    None, path planning table or None, MRF RMSE table or None, MRF maps or None); a note for
-    each missing one."""
+    None, path planning table or None, MRF RMSE table or None, MRF maps or None, Murphy's
+    corridor tables by name); a note for each missing one."""
     if not os.path.isdir(out_dir):
         raise InputError(f"{out_dir}: no such directory")
     accuracy = {}
@@ -455,14 +604,16 @@ def read_evaluation(out_dir):
         mrf_maps = read_mrf_maps(path)
     else:
         print(f"note: mrf_maps.png skipped: no {path}")
-    if not accuracy and all(table is None for table in (parameter_error, path_planning, mrf_rmse, mrf_maps)):
+    murphy = read_murphy(out_dir)
+    if not accuracy and not murphy and all(table is None for table in (parameter_error, path_planning, mrf_rmse,
+                                                                        mrf_maps)):
         raise InputError(f"{out_dir}: none of the evaluation's CSV files (accuracy_<scenario>.csv, "
-                         "parameter_error.csv, path_planning.csv, mrf_rmse.csv, mrf_maps.csv)")
-    return accuracy, parameter_error, path_planning, mrf_rmse, mrf_maps
+                         "parameter_error.csv, path_planning.csv, mrf_rmse.csv, mrf_maps.csv, murphy_corridor_*.csv)")
+    return accuracy, parameter_error, path_planning, mrf_rmse, mrf_maps, murphy
 
 
 def plot_evaluation(out_dir, evaluation):
-    accuracy, parameter_error, path_planning, mrf_rmse, mrf_maps = evaluation
+    accuracy, parameter_error, path_planning, mrf_rmse, mrf_maps, murphy = evaluation
     plot_accuracy(out_dir, accuracy)
     if parameter_error is not None:
         plot_parameter_error(out_dir, parameter_error)
@@ -472,6 +623,7 @@ def plot_evaluation(out_dir, evaluation):
         plot_mrf_rmse(out_dir, mrf_rmse)
     if mrf_maps is not None:
         plot_mrf_maps(out_dir, mrf_maps)
+    plot_murphy(out_dir, murphy)
 
 
 def show_map(axes, layer, title):
@@ -525,7 +677,8 @@ def main(argv=None):
         description="Plots the evaluation's CSV files and process_bag's map layers as PNG files next to them.")
     parser.add_argument("out_dir", nargs="?", metavar="OUT_DIR",
                         help="directory with the CSV files of the evaluation (accuracy_<scenario>.csv, "
-                             "parameter_error.csv, path_planning.csv, mrf_rmse.csv, mrf_maps.csv)")
+                             "parameter_error.csv, path_planning.csv, mrf_rmse.csv, mrf_maps.csv, "
+                             "murphy_corridor_*.csv)")
     parser.add_argument("--layers", metavar="DIR", help="directory with map_server layers (process_bag --out)")
     args = parser.parse_args(argv)
     if args.out_dir is None and args.layers is None:

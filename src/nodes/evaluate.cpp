@@ -1,5 +1,5 @@
 // evaluate: the papers' experiments on simulated changing worlds (evaluation/evaluation.h,
-// evaluation/path_planning.h, evaluation/mrf_experiment.h), written as CSV tables and a summary into one directory;
+// evaluation/path_planning.h, evaluation/mrf_experiment.h, evaluation/murphy_corridor.h), written as CSV tables and a summary into one directory;
 // scripts/plot_evaluation.py turns them into the papers' figures.
 #include <algorithm>
 #include <array>
@@ -28,6 +28,7 @@
 #include "dynamic_occupancy_grid/evaluation/learning_experiment.h"
 #include "dynamic_occupancy_grid/evaluation/memory_experiment.h"
 #include "dynamic_occupancy_grid/evaluation/mrf_experiment.h"
+#include "dynamic_occupancy_grid/evaluation/murphy_corridor.h"
 #include "dynamic_occupancy_grid/evaluation/path_planning.h"
 
 namespace core = dynamic_occupancy_grid::core;
@@ -45,6 +46,7 @@ struct Options {
   int memory_repetitions = 10;
   std::vector<std::string> learning_scenarios{"patrol", "dynamic_25_25"};
   int learning_repetitions = 4;
+  int murphy_repetitions = 100;
   std::uint64_t seed = 1;
   unsigned threads = 0;
 };
@@ -109,6 +111,9 @@ Options parseOptions(int argc, char** argv) {
        "skips it")
       ("learning-repetitions", cl::number(&options.learning_repetitions, repetitions)->value_name("N"),
        "repetitions of each learning scenario (default 4; 0 skips it)")
+      ("murphy-repetitions", cl::number(&options.murphy_repetitions, repetitions)->value_name("N"),
+       "seeds of Murphy's 1D corridor (docs/murphy_corridor.md: exact Bayes, online and offline EM, the RBPF; "
+       "default 100, about a second; 0 skips it)")
       ("seed",
        cl::number(&options.seed, cl::between<std::uint64_t>(0, std::numeric_limits<long long>::max()))
            ->value_name("S"),
@@ -118,10 +123,10 @@ Options parseOptions(int argc, char** argv) {
   line.parse(argc, argv);
   if (options.learning_repetitions == 0) options.learning_scenarios.clear();
   if (options.scenarios.empty() && options.path_repetitions == 0 && options.mrf_repetitions == 0 &&
-      options.memory_repetitions == 0 && options.learning_scenarios.empty()) {
+      options.memory_repetitions == 0 && options.learning_scenarios.empty() && options.murphy_repetitions == 0) {
     line.fail("nothing to run: no scenarios (--scenarios none), no path planning (--path-repetitions 0), no "
-              "MRF experiment (--mrf-repetitions 0), no memory experiment (--memory-repetitions 0) and no "
-              "learning experiment (--learning-scenarios none)");
+              "MRF experiment (--mrf-repetitions 0), no memory experiment (--memory-repetitions 0), no "
+              "learning experiment (--learning-scenarios none) and no corridor (--murphy-repetitions 0)");
   }
   return options;
 }
@@ -932,6 +937,20 @@ int main(int argc, char** argv) {
       core::writeFileAtomically(options.out + "/learning_" + name + ".csv", learningCsv(result));
       summary << learningSummary(scenario, config, result);
       learningChecks(scenario, result, checks);
+    }
+
+    if (options.murphy_repetitions > 0) {
+      core::MurphyExperimentConfig config;
+      config.repetitions = options.murphy_repetitions;
+      config.seed = options.seed;
+      config.threads = options.threads;
+      std::cerr << "evaluate: Murphy's 1D corridor, " << config.repetitions << " seeds ..." << std::flush;
+      const core::MurphyExperimentResult result = core::runMurphyExperiment(config);
+      std::cerr << " " << fixed(result.seconds, 1) << " s\n";
+      for (const auto& [name, csv] : core::murphyCsvTables(result)) core::writeFileAtomically(options.out + "/" + name, csv);
+      std::vector<core::MurphyTarget> targets;
+      summary << core::formatMurphySummary(config, result, &targets);
+      for (const core::MurphyTarget& target : targets) checks.push_back({target.target, target.measured, target.met});
     }
 
     summary << "\n## Targets\n\n| target | measured | met |\n|---|---|---|\n";

@@ -15,7 +15,7 @@ PLOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "scr
 METHODS = ["static", "static_unclamped", "online", "offline", "oracle"]
 SMALL = ["--scenarios", "dynamic_5_5,redraw_100", "--repetitions", "2", "--path-repetitions", "2",
          "--path-runs", "4", "--mrf-repetitions", "2", "--memory-repetitions", "2", "--threads", "2",
-         "--learning-scenarios", "dynamic_25_25", "--learning-repetitions", "1"]
+         "--learning-scenarios", "dynamic_25_25", "--learning-repetitions", "1", "--murphy-repetitions", "3"]
 MRF_WORLD = (46, 32)  # the mrf_squares scenario's cells (evaluation/simulator.cpp)
 
 
@@ -240,7 +240,8 @@ class EvaluateTool(unittest.TestCase):
                              text=True, timeout=300)
         self.assertEqual(run.returncode, 0, run.stderr)
         for name in ["accuracy_dynamic_5_5.png", "accuracy_redraw_100.png", "parameter_error.png",
-                     "path_planning.png", "mrf_rmse.png", "mrf_maps.png"]:
+                     "path_planning.png", "mrf_rmse.png", "mrf_maps.png", "murphy_corridor_fig2.png",
+                     "murphy_corridor_fig3.png", "murphy_corridor_fig4.png", "murphy_corridor_tv.png"]:
             with open(os.path.join(self.out, name), "rb") as file:
                 self.assertEqual(file.read(8), b"\x89PNG\r\n\x1a\n", name)
 
@@ -266,11 +267,69 @@ class EvaluateTool(unittest.TestCase):
         self.assertIn("## Learning that pays off: dynamic_25_25", summary)
         self.assertIn("dynamic_25_25: online parameter MAE ≤ 0.05 at the end", summary)
 
+    def test_murphy_corridor_tables_and_summary(self):
+        # The figures' tables: 1-based t and cells as in the paper, distributions that sum to one.
+        with open(os.path.join(self.out, "murphy_corridor_fig3_position.csv")) as file:
+            rows = list(csv.DictReader(file))
+        self.assertEqual(len(rows), 16 * 8)
+        self.assertEqual((rows[0]["t"], rows[0]["cell"]), ("1", "1"))
+        estimators = ("exact", "dead_reckoning", "online_em", "online_em_no_smoothing", "offline_em", "rbpf",
+                      "rbpf_optimal", "exact_smoothed", "offline_em_smoothed")
+        for t in range(1, 17):
+            mine = [row for row in rows if row["t"] == str(t)]
+            self.assertEqual(sum(int(row["truth"]) for row in mine), 1)
+            for estimator in estimators:
+                self.assertAlmostEqual(sum(float(row[estimator]) for row in mine), 1.0, places=4)
+        # The paper's "almost 70 %" in cell 8 at t = 9.
+        self.assertAlmostEqual(float(next(r for r in rows if (r["t"], r["cell"]) == ("9", "8"))["exact"]), 0.685,
+                               places=3)
+        with open(os.path.join(self.out, "murphy_corridor_fig2_maps.csv")) as file:
+            maps = list(csv.DictReader(file))
+        self.assertEqual(len(maps), 16 * 256)
+        last = [row for row in maps if row["t"] == "16"]
+        self.assertEqual(max(last, key=lambda row: float(row["probability"]))["labels"], "01010101")
+        with open(os.path.join(self.out, "murphy_corridor_fig2_cells.csv")) as file:
+            self.assertEqual(len(list(csv.DictReader(file))), 16 * 8)
+        with open(os.path.join(self.out, "murphy_corridor_fig4_rbpf.csv")) as file:
+            self.assertEqual(len(list(csv.DictReader(file))), 16 * 8)
+        with open(os.path.join(self.out, "murphy_corridor_errors.csv")) as file:
+            errors = list(csv.DictReader(file))
+        self.assertEqual({row["variant"] for row in errors}, {"paper", "simulated_static", "simulated_dynamic"})
+        for row in errors:
+            self.assertEqual(row["runs"], "3")
+            self.assertTrue(0.0 <= float(row["position_tv_mean"]) <= 1.0)
+            self.assertEqual(row["map_error_mean"] == "", row["estimator"] == "dead_reckoning")
+            if row["estimator"] == "exact":
+                self.assertEqual(float(row["position_tv_mean"]), 0.0)
+        with open(os.path.join(self.out, "murphy_corridor_particles.csv")) as file:
+            sweep = list(csv.DictReader(file))
+        self.assertEqual([row["particles"] for row in sweep], ["10", "50", "200", "1000"])
+        # More particles, closer to exact.
+        self.assertLess(float(sweep[-1]["mean_tv_mean"]), float(sweep[0]["mean_tv_mean"]))
+        with open(os.path.join(self.out, "summary.md")) as file:
+            summary = file.read()
+        self.assertIn("## Murphy's 1D corridor", summary)
+        self.assertLess(summary.index("## Murphy's 1D corridor"), summary.index("## Targets"))
+        self.assertIn("| Murphy: online EM lost on the way back", summary)
+
+    def test_murphy_same_seed_same_numbers_on_any_threads(self):
+        again = os.path.join(self.tmp.name, "murphy_again")
+        rc, _, stderr = evaluate(["--out", again, "--scenarios", "none", "--path-repetitions", "0",
+                                  "--mrf-repetitions", "0", "--memory-repetitions", "0", "--learning-scenarios", "none",
+                                  "--murphy-repetitions", "3", "--threads", "1"])
+        self.assertEqual(rc, 0, stderr)
+        names = ["murphy_corridor_errors.csv", "murphy_corridor_fig2_cells.csv", "murphy_corridor_fig2_maps.csv",
+                 "murphy_corridor_fig3_position.csv", "murphy_corridor_fig4_rbpf.csv", "murphy_corridor_particles.csv"]
+        self.assertEqual(sorted(os.listdir(again)), names + ["summary.md"])
+        for name in names:
+            with open(os.path.join(self.out, name)) as a, open(os.path.join(again, name)) as b:
+                self.assertEqual(a.read(), b.read(), name)
+
     def test_same_seed_same_numbers(self):
         again = os.path.join(self.tmp.name, "again")
         rc, _, stderr = evaluate(["--out", again, "--scenarios", "dynamic_5_5", "--repetitions", "2",
                                   "--path-repetitions", "0", "--mrf-repetitions", "0", "--memory-repetitions", "0",
-                                  "--learning-repetitions", "0", "--threads", "1"])
+                                  "--learning-repetitions", "0", "--murphy-repetitions", "0", "--threads", "1"])
         self.assertEqual(rc, 0, stderr)
         with open(os.path.join(self.out, "accuracy_dynamic_5_5.csv")) as a, \
                 open(os.path.join(again, "accuracy_dynamic_5_5.csv")) as b:
@@ -285,7 +344,7 @@ class EvaluateTool(unittest.TestCase):
         again = os.path.join(self.tmp.name, "mrf_again")
         rc, _, stderr = evaluate(["--out", again, "--scenarios", "none", "--path-repetitions", "0",
                                   "--mrf-repetitions", "2", "--memory-repetitions", "0", "--learning-scenarios", "none",
-                                  "--threads", "1"])
+                                  "--murphy-repetitions", "0", "--threads", "1"])
         self.assertEqual(rc, 0, stderr)
         self.assertEqual(sorted(os.listdir(again)), ["mrf_iterations.csv", "mrf_maps.csv", "mrf_online.csv",
                                                      "mrf_rmse.csv", "mrf_rmse_by_kind.csv", "mrf_rmse_changing.csv",
@@ -305,7 +364,7 @@ class EvaluateTool(unittest.TestCase):
         again = os.path.join(self.tmp.name, "mrf_t5")
         rc, _, stderr = evaluate(["--out", again, "--scenarios", "none", "--path-repetitions", "0",
                                   "--mrf-repetitions", "2", "--mrf-temperature", "5", "--memory-repetitions", "0",
-                                  "--learning-scenarios", "none", "--threads", "2"])
+                                  "--learning-scenarios", "none", "--murphy-repetitions", "0", "--threads", "2"])
         self.assertEqual(rc, 0, stderr)
         with open(os.path.join(again, "summary.md")) as file:
             self.assertIn("with the MRF prior at T = 5.", file.read())
@@ -321,7 +380,7 @@ class EvaluateTool(unittest.TestCase):
         again = os.path.join(self.tmp.name, "memory_again")
         rc, _, stderr = evaluate(["--out", again, "--scenarios", "none", "--path-repetitions", "0",
                                   "--mrf-repetitions", "0", "--memory-repetitions", "2", "--learning-scenarios", "none",
-                                  "--threads", "1"])
+                                  "--murphy-repetitions", "0", "--threads", "1"])
         self.assertEqual(rc, 0, stderr)
         self.assertEqual(sorted(os.listdir(again)), ["memory_navigation.csv", "summary.md"])
         tables = []
@@ -358,7 +417,8 @@ class EvaluateTool(unittest.TestCase):
                      ["--scenarios", "dynamic_5_5,dynamic_5_5"],
                      ["--scenarios", "dividers"], ["--memory-repetitions", "-1"],
                      ["--scenarios", "none", "--path-repetitions", "0", "--mrf-repetitions", "0",
-                      "--memory-repetitions", "0", "--learning-scenarios", "none"],
+                      "--memory-repetitions", "0", "--learning-scenarios", "none", "--murphy-repetitions", "0"],
+                     ["--murphy-repetitions", "-1"], ["--murphy-repetitions", "x"],
                      ["--learning-scenarios", "nope"], ["--learning-repetitions", "-1"],
                      ["--learning-scenarios", "patrol,patrol"],
                      ["--no-such-option", "1"], ["--out"]):

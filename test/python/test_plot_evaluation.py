@@ -37,6 +37,10 @@ PLANNING_CLASSES = ("short", "long", "indirect_long", "unnecessary_indirect_long
 LAYERS = ("belief", "predicted", "stationary", "p_occ_given_free", "p_free_given_occ", "static_map")
 ALL_FIGURES = tuple(f"accuracy_{s}.png" for s in ACCURACY_SCENARIOS) + (
     "fig4.png", "fig5.png", "parameter_error.png", "path_planning.png", "mrf_rmse.png", "mrf_maps.png")
+MURPHY_FIGURES = ("murphy_corridor_fig2.png", "murphy_corridor_fig3.png", "murphy_corridor_fig4.png",
+                  "murphy_corridor_tv.png")
+ALL_FIGURES += MURPHY_FIGURES
+MURPHY_ESTIMATORS = ("exact", "dead_reckoning", "online_em", "offline_em", "rbpf", "rbpf_optimal")
 MRF_RMSE_HEADER = ("repetition,world_seed,run_seed,method,sparse_cells,sparse_p_occ_given_free_rmse,"
                    "sparse_p_free_given_occ_rmse,well_observed_cells,well_observed_p_occ_given_free_rmse,"
                    "well_observed_p_free_given_occ_rmse,em_iterations,newton_iterations,em_seconds")
@@ -102,6 +106,49 @@ def write_mrf_maps(directory, width=12, height=8):
                 file.write(f"{x},{y},{x + y},{truth},{truth},{learned},{learned},{learned},{learned}\n")
 
 
+def corridor_value(t, cell, column):
+    """A synthetic probability for step t, cell `cell` (1-based) of a corridor table."""
+    if column in ("truth", "true_position"):
+        return 1 if cell == min(t, 4) else 0
+    if column == "true_label":
+        return (cell + 1) % 2
+    return round(0.1 + 0.8 * ((t * 7 + cell * 3 + len(column)) % 10) / 10.0, 4)
+
+
+def write_murphy(directory, steps=5, cells=4):
+    """Murphy's corridor tables as evaluate writes them (evaluation/murphy_corridor_report.cpp),
+    1-based t and cells, on a small corridor."""
+    columns = {
+        "fig2_cells": ("truth", "exact", "online_em", "online_em_no_smoothing", "offline_em", "offline_em_smoothed",
+                       "rbpf", "rbpf_optimal"),
+        "fig3_position": ("truth", "exact", "dead_reckoning", "online_em", "online_em_no_smoothing", "offline_em",
+                          "rbpf", "rbpf_optimal", "exact_smoothed", "offline_em_smoothed"),
+        "fig4_rbpf": ("true_position", "exact_position", "rbpf_position", "rbpf_optimal_position", "true_label",
+                      "exact_p_one", "rbpf_p_one", "rbpf_optimal_p_one"),
+    }
+    for name, names in columns.items():
+        with open(os.path.join(directory, f"murphy_corridor_{name}.csv"), "w") as file:
+            file.write("t,cell," + ",".join(names) + "\n")
+            for t in range(1, steps + 1):
+                for cell in range(1, cells + 1):
+                    file.write(f"{t},{cell}," + ",".join(str(corridor_value(t, cell, c)) for c in names) + "\n")
+    with open(os.path.join(directory, "murphy_corridor_fig2_maps.csv"), "w") as file:
+        file.write("t,map,labels,probability\n")
+        for t in range(1, steps + 1):
+            for m in range(2 ** cells):
+                labels = "".join(str((m >> i) & 1) for i in range(cells))
+                file.write(f"{t},{m},{labels},{1.0 if m == t else 0.0}\n")
+    with open(os.path.join(directory, "murphy_corridor_errors.csv"), "w") as file:
+        file.write("variant,estimator,t,position_tv_mean,position_tv_std,truth_mass_mean,map_error_mean,"
+                   "map_truth_error_mean,runs\n")
+        for variant in ("paper", "simulated_static"):
+            for index, estimator in enumerate(MURPHY_ESTIMATORS):
+                for t in range(1, steps + 1):
+                    tv = 0.0 if estimator == "exact" else 0.1 * index + 0.02 * t
+                    map_error = "" if estimator == "dead_reckoning" else "0.05"
+                    file.write(f"{variant},{estimator},{t},{tv},0.02,{0.9 - 0.1 * index},{map_error},0.2,3\n")
+
+
 def write_all(directory):
     for scenario in ACCURACY_SCENARIOS:
         # The parking lot long enough for a few of its 108-step hours.
@@ -110,6 +157,7 @@ def write_all(directory):
     write_path_planning(directory)
     write_mrf_rmse(directory)
     write_mrf_maps(directory)
+    write_murphy(directory)
 
 
 def write_layer(directory, name, width=40, height=30, resolution=0.05, origin=(-1.0, 2.0)):
@@ -200,7 +248,7 @@ class TestPlotEvaluation(unittest.TestCase):
         self.assertEqual(self.pngs(self.tmp),
                          ["accuracy_dynamic_5_5.png", "accuracy_redraw_100.png", "accuracy_redraw_300.png", "fig5.png"])
         for skipped in ("accuracy_dynamic_25_25.png", "accuracy_parking_lot.png", "fig4.png", "parameter_error.png",
-                        "path_planning.png", "mrf_rmse.png", "mrf_maps.png"):
+                        "path_planning.png", "mrf_rmse.png", "mrf_maps.png") + MURPHY_FIGURES:
             self.assertRegex(stdout, rf"note: {skipped} skipped")
         self.assertIn("accuracy_dynamic_25_25.csv", stdout)  # what fig4 lacks
 
@@ -243,6 +291,16 @@ class TestPlotEvaluation(unittest.TestCase):
                 MRF_RMSE_HEADER + "\n0,1,2,plain,3,0.1,,4,0.1,0.1,5,0,0.1\n"           # an empty RMSE
                 "0,1,2,mrf,3,0.1,0.1,4,0.1,0.1,5,9,0.5\n",
             ],
+            "murphy_corridor_fig3_position.csv": [
+                "t,cell,truth,exact\n1,1,1,1\n",                                 # columns missing
+                "t,cell," + ",".join(plot_evaluation.MURPHY_POSITION_COLUMNS) + "\n"
+                "1,1,1,1,1,1,1,1\n1,1,1,1,1,1,1,1\n",                            # a (t, cell) twice
+                "t,cell," + ",".join(plot_evaluation.MURPHY_POSITION_COLUMNS) + "\n"
+                "1,1,1,1.5,1,1,1,1\n",                                            # not a probability
+            ],
+            "murphy_corridor_fig2_maps.csv": [
+                "t,map,labels,probability\n1,0,00,0.5\n1,2,01,0.5\n",             # map 1 missing
+            ],
             "mrf_maps.csv": [
                 MRF_MAPS_HEADER + "\n0,0,1,0,0,0.1,0.1,0.1,0.1\n0,0,1,0,0,0.1,0.1,0.1,0.1\n",  # a cell twice
                 MRF_MAPS_HEADER + "\n0,0,1,0,0,0.1,0.1,0.1,0.1\n1,1,1,0,0,0.1,0.1,0.1,0.1\n",  # cells missing
@@ -277,6 +335,26 @@ class TestPlotEvaluation(unittest.TestCase):
         self.assertEqual(rc, 0, stderr)
         width, height = self.assert_png(os.path.join(self.tmp, "mrf_maps.png"))
         self.assertGreater(width, height)
+
+    def test_murphy_grids_are_the_csv_cells(self):
+        write_murphy(self.tmp, steps=5, cells=4)
+        grids = plot_evaluation.read_step_grid(os.path.join(self.tmp, "murphy_corridor_fig3_position.csv"),
+                                               plot_evaluation.MURPHY_POSITION_COLUMNS)
+        self.assertEqual(grids["exact"].shape, (4, 5))  # [cell - 1, t - 1]
+        self.assertEqual(grids["exact"][2, 3], corridor_value(4, 3, "exact"))
+        self.assertEqual(grids["truth"][3, 4], 1)
+        maps = plot_evaluation.read_step_grid(os.path.join(self.tmp, "murphy_corridor_fig2_maps.csv"),
+                                              ("probability",), key="map")
+        self.assertEqual(maps["probability"].shape, (16, 5))  # maps 0-based
+        self.assertEqual(maps["probability"][3, 2], 1.0)  # step 3's mass on map 3
+        rc, stdout, stderr = self.run_script(self.tmp)
+        self.assertEqual(rc, 0, stderr)
+        self.assertEqual(self.pngs(self.tmp), sorted(MURPHY_FIGURES))
+        for name in MURPHY_FIGURES:
+            width, height = self.assert_png(os.path.join(self.tmp, name))
+            self.assertGreater(width, height, name)
+        for _, _, colour in plot_evaluation.MURPHY_TV_ESTIMATORS:
+            self.assertTrue(has_colour(os.path.join(self.tmp, "murphy_corridor_tv.png"), colour), colour)
 
     # --- the map layers ------------------------------------------------------------------------
 
