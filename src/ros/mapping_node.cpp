@@ -33,6 +33,9 @@ namespace {
 
 // Seconds between repeated warnings of the same kind from per-message callbacks.
 constexpr double kWarnPeriodS = 5.0;
+/// Wall seconds a scan's frame may lack its transform before the node warns (tf at start-up).
+constexpr double kMissingFrameGraceS = 1.0;
+constexpr std::size_t kMaxFramesWithoutTransform = 64;
 
 bool sameBox(const core::CellBox& a, const core::CellBox& b) {
   return (a.empty() && b.empty()) ||
@@ -289,9 +292,39 @@ void MappingNode::countTfDrop(const std::string& error) {
   last_tf_error_ = error;
 }
 
-void MappingNode::scanArrived(const sensor_msgs::LaserScan::ConstPtr&, std::size_t topic_index) {
+void MappingNode::scanArrived(const sensor_msgs::LaserScan::ConstPtr& msg, std::size_t topic_index) {
   ++scan_counts_.received;
   scan_rates_[topic_index]->tick();
+  warnIfNoTransform(msg->header.frame_id);
+}
+
+void MappingNode::warnIfNoTransform(const std::string& frame_id) {
+  // The tf2 filter keeps such scans quietly until its queue overflows: say why at once (after
+  // a moment's grace for tf at start-up), naming both frames.
+  if (frame_id.empty()) return;  // the filter drops it and says so
+  std::string error;
+  const bool known = tf_buffer_.canTransform(parameters_.fixed_frame, frame_id, ros::Time(0), &error);
+  const ros::WallTime now = ros::WallTime::now();
+  std::lock_guard<std::mutex> lock(diagnostics_mutex_);
+  if (known) {
+    frames_without_transform_.erase(frame_id);
+    return;
+  }
+  // Bounded against a stream of made-up frame names.
+  if (frames_without_transform_.size() >= kMaxFramesWithoutTransform) frames_without_transform_.clear();
+  const auto since = frames_without_transform_.emplace(frame_id, now).first->second;
+  if ((now - since).toSec() < kMissingFrameGraceS) return;
+  const bool frame_known = tf_buffer_._frameExists(frame_id);
+  const bool fixed_known = tf_buffer_._frameExists(parameters_.fixed_frame);
+  const std::string why = !frame_known ? "tf has no frame '" + frame_id + "' (nothing publishes it)"
+                          : !fixed_known ? "tf has no frame '" + parameters_.fixed_frame + "' (is ~fixed_frame right?)"
+                                         : "the two frames are not connected in tf";
+  ROS_WARN_THROTTLE(kWarnPeriodS,
+                    "scans from frame '%s' get no transform to the fixed frame '%s' (for %.1f s now): %s; they wait "
+                    "in the queue of %d scans and are dropped from it (tf: %s)",
+                    frame_id.c_str(), parameters_.fixed_frame.c_str(), (now - since).toSec(), why.c_str(),
+                    parameters_.scan_queue_size, error.c_str());
+  last_tf_error_ = "scans from frame '" + frame_id + "': " + why;
 }
 
 void MappingNode::scanCallback(const sensor_msgs::LaserScan::ConstPtr& msg) {
@@ -341,13 +374,27 @@ void MappingNode::scanCallback(const sensor_msgs::LaserScan::ConstPtr& msg) {
     if (memory_integrated) ++scan_counts_.integrated;
     return;
   }
-  if (newest_stamp_s_ && scan.stamp_s < *newest_stamp_s_ - parameters_.time_jump_threshold_s) {
+  const double threshold_s = parameters_.time_jump_threshold_s;
+  if (newest_stamp_s_ && scan.stamp_s < *newest_stamp_s_ - threshold_s) {
+    if (steady_since_restart_s_ && *steady_since_restart_s_ < threshold_s) {
+      // Again, before time ran on steadily: two clocks on the scans, or stamps that keep
+      // going back. Restarting for each would make every scan a new step.
+      ++scan_counts_.dropped_late;
+      ROS_WARN_THROTTLE(kWarnPeriodS,
+                        "dropping scan from frame '%s' stamped %.3f: time jumped back by %.1f s again, only %.1f s "
+                        "of steady time after the map's clock restarted (scans with different clocks?); the clock "
+                        "restarts once per ~time_jump_threshold (%.1f s) of steady time",
+                        msg->header.frame_id.c_str(), scan.stamp_s, *newest_stamp_s_ - scan.stamp_s,
+                        *steady_since_restart_s_, threshold_s);
+      return;
+    }
     // A bag played again or a simulator reset: keep the map, go on from the next step.
     ROS_WARN_THROTTLE(1.0, "time jumped back by %.1f s (bag restarted?): keeping the map, continuing it after step %lld",
                       *newest_stamp_s_ - scan.stamp_s,
                       static_cast<long long>(mapper_->lastAppliedStep().value_or(-1)));
     mapper_->restartClockAt(scan.stamp_s);
     newest_stamp_s_.reset();
+    steady_since_restart_s_ = 0.0;
   }
   const core::ScanResult result = mapper_->integrate(scan);
   if (result.status != core::ScanStatus::kIntegrated) {
@@ -358,6 +405,9 @@ void MappingNode::scanCallback(const sensor_msgs::LaserScan::ConstPtr& msg) {
     return;
   }
   ++scan_counts_.integrated;
+  // Time runs steadily in steps below the threshold; a leap forward does not count.
+  const double advance_s = newest_stamp_s_ ? scan.stamp_s - *newest_stamp_s_ : 0.0;
+  if (steady_since_restart_s_ && advance_s > 0.0 && advance_s <= threshold_s) *steady_since_restart_s_ += advance_s;
   newest_stamp_s_ = std::max(newest_stamp_s_.value_or(scan.stamp_s), scan.stamp_s);
   if (result.cells_outside > 0) {
     ROS_WARN_THROTTLE(30.0, "beams reach beyond the map's bounds (fixed_bounds / max_map_size); those cells are not mapped");
@@ -732,6 +782,7 @@ ros::Time MappingNode::memoryStamp() const { return memory_stamp_.value_or(ros::
 void MappingNode::replaceMapper(std::unique_ptr<core::Mapper> mapper) {
   mapper_ = std::move(mapper);
   newest_stamp_s_.reset();
+  steady_since_restart_s_.reset();
   if (mapper_->lastAppliedStep()) newest_stamp_s_ = mapper_->clock().stepStart(*mapper_->lastAppliedStep() + 1);
   for (Output& output : outputs_) {
     if (output.horizon_from_parameter) {

@@ -1,5 +1,6 @@
 #include "dynamic_occupancy_grid/ros/parameters.h"
 
+#include <ros/names.h>
 #include <ros/param.h>
 #include <xmlrpcpp/XmlRpcValue.h>
 
@@ -304,7 +305,12 @@ bool readParameters(const ros::NodeHandle& private_nh, NodeParameters* parameter
 
   read.require(!p.fixed_frame.empty(), "fixed_frame", "must not be empty");
   read.require(!p.scan_topics.empty(), "scan_topics", "must list at least one topic");
-  for (const std::string& topic : p.scan_topics) read.require(!topic.empty(), "scan_topics", "has an empty topic");
+  for (const std::string& topic : p.scan_topics) {
+    std::string why;
+    read.require(!topic.empty(), "scan_topics", "has an empty topic");
+    read.require(topic.empty() || ros::names::validate(topic, why), "scan_topics",
+                 "has '" + topic + "', which is not a valid topic name: " + why);
+  }
   read.require(p.publish_period_s > 0.0, "publish_period", "must be > 0 s");
   read.require(p.full_map_period_s >= 0.0, "full_map_period", "must be >= 0 s");
   read.require(p.prediction_horizon_s >= 0.0, "prediction_horizon", "must be >= 0 s");

@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """mapping_node against bad input: bad parameters stop it with an error naming the
-parameter; malformed scans, scans without transform and time jumping back leave it alive
+parameter; malformed scans, scans without transform (named in a warning) and time jumping back (once or on every scan) leave it alive
 and mapping; files that are not regular files (a FIFO, /dev/zero, /dev/null, a device node)
 are refused at once by the services, which never replace them; ~file_directory confines the
 services' paths; a request stuck in the kernel does not stop the mapping. The tests run in
@@ -19,6 +19,7 @@ import unittest
 import rospy
 import rostest
 from nav_msgs.msg import OccupancyGrid
+from rosgraph_msgs.msg import Log
 from std_srvs.srv import Trigger
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
@@ -141,6 +142,9 @@ class TestRobustness(unittest.TestCase):
             (('sensor_model/prior_weight', 'must be a number'), '_sensor_model/prior_weight:=abc'),
             (('sensor_model/p_min', '(0, 0.4]'), '_sensor_model/p_min:=0.5'),
             (('sensor_model/p_min', '(0, 0.4]'), '_sensor_model/p_min:=0'),
+            # roscpp reads "[x]" on the command line as a string, not a list: not a topic name.
+            (('scan_topics', "has '[x]', which is not a valid topic name"), '_scan_topics:=[x]'),
+            (('scan_topics', 'not a valid topic name'), '_scan_topics:=scan%1'),
         ]
         wall_scene.assert_bad_parameters_stop_node(self, cases, 'bad_parameter')
         # The node under test is not disturbed.
@@ -240,6 +244,27 @@ class TestRobustness(unittest.TestCase):
         self.assertLessEqual(grid.info.height * grid.info.resolution, MAX_MAP_SIZE + 64 * RESOLUTION)
         self.assertGreaterEqual(grid.info.origin.position.x, -MAX_MAP_SIZE / 2 - 64 * RESOLUTION)
 
+    def test_03b_missing_frame_is_named(self):
+        # Scans from a frame tf has never heard of wait in the tf2 filter's queue (200 here);
+        # the node must say so long before the queue overflows, naming both frames.
+        log = wall_scene.TopicRecorder('/rosout', Log)
+        frame = 'laser_not_in_tf'
+        published = []
+
+        def warned():
+            stamp = self.scene.clock.now
+            self.scene.publish(self.scene.make_scan(stamp, frame_id=frame))
+            published.append(stamp)
+            return log.wait_for(lambda msg: "frame '%s'" % frame in msg.msg and "fixed frame 'map'" in msg.msg
+                                and "tf has no frame '%s'" % frame in msg.msg, timeout=0.0)
+
+        warning = self.scene.wait_until(warned, tick=0.0, timeout=wall_scene.DEFAULT_TIMEOUT)
+        log.unregister()
+        self.assertIsNotNone(warning, 'no warning named the missing frame after %d scans' % len(published))
+        self.assertEqual(warning.level, Log.WARN)
+        self.assertLess(len(published), 150, 'the warning came only when the queue was about to overflow')
+        self.alive()
+
     def test_04_time_jumps_back(self):
         before = self.alive()
         self.assertTrue(before.observed)
@@ -261,6 +286,33 @@ class TestRobustness(unittest.TestCase):
         restart = self.scene.last_stamp - 0.5 * TIME_JUMP_THRESHOLD
         self.scene.publish(self.scene.make_scan(restart, ranges=[INF] * BEAMS))
         self.alive()
+        self.map_wall(steps=2)
+
+    def test_04b_stamps_keep_jumping_back(self):
+        # Every scan stamped 10 s before the one before it (a broken driver, or two sources
+        # with different clocks): the map's clock restarts once, not a step per scan.
+        self.map_wall(steps=6)  # time ran on steadily for more than time_jump_threshold
+        before = self.alive()
+        base = self.scene.last_stamp
+        restart = base - 10.0
+        self.scene.publish(self.scene.make_scan(restart))
+        first = self.scene.wait_for_cell_step(before.last_observed_step + 1, relative=False)
+        self.assertGreater(first.last_observed_step, before.last_observed_step, 'the first jump restarts the clock')
+        jumps = 10
+        for k in range(2, jumps + 1):
+            self.scene.publish(self.scene.make_scan(base - 10.0 * k))
+        # Then scans run on from the first jump's stamp, step 0 of the restarted clock.
+        self.scene.start_sequence(restart)
+        self.scene.step_offset = first.last_observed_step
+        self.scene.last_step = 0
+        self.scene.next_step = 1
+        last = self.scene.feed_steps(3)
+        self.scene.finish()
+        after = self.scene.wait_for_cell_step(last)
+        self.assertIsNotNone(after)
+        self.assertEqual(after.last_observed_step, first.last_observed_step + last,
+                         'the map went %d steps on from its restart for %d scans jumping back (one restart: %d)' % (
+                             after.last_observed_step - first.last_observed_step, jumps, last))
         self.map_wall(steps=2)
 
     def test_05_wall_still_mapped(self):

@@ -31,6 +31,7 @@
 
 #include <atomic>
 #include <cstdint>
+#include <map>
 #include <memory>
 #include <mutex>
 #include <optional>
@@ -106,6 +107,9 @@ class MappingNode {
   void diagnoseOfflineEm(diagnostic_updater::DiagnosticStatusWrapper& status);
   /// Every scan as it arrives on topic `topic_index` (before tf): its rate.
   void scanArrived(const sensor_msgs::LaserScan::ConstPtr& msg, std::size_t topic_index);
+  /// A throttled warning naming `frame_id` and the fixed frame once scans from it have had no
+  /// transform for kMissingFrameGraceS (they would wait silently in the tf2 filter's queue).
+  void warnIfNoTransform(const std::string& frame_id);
   /// A scan dropped for want of a transform (tf2 filter or lookup), with tf's reason.
   void countTfDrop(const std::string& error);
   /// The offline EM run's state for the diagnostics.
@@ -167,6 +171,7 @@ class MappingNode {
   /// Guards the diagnostics' own state below (never held while taking mutex_).
   std::mutex diagnostics_mutex_;
   std::string last_tf_error_;
+  std::map<std::string, ros::WallTime> frames_without_transform_;  ///< since when, per scan frame
   std::uint64_t tf_reported_dropped_ = 0;     ///< dropped_tf at the last tf report
   std::uint64_t tf_reported_integrated_ = 0;  ///< integrated at the last tf report
   std::uint64_t scans_reported_dropped_ = 0;  ///< all drops at the last scans report
@@ -196,6 +201,9 @@ class MappingNode {
   std::unique_ptr<core::Mapper> mapper_;  ///< null with ~model memory
   DynamicOccupancyGridConfig reconfigured_;  ///< the values applied last
   std::optional<double> newest_stamp_s_;  ///< newest scan stamp integrated
+  /// Seconds time ran on in steps below ~time_jump_threshold since the map's clock last
+  /// restarted (none: it never did); a further restart needs ~time_jump_threshold of it.
+  std::optional<double> steady_since_restart_s_;
   core::CellBox published_bounds_;        ///< bounds of the last full grids
   ros::Time last_full_publish_;
   std::unique_ptr<core::MemoryModel> memory_;  ///< null with ~model hmm
