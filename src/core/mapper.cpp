@@ -234,9 +234,15 @@ void Mapper::markHit(CellGrid::Tile& tile, int offset) {
 void Mapper::applyGatheredStep() {
   if (!gathering_step_) return;
   const auto step = static_cast<std::int32_t>(*gathering_step_);
+  // Touched cells come beam by beam, mostly in runs within one tile: a bump per run.
+  const CellGrid::Tile* last_bumped = nullptr;
   for (const TouchedCell& touched : touched_) {
     CellGrid::Tile& tile = *touched.tile;
     const int i = touched.offset;
+    if (&tile != last_bumped) {
+      tile_versions_.bump(tile.tile_x, tile.tile_y);
+      last_bumped = &tile;
+    }
     const std::uint32_t hits = tile.pending_hits[i];
     const std::uint32_t misses = tile.pending_misses[i];
     tile.pending_hits[i] = 0;
@@ -448,6 +454,7 @@ OfflineEmApplied Mapper::applyOfflineEm(const ObservationSequences& sequences, c
     changed_cells_.include(xy.x, xy.y);
     ++applied.cells_applied;
   }
+  tile_versions_.bumpAll();
   updatePrior();
   // A sensor model offline EM learned with the transitions is the one they belong to: its
   // sums become this mapper's (online learning goes on from them; the configured start and
@@ -514,6 +521,7 @@ void Mapper::restoreCell(std::int32_t x, std::int32_t y, const CellState& state)
   tile->observed_steps[i] = state.observed_steps;
   tile->last_hits[i] = state.last_hits;
   tile->last_misses[i] = state.last_misses;
+  tile_versions_.bump(tile->tile_x, tile->tile_y);
   changed_cells_.include(x, y);
   updatePrior();
 }
@@ -537,6 +545,7 @@ void Mapper::setCellTransitions(std::int32_t x, std::int32_t y, const Transition
   }
   tile->p_occ_given_free[i] = static_cast<float>(params.p_occ_given_free);
   tile->p_free_given_occ[i] = static_cast<float>(params.p_free_given_occ);
+  tile_versions_.bump(tile->tile_x, tile->tile_y);
   if (last != kNeverObserved) changed_cells_.include(x, y);
 }
 

@@ -660,6 +660,7 @@ void MappingNode::reconfigure(DynamicOccupancyGridConfig& config, std::uint32_t)
                             output.view.layer == core::Layer::kFreeGivenOcc;
     if (transition && scale_changed) {
       output.view.full_scale = static_cast<float>(parameters_.transition_scale);
+      output.cache.reset();
       output.needs_full = true;
     }
   }
@@ -709,7 +710,7 @@ void MappingNode::publishLayers(bool force_full) {
       publishFull(output);
       sent_full = true;
     } else if (step && !changed.empty() && output.updates.getNumSubscribers() > 0) {
-      output.updates.publish(toOccupancyGridUpdate(bounds, changed, layerValues(mapper_->grid(), output.view, *step, changed),
+      output.updates.publish(toOccupancyGridUpdate(bounds, changed, outputValues(output, *step, changed),
                                                    parameters_.fixed_frame, stamp));
     }
   }
@@ -723,10 +724,20 @@ void MappingNode::publishFull(Output& output) {
   const std::optional<std::int64_t> step = mapper_->lastAppliedStep();
   const core::CellBox bounds = step ? mapper_->grid().bounds() : core::CellBox{};
   const ros::Time stamp = step ? toRosTime(mapper_->clock().stepStart(*step + 1)) : ros::Time::now();
-  std::vector<std::int8_t> values =
-      step ? layerValues(mapper_->grid(), output.view, *step, bounds) : std::vector<std::int8_t>{};
+  std::vector<std::int8_t> values = step ? outputValues(output, *step, bounds) : std::vector<std::int8_t>{};
   output.full.publish(toOccupancyGrid(mapper_->grid().window(bounds), std::move(values), parameters_.fixed_frame, stamp));
   output.needs_full = false;
+}
+
+std::vector<std::int8_t> MappingNode::outputValues(Output& output, std::int64_t step, const core::CellBox& box) {
+  const core::Layer layer = output.view.layer;
+  if (layer == core::Layer::kBelief || layer == core::Layer::kPredicted) {
+    return layerValues(mapper_->grid(), output.view, step, box);  // they change with the step
+  }
+  if (!output.cache) output.cache.emplace(layer, core::OccupancyScaling{output.view.full_scale, output.view.thresholds});
+  std::vector<std::int8_t> values;
+  output.cache->occupancy(mapper_->grid(), mapper_->tileVersions(), box, &values);
+  return values;
 }
 
 void MappingNode::publishMemory(bool force_full) {
@@ -785,6 +796,7 @@ void MappingNode::replaceMapper(std::unique_ptr<core::Mapper> mapper) {
   steady_since_restart_s_.reset();
   if (mapper_->lastAppliedStep()) newest_stamp_s_ = mapper_->clock().stepStart(*mapper_->lastAppliedStep() + 1);
   for (Output& output : outputs_) {
+    output.cache.reset();  // its tiles and versions were the old mapper's
     if (output.horizon_from_parameter) {
       output.view.horizon_steps = horizonSteps(parameters_.prediction_horizon_s, mapper_->config().time_step_s);
     }

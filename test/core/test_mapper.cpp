@@ -1736,3 +1736,89 @@ TEST(MapperSensorModel, LearnsTheHitRatesAndKeepsThemWhenTurnedOff) {
   config.sensor_model_prior_weight = 0.0;
   EXPECT_THROW(dog::Mapper{config}, std::invalid_argument);
 }
+
+// ---- tile versions: a LayerTileCache fed by the mapper's stays exact -------------------
+
+namespace {
+
+// Each cacheable layer from a cache kept across the mapper's writes equals layerOccupancy.
+struct CachedLayers {
+  std::vector<dog::LayerTileCache> caches;
+  CachedLayers() {
+    for (const dog::Layer layer :
+         {dog::Layer::kStatic, dog::Layer::kOccGivenFree, dog::Layer::kFreeGivenOcc, dog::Layer::kStationary}) {
+      caches.emplace_back(layer, dog::OccupancyScaling{});
+    }
+  }
+  // Returns the tiles computed anew, summed over the layers.
+  std::size_t expectExact(const dog::Mapper& mapper, const std::string& after) {
+    SCOPED_TRACE(after);
+    const dog::CellBox bounds = mapper.grid().bounds();
+    std::size_t computed = 0;
+    for (dog::LayerTileCache& cache : caches) {
+      std::vector<std::int8_t> expected;
+      std::vector<std::int8_t> cached;
+      dog::layerOccupancy(mapper.grid(), cache.layer(), 0, 0, bounds, cache.scaling(), &expected);
+      cache.occupancy(mapper.grid(), mapper.tileVersions(), bounds, &cached);
+      EXPECT_EQ(cached, expected) << dog::layerName(cache.layer());
+      computed += cache.lastComputed();
+    }
+    return computed;
+  }
+};
+
+// A 360-beam scan from (x, y): a ring of hits at `radius`, wobbling with `phase`.
+dog::Scan ringScan(double stamp, double x, double y, double radius, int phase) {
+  std::vector<float> ranges(360);
+  for (int b = 0; b < 360; ++b) ranges[b] = static_cast<float>(radius + 0.25 * (((b + phase) % 7) == 0));
+  return makeScan(stamp, ranges, 0.0, 0.0, 2.0 * kPi / 360.0, 0.0, 40.0, x, y);
+}
+
+}  // namespace
+
+TEST(MapperTileVersions, ACacheFollowingThemStaysExactThroughEveryWrite) {
+  dog::MapperConfig config = learningConfig();
+  config.learn_sensor_model = true;
+  config.resolution_m = 0.05;  // the 20 m rings span about 13 x 13 tiles
+  dog::Mapper mapper(config);
+  CachedLayers layers;
+  // Steps with learning (transitions, sensor model, static map) across many tiles.
+  for (int s = 0; s < 12; ++s) {
+    ASSERT_EQ(mapper.integrate(ringScan(s + 0.5, 0.125 + 0.5 * s, 0.125, 20.0, s)).status,
+              dog::ScanStatus::kIntegrated);
+    mapper.finishStep();
+    layers.expectExact(mapper, "step " + std::to_string(s));
+  }
+  EXPECT_EQ(layers.expectExact(mapper, "nothing written"), 0u);
+  // A far scan touches a few tiles: only those are computed again, not the whole map.
+  ASSERT_EQ(mapper.integrate(ringScan(12.5, 0.125, 0.125, 1.0, 3)).status, dog::ScanStatus::kIntegrated);
+  mapper.finishStep();
+  const std::size_t tiles = layers.caches.front().tiles();
+  const std::size_t computed = layers.expectExact(mapper, "a small scan");
+  EXPECT_GT(computed, 0u);
+  EXPECT_LT(computed, layers.caches.size() * tiles / 4);
+  // One cell's transitions set by hand.
+  mapper.setCellTransitions(40, -30, dog::TransitionParams{0.3, 0.2});
+  EXPECT_EQ(layers.expectExact(mapper, "setCellTransitions"), layers.caches.size());
+  // A cell restored (the model file's way in) into a mapper that has the same tiles.
+  dog::CellState state = *mapper.grid().cell(-20, 50);
+  state.log_odds = -state.log_odds + 1.0f;
+  state.p_occ_given_free = 0.125f;
+  mapper.restoreCell(-20, 50, state);
+  EXPECT_EQ(layers.expectExact(mapper, "restoreCell"), layers.caches.size());
+  // Offline EM applied: every tile.
+  dog::SequenceBuilder recorder;
+  mapper.recordObservations(&recorder);
+  for (int s = 13; s < 25; ++s) {
+    ASSERT_EQ(mapper.integrate(ringScan(s + 0.5, 0.125, 0.125 + 0.25 * s, 20.0, s)).status,
+              dog::ScanStatus::kIntegrated);
+  }
+  mapper.finishStep();
+  mapper.recordObservations(nullptr);
+  layers.expectExact(mapper, "recorded steps");
+  const dog::ObservationSequences sequences = recorder.build();
+  dog::OfflineEmConfig em;
+  em.max_iterations = 5;
+  mapper.applyOfflineEm(sequences, dog::runOfflineEm(sequences, mapper.sensor(), em), true);
+  EXPECT_EQ(layers.expectExact(mapper, "applyOfflineEm"), layers.caches.size() * mapper.grid().allocatedTiles());
+}

@@ -11,6 +11,7 @@
 
 #include "dynamic_occupancy_grid/core/cell_grid.h"
 #include "dynamic_occupancy_grid/core/cell_model.h"
+#include "dynamic_occupancy_grid/core/layers.h"
 #include "dynamic_occupancy_grid/core/offline_em.h"
 #include "dynamic_occupancy_grid/core/online_em.h"
 #include "dynamic_occupancy_grid/core/scan.h"
@@ -113,6 +114,9 @@ class Mapper {
   const SensorModelStats& sensorModelStats() const { return sensor_stats_; }
   const StepClock& clock() const { return clock_; }
   const CellGrid& grid() const { return grid_; }
+  /// A bump for every tile whose cells this mapper wrote (steps, restored cells, set
+  /// transitions; every tile for applyOfflineEm): what LayerTileCache needs to stay exact.
+  const TileVersions& tileVersions() const { return tile_versions_; }
 
   /// Adds a scan's evidence to the step its stamp falls in; applies the previous step first
   /// when the scan starts a new one. A rejected scan changes nothing.
@@ -217,6 +221,7 @@ class Mapper {
   std::vector<TouchedCell> touched_;
   std::uint32_t scan_id_ = 0;
   CellBox changed_cells_;
+  TileVersions tile_versions_;
   SequenceBuilder* recorder_ = nullptr;
   /// Sum over cells of their statistics' expected transitions i -> j, [i][j] (learn_prior).
   double population_[2][2] = {{0.0, 0.0}, {0.0, 0.0}};

@@ -79,6 +79,9 @@ class MappingNode {
     ros::Publisher updates;
     bool needs_full = true;        ///< a new subscriber, new bounds or a new model
     bool horizon_from_parameter = false;
+    /// The int8 tiles of a layer that changes only where cells are written (stationary, the
+    /// transitions, static_map): made at first use, dropped with the mapper or a new scaling.
+    std::optional<core::LayerTileCache> cache;
   };
 
   /// One published store of the memory model (~ltm, ~stm): the full grid and its updates.
@@ -122,6 +125,8 @@ class MappingNode {
   void publishLayers(bool force_full);
   /// The full grid of `output` now; caller holds mutex_.
   void publishFull(Output& output);
+  /// `output`'s values over `box` at `step`: from its tile cache where the layer has one.
+  std::vector<std::int8_t> outputValues(Output& output, std::int64_t step, const core::CellBox& box);
   /// After a memory update (or with `force_full`): ~ltm, ~stm (full or their updates) and
   /// ~hypotheses; caller holds mutex_.
   void publishMemory(bool force_full);
