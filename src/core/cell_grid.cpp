@@ -170,9 +170,7 @@ CellGrid::Tile* CellGrid::tileForWriting(std::int32_t x, std::int32_t y) {
     tile->observed_steps.fill(0);
     tile->last_hits.fill(0);
     tile->last_misses.fill(0);
-    tile->pending_hits.fill(0);
-    tile->pending_misses.fill(0);
-    tile->scan_mark.fill(0);
+    tile->scan_record.fill(0);
     tile->tile_x = tileOf(x);
     tile->tile_y = tileOf(y);
     allocated_cells_.include(tile->tile_x * kTileSize, tile->tile_y * kTileSize);

@@ -13,6 +13,8 @@ namespace dynamic_occupancy_grid {
 namespace core {
 namespace {
 
+using ScanRecord = CellGrid::ScanRecord;
+
 // addSensorEvidence: the smallest lambda^k between a step and the next observation for the
 // step to count (docs/online_learning.md, "The sensor model").
 constexpr double kSensorModelMinCorrelation = 0.95;
@@ -194,41 +196,41 @@ ScanResult Mapper::integrate(const Scan& scan) {
 }
 
 void Mapper::nextScanId() {
-  // Marks hold the id in 31 bits; on wrap-around forget all marks so no stale mark can
-  // equal a new id (once in 2^31 scans).
-  if (scan_id_ == (std::numeric_limits<std::uint32_t>::max() >> 1)) {
-    grid_.forEachTile([](CellGrid::Tile& tile) { tile.scan_mark.fill(0); });
+  // Records hold the id in 31 bits; on wrap-around forget all marks (keeping the step's
+  // counts) so no stale mark can equal a new id (once in 2^31 scans).
+  if (scan_id_ == ScanRecord::kIdMask) {
+    grid_.forEachTile([](CellGrid::Tile& tile) {
+      for (std::uint64_t& record : tile.scan_record) record &= ~ScanRecord::kMarkMask;
+    });
     scan_id_ = 0;
   }
   ++scan_id_;
 }
 
-void Mapper::addTouched(CellGrid::Tile& tile, int offset) {
-  if (tile.pending_hits[offset] == 0 && tile.pending_misses[offset] == 0) {
-    touched_.push_back(TouchedCell{&tile, offset});
-  }
-}
-
 void Mapper::markMiss(CellGrid::Tile& tile, int offset) {
-  if ((tile.scan_mark[offset] >> 1) == scan_id_) return;  // this scan already counted it
-  tile.scan_mark[offset] = scan_id_ << 1;
-  addTouched(tile, offset);
-  if (tile.pending_misses[offset] < std::numeric_limits<std::uint16_t>::max()) ++tile.pending_misses[offset];
+  std::uint64_t& slot = tile.scan_record[offset];
+  const std::uint64_t record = slot;
+  if (ScanRecord::scanId(record) == scan_id_) return;  // this scan already counted it
+  if (!ScanRecord::gathered(record)) touched_.push_back(TouchedCell{&tile, offset});
+  const std::uint32_t misses = ScanRecord::misses(record);
+  slot = ScanRecord::make(scan_id_, false, ScanRecord::hits(record),
+                          misses + (misses < ScanRecord::kMaxCount ? 1 : 0));
 }
 
 void Mapper::markHit(CellGrid::Tile& tile, int offset) {
-  const std::uint32_t mark = tile.scan_mark[offset];
-  if ((mark >> 1) == scan_id_) {
-    if ((mark & 1U) != 0) return;  // already a hit in this scan
+  std::uint64_t& slot = tile.scan_record[offset];
+  const std::uint64_t record = slot;
+  std::uint32_t hits = ScanRecord::hits(record);
+  std::uint32_t misses = ScanRecord::misses(record);
+  if (ScanRecord::scanId(record) == scan_id_) {
+    if (ScanRecord::hit(record)) return;  // already a hit in this scan
     // Missed earlier in this scan: the hit wins, the miss is taken back.
-    tile.scan_mark[offset] = mark | 1U;
-    if (tile.pending_misses[offset] > 0) --tile.pending_misses[offset];
-    if (tile.pending_hits[offset] < std::numeric_limits<std::uint16_t>::max()) ++tile.pending_hits[offset];
-    return;
+    if (misses > 0) --misses;
+  } else if (!ScanRecord::gathered(record)) {
+    touched_.push_back(TouchedCell{&tile, offset});
   }
-  tile.scan_mark[offset] = (scan_id_ << 1) | 1U;
-  addTouched(tile, offset);
-  if (tile.pending_hits[offset] < std::numeric_limits<std::uint16_t>::max()) ++tile.pending_hits[offset];
+  if (hits < ScanRecord::kMaxCount) ++hits;
+  slot = ScanRecord::make(scan_id_, true, hits, misses);
 }
 
 void Mapper::applyGatheredStep() {
@@ -243,10 +245,10 @@ void Mapper::applyGatheredStep() {
       tile_versions_.bump(tile.tile_x, tile.tile_y);
       last_bumped = &tile;
     }
-    const std::uint32_t hits = tile.pending_hits[i];
-    const std::uint32_t misses = tile.pending_misses[i];
-    tile.pending_hits[i] = 0;
-    tile.pending_misses[i] = 0;
+    const std::uint64_t record = tile.scan_record[i];
+    const std::uint32_t hits = ScanRecord::hits(record);
+    const std::uint32_t misses = ScanRecord::misses(record);
+    tile.scan_record[i] = record & ScanRecord::kMarkMask;
     const double evidence = sensor_.logLikelihoodRatio(hits, misses);
     if (config_.learn_sensor_model && tile.last_step[i] != kNeverObserved) {
       addSensorEvidence(tile, i, step, evidence);

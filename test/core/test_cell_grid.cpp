@@ -215,8 +215,7 @@ TEST(CellGridCells, FreshTileCellsAreUnobservedWithDefaults) {
     ASSERT_EQ(tile->last_step[i], dog::kNeverObserved);
     ASSERT_EQ(tile->p_occ_given_free[i], 0.125f);
     ASSERT_EQ(tile->p_free_given_occ[i], 0.25f);
-    ASSERT_EQ(tile->pending_hits[i], 0);
-    ASSERT_EQ(tile->pending_misses[i], 0);
+    ASSERT_EQ(tile->scan_record[i], 0u);
   }
   // Allocated but never observed: cell() reports nothing.
   EXPECT_FALSE(grid.cell(5, 5).has_value());

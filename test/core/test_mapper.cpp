@@ -225,8 +225,9 @@ Dump dump(const dog::Mapper& mapper, const dog::CellBox& area, std::int64_t step
     for (std::int32_t x = area.min_x; x <= area.max_x; ++x) {
       const dog::CellGrid::Tile* tile = mapper.grid().findTile(x, y);
       const int i = dog::CellGrid::offsetOf(x, y);
-      d.pending.push_back(tile ? tile->pending_hits[i] : 0);
-      d.pending.push_back(tile ? tile->pending_misses[i] : 0);
+      const std::uint64_t record = tile ? tile->scan_record[i] : 0;
+      d.pending.push_back(dog::CellGrid::ScanRecord::hits(record));
+      d.pending.push_back(dog::CellGrid::ScanRecord::misses(record));
     }
   }
   return d;

@@ -81,17 +81,32 @@ class CellGrid {
     std::array<std::uint16_t, kTileCells> observed_steps;
     std::array<std::uint8_t, kTileCells> last_hits;    ///< evidence of the cell's last step
     std::array<std::uint8_t, kTileCells> last_misses;
-    // Evidence gathered in the current time step, applied when the step closes.
-    std::array<std::uint16_t, kTileCells> pending_hits;
-    std::array<std::uint16_t, kTileCells> pending_misses;
-    // (scan id << 1) | hit: which scan last touched the cell and how, so that one scan
-    // counts a cell once and a hit wins over a miss of the same scan.
-    std::array<std::uint32_t, kTileCells> scan_mark;
+    // A beam's visit reads and writes this one word (ScanRecord): which scan last touched
+    // the cell and how, so that one scan counts a cell once and a hit wins over a miss of
+    // the same scan, and the hits and misses gathered in the current time step.
+    std::array<std::uint64_t, kTileCells> scan_record;
     std::int32_t tile_x;  ///< lattice coordinates of the tile (cell x >> kTileBits)
     std::int32_t tile_y;
 
     std::int32_t cellX(int offset) const { return (tile_x * kTileSize) + (offset & (kTileSize - 1)); }
     std::int32_t cellY(int offset) const { return (tile_y * kTileSize) + (offset >> kTileBits); }
+  };
+
+  /// The fields of Tile::scan_record: bits 0-30 the id of the scan that last touched the
+  /// cell, bit 31 set if that scan hit it, bits 32-47 this step's hits, 48-63 its misses.
+  struct ScanRecord {
+    static constexpr std::uint64_t kIdMask = 0x7fffffffULL;
+    static constexpr std::uint64_t kHitBit = 0x80000000ULL;
+    static constexpr std::uint64_t kMarkMask = kIdMask | kHitBit;
+    static constexpr std::uint32_t kMaxCount = 0xffff;
+    static std::uint32_t scanId(std::uint64_t record) { return static_cast<std::uint32_t>(record & kIdMask); }
+    static bool hit(std::uint64_t record) { return (record & kHitBit) != 0; }
+    static std::uint32_t hits(std::uint64_t record) { return static_cast<std::uint32_t>(record >> 32) & kMaxCount; }
+    static std::uint32_t misses(std::uint64_t record) { return static_cast<std::uint32_t>(record >> 48); }
+    static bool gathered(std::uint64_t record) { return (record >> 32) != 0; }
+    static std::uint64_t make(std::uint32_t scan_id, bool hit, std::uint32_t hits, std::uint32_t misses) {
+      return (std::uint64_t{misses} << 48) | (std::uint64_t{hits} << 32) | (hit ? kHitBit : 0) | scan_id;
+    }
   };
 
   /// Initial values of a freshly allocated cell.

@@ -199,9 +199,9 @@ class Mapper {
   /// its state given this step's evidence too.
   void addSensorEvidence(const CellGrid::Tile& tile, int offset, std::int32_t step, double evidence);
   void updateSensorModel();
+  /// A beam's visit: one load and one store of the cell's Tile::scan_record.
   void markMiss(CellGrid::Tile& tile, int offset);
   void markHit(CellGrid::Tile& tile, int offset);
-  void addTouched(CellGrid::Tile& tile, int offset);
   void nextScanId();
 
   struct TouchedCell {
