@@ -207,11 +207,17 @@ void Mapper::nextScanId() {
   ++scan_id_;
 }
 
+void Mapper::addTouched(CellGrid::Tile& tile, int offset) {
+  if (touched_runs_.empty() || touched_runs_.back().tile != &tile) touched_runs_.push_back(TouchedRun{&tile, 0});
+  touched_offsets_.push_back(static_cast<std::uint16_t>(offset));
+  touched_runs_.back().end = static_cast<std::uint32_t>(touched_offsets_.size());
+}
+
 void Mapper::markMiss(CellGrid::Tile& tile, int offset) {
   std::uint64_t& slot = tile.scan_record[offset];
   const std::uint64_t record = slot;
   if (ScanRecord::scanId(record) == scan_id_) return;  // this scan already counted it
-  if (!ScanRecord::gathered(record)) touched_.push_back(TouchedCell{&tile, offset});
+  if (!ScanRecord::gathered(record)) addTouched(tile, offset);
   const std::uint32_t misses = ScanRecord::misses(record);
   slot = ScanRecord::make(scan_id_, false, ScanRecord::hits(record),
                           misses + (misses < ScanRecord::kMaxCount ? 1 : 0));
@@ -227,7 +233,7 @@ void Mapper::markHit(CellGrid::Tile& tile, int offset) {
     // Missed earlier in this scan: the hit wins, the miss is taken back.
     if (misses > 0) --misses;
   } else if (!ScanRecord::gathered(record)) {
-    touched_.push_back(TouchedCell{&tile, offset});
+    addTouched(tile, offset);
   }
   if (hits < ScanRecord::kMaxCount) ++hits;
   slot = ScanRecord::make(scan_id_, true, hits, misses);
@@ -236,49 +242,52 @@ void Mapper::markHit(CellGrid::Tile& tile, int offset) {
 void Mapper::applyGatheredStep() {
   if (!gathering_step_) return;
   const auto step = static_cast<std::int32_t>(*gathering_step_);
-  // Touched cells come beam by beam, mostly in runs within one tile: a bump per run.
-  const CellGrid::Tile* last_bumped = nullptr;
-  for (const TouchedCell& touched : touched_) {
-    CellGrid::Tile& tile = *touched.tile;
-    const int i = touched.offset;
-    if (&tile != last_bumped) {
-      tile_versions_.bump(tile.tile_x, tile.tile_y);
-      last_bumped = &tile;
+  std::uint32_t begin = 0;
+  for (const TouchedRun& run : touched_runs_) {
+    CellGrid::Tile& tile = *run.tile;
+    tile_versions_.bump(tile.tile_x, tile.tile_y);
+    for (std::uint32_t k = begin; k < run.end; ++k) {
+      applyCellStep(tile, touched_offsets_[k], step);
     }
-    const std::uint64_t record = tile.scan_record[i];
-    const std::uint32_t hits = ScanRecord::hits(record);
-    const std::uint32_t misses = ScanRecord::misses(record);
-    tile.scan_record[i] = record & ScanRecord::kMarkMask;
-    const double evidence = sensor_.logLikelihoodRatio(hits, misses);
-    if (config_.learn_sensor_model && tile.last_step[i] != kNeverObserved) {
-      addSensorEvidence(tile, i, step, evidence);
-    }
-    if (config_.learn_transitions) {
-      learnStep(tile, i, step, evidence);
-    } else {
-      const TransitionParams params{tile.p_occ_given_free[i], tile.p_free_given_occ[i]};
-      const std::int32_t last = tile.last_step[i];
-      // The belief just before this step's transition: the prior for a new cell, otherwise
-      // the stored belief carried over the unobserved steps in closed form (THEORY.md §3).
-      const double before = last == kNeverObserved
-                                ? config_.initial_p_occ
-                                : predictOccupancy(tile.p_occ[i], params, std::int64_t{step} - 1 - last);
-      tile.p_occ[i] = static_cast<float>(filterStep(before, params, evidence));
-    }
-    // The static baseline weighs the step with the configured sensor model, learned or not:
-    // it stays the textbook grid its clamp was chosen for.
-    const double static_evidence = static_sensor_.logLikelihoodRatio(hits, misses);
-    tile.log_odds[i] = static_cast<float>(updateLogOdds(tile.log_odds[i], static_evidence, config_.static_clamp));
-    if (recorder_ != nullptr) recorder_->add(tile.cellX(i), tile.cellY(i), step, hits, misses);
-    tile.last_step[i] = step;
-    tile.last_hits[i] = static_cast<std::uint8_t>(std::min<std::uint32_t>(hits, 255));
-    tile.last_misses[i] = static_cast<std::uint8_t>(std::min<std::uint32_t>(misses, 255));
-    changed_cells_.include(tile.cellX(i), tile.cellY(i));
+    begin = run.end;
   }
-  touched_.clear();
+  touched_runs_.clear();
+  touched_offsets_.clear();
   last_applied_step_ = gathering_step_;
   updatePrior();
   if (config_.learn_sensor_model) updateSensorModel();
+}
+
+void Mapper::applyCellStep(CellGrid::Tile& tile, int i, std::int32_t step) {
+  const std::uint64_t record = tile.scan_record[i];
+  const std::uint32_t hits = ScanRecord::hits(record);
+  const std::uint32_t misses = ScanRecord::misses(record);
+  tile.scan_record[i] = record & ScanRecord::kMarkMask;
+  const double evidence = sensor_.logLikelihoodRatio(hits, misses);
+  if (config_.learn_sensor_model && tile.last_step[i] != kNeverObserved) {
+    addSensorEvidence(tile, i, step, evidence);
+  }
+  if (config_.learn_transitions) {
+    learnStep(tile, i, step, evidence);
+  } else {
+    const TransitionParams params{tile.p_occ_given_free[i], tile.p_free_given_occ[i]};
+    const std::int32_t last = tile.last_step[i];
+    // The belief just before this step's transition: the prior for a new cell, otherwise
+    // the stored belief carried over the unobserved steps in closed form (THEORY.md §3).
+    const double before = last == kNeverObserved
+                              ? config_.initial_p_occ
+                              : predictOccupancy(tile.p_occ[i], params, std::int64_t{step} - 1 - last);
+    tile.p_occ[i] = static_cast<float>(filterStep(before, params, evidence));
+  }
+  // The static baseline weighs the step with the configured sensor model, learned or not:
+  // it stays the textbook grid its clamp was chosen for.
+  const double static_evidence = static_sensor_.logLikelihoodRatio(hits, misses);
+  tile.log_odds[i] = static_cast<float>(updateLogOdds(tile.log_odds[i], static_evidence, config_.static_clamp));
+  if (recorder_ != nullptr) recorder_->add(tile.cellX(i), tile.cellY(i), step, hits, misses);
+  tile.last_step[i] = step;
+  tile.last_hits[i] = static_cast<std::uint8_t>(std::min<std::uint32_t>(hits, 255));
+  tile.last_misses[i] = static_cast<std::uint8_t>(std::min<std::uint32_t>(misses, 255));
+  changed_cells_.include(tile.cellX(i), tile.cellY(i));
 }
 
 void Mapper::addSensorEvidence(const CellGrid::Tile& tile, int i, std::int32_t step, double evidence) {

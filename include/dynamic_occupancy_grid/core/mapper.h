@@ -204,10 +204,15 @@ class Mapper {
   void markHit(CellGrid::Tile& tile, int offset);
   void nextScanId();
 
-  struct TouchedCell {
+  /// Cells touched in the step being gathered, in the order first touched: runs of cells
+  /// of one tile (consecutive cells of a beam mostly share one), 2 bytes per cell.
+  struct TouchedRun {
     CellGrid::Tile* tile;
-    int offset;
+    std::uint32_t end;  ///< one past the run's last entry of touched_offsets_
   };
+  void addTouched(CellGrid::Tile& tile, int offset);
+  /// One touched cell's step: the filter or the learner, the static baseline, the record.
+  void applyCellStep(CellGrid::Tile& tile, int i, std::int32_t step);
 
   MapperConfig config_;
   ObservationModel sensor_;
@@ -218,7 +223,8 @@ class Mapper {
   CellGrid grid_;
   std::optional<std::int64_t> gathering_step_;
   std::optional<std::int64_t> last_applied_step_;
-  std::vector<TouchedCell> touched_;
+  std::vector<TouchedRun> touched_runs_;
+  std::vector<std::uint16_t> touched_offsets_;
   std::uint32_t scan_id_ = 0;
   CellBox changed_cells_;
   TileVersions tile_versions_;
