@@ -285,6 +285,45 @@ Pose2D compose(const Pose2D& robot, const Pose2D& mount) {
                 robot.yaw_rad + mount.yaw_rad};
 }
 
+// ---------------------------------------------------------------- DriftingOdometry
+
+void OdometryNoise::validate() const {
+  for (const double alpha : {rot_from_rot, rot_from_trans, trans_from_trans, trans_from_rot}) {
+    require(std::isfinite(alpha) && alpha >= 0.0, "OdometryNoise: every alpha must be finite and >= 0");
+  }
+}
+
+DriftingOdometry::DriftingOdometry(const OdometryNoise& noise, std::uint64_t seed) : noise_(noise), rng_(seed) {
+  noise_.validate();
+}
+
+Pose2D DriftingOdometry::update(const Pose2D& truth) {
+  if (!last_truth_) {
+    last_truth_ = truth;
+    odometry_ = truth;
+    return odometry_;
+  }
+  const Pose2D& from = *last_truth_;
+  const double dx = truth.x_m - from.x_m;
+  const double dy = truth.y_m - from.y_m;
+  const double trans = std::hypot(dx, dy);
+  // A turn on the spot has no direction of travel: all of it is the second rotation.
+  const double rot1 = trans > 1e-9 ? std::remainder(std::atan2(dy, dx) - from.yaw_rad, 2.0 * kPi) : 0.0;
+  const double rot2 = std::remainder(truth.yaw_rad - from.yaw_rad - rot1, 2.0 * kPi);
+  const auto noisy = [this](double value, double variance) { return value + std::sqrt(variance) * rng_.normal(); };
+  const OdometryNoise& a = noise_;
+  const double read_rot1 = noisy(rot1, a.rot_from_rot * rot1 * rot1 + a.rot_from_trans * trans * trans);
+  const double read_trans =
+      noisy(trans, a.trans_from_trans * trans * trans + a.trans_from_rot * (rot1 * rot1 + rot2 * rot2));
+  const double read_rot2 = noisy(rot2, a.rot_from_rot * rot2 * rot2 + a.rot_from_trans * trans * trans);
+  const double heading = odometry_.yaw_rad + read_rot1;
+  odometry_.x_m += read_trans * std::cos(heading);
+  odometry_.y_m += read_trans * std::sin(heading);
+  odometry_.yaw_rad = std::remainder(heading + read_rot2, 2.0 * kPi);
+  last_truth_ = truth;
+  return odometry_;
+}
+
 // ---------------------------------------------------------------- LoopPath
 
 LoopPath::LoopPath(std::vector<std::array<double, 2>> waypoints_m, double speed_m_per_step)

@@ -18,12 +18,14 @@
 #include <limits>
 #include <memory>
 #include <optional>
+#include <sstream>
 #include <stdexcept>
 #include <string>
 #include <system_error>
 #include <vector>
 
 #include <boost/make_shared.hpp>
+#include <geometry_msgs/PoseStamped.h>
 #include <geometry_msgs/TransformStamped.h>
 #include <nav_msgs/OccupancyGrid.h>
 #include <ros/message_traits.h>
@@ -47,6 +49,7 @@ const std::string kScanTopic = "/scan";
 const std::string kTfTopic = "/tf";
 const std::string kTfStaticTopic = "/tf_static";
 const std::string kGroundTruthTopic = "/ground_truth";
+const std::string kTruePoseTopic = "/ground_truth_pose";
 const std::string kTruthOccGivenFreeTopic = "/ground_truth_p_occ_given_free";
 const std::string kTruthFreeGivenOccTopic = "/ground_truth_p_free_given_occ";
 
@@ -62,8 +65,31 @@ struct Options {
   std::uint64_t run_seed = 1;
   std::optional<std::int64_t> steps;  ///< none: the scenario's
   double transition_scale = 0.1;
+  dog::core::OdometryNoise odometry_noise;  ///< none: /tf carries the true pose
   std::string out_path;
 };
+
+// "A1,A2,A3,A4": the odometry motion model's four alphas.
+dog::core::OdometryNoise parseOdometryNoise(const std::string& text) {
+  std::istringstream in(text);
+  std::vector<double> alphas;
+  std::string item;
+  while (std::getline(in, item, ',')) {
+    std::size_t used = 0;
+    double value = 0.0;
+    try {
+      value = std::stod(item, &used);
+    } catch (const std::exception&) {
+      used = 0;
+    }
+    if (used == 0 || used != item.size()) throw std::invalid_argument("'" + item + "' is not a number");
+    alphas.push_back(value);
+  }
+  if (alphas.size() != 4) throw std::invalid_argument("needs four comma-separated numbers, got '" + text + "'");
+  const dog::core::OdometryNoise noise{alphas[0], alphas[1], alphas[2], alphas[3]};
+  noise.validate();
+  return noise;
+}
 
 Options parseArguments(int argc, char** argv) {
   namespace cl = dog::command_line;
@@ -81,6 +107,8 @@ Options parseArguments(int argc, char** argv) {
       "  /ground_truth_p_occ_given_free, /ground_truth_p_free_given_occ\n"
       "                 the same with every cell's true transition probability per step (see\n"
       "                 --transition-scale), at the start and whenever it changes (latched)\n"
+      "  /ground_truth_pose  geometry_msgs/PoseStamped in odom: the true pose at every scan,\n"
+      "                 only with --odometry-noise (/tf then carries the drifting odometry)\n"
       "Simulation time t (s) is ROS time 1000000000 + t.\n");
   line.options().add_options()
       ("scenario",
@@ -100,10 +128,32 @@ Options parseArguments(int argc, char** argv) {
        "time steps to simulate (default: the scenario's)")
       ("transition-scale", cl::number(&options.transition_scale, cl::between(1.0e-6, 1.0))->value_name("P"),
        "true transitions: P per step is written as 100, larger values too (default 0.1, as process_bag's layers)")
+      ("odometry-noise",
+       cl::converted(parseOdometryNoise,
+                     [&options](const dog::core::OdometryNoise& noise) { options.odometry_noise = noise; })
+           ->value_name("A1,A2,A3,A4"),
+       "drifting odometry on /tf (odom -> base_link) and the true pose on /ground_truth_pose: the "
+       "odometry motion model's rot-from-rot, rot-from-trans, trans-from-trans and trans-from-rot "
+       "variances (amcl's odom_alpha1..4), e.g. 0.01,0.0005,0.002,0.0005 (a few degrees and about a metre "
+       "of drift in 60 m; default: none, /tf is the truth)")
       ("out", cl::nonEmpty(&options.out_path, "a file name")->value_name("FILE")->required(),
        "the bag to write (through FILE.tmp, renamed when complete)");
   line.parse(argc, argv);
   return options;
+}
+
+// Separates the odometry's random stream from the simulation's, both drawn from the run seed.
+constexpr std::uint64_t kOdometrySeedSalt = 0x6f646f6d65747279ULL;  // "odometry"
+
+geometry_msgs::PoseStamped poseStamped(const dog::core::Pose2D& pose, const ros::Time& stamp) {
+  geometry_msgs::PoseStamped message;
+  message.header.frame_id = kFixedFrame;
+  message.header.stamp = stamp;
+  message.pose.position.x = pose.x_m;
+  message.pose.position.y = pose.y_m;
+  message.pose.orientation.z = std::sin(pose.yaw_rad / 2.0);
+  message.pose.orientation.w = std::cos(pose.yaw_rad / 2.0);
+  return message;
 }
 
 ros::Time rosTime(double simulation_time_s) { return ros::Time(kStartTime_s) + ros::Duration(simulation_time_s); }
@@ -219,6 +269,10 @@ RunSummary writeRun(const Options& options, std::int64_t steps, rosbag::Bag& bag
   summary.steps = steps;
   summary.dynamic_cells_at_start = world.dynamicCells().size();
 
+  // Its own stream of the run seed: the run's other draws are the same with or without it.
+  const bool drifting = !options.odometry_noise.none();
+  dog::core::DriftingOdometry drift(options.odometry_noise, dog::core::mixSeed(options.run_seed ^ kOdometrySeedSalt));
+
   const ros::Time start = rosTime(0.0);
   tf2_msgs::TFMessage mount;
   mount.transforms.push_back(transform(kRobotFrame, kLaserFrame, options.scenario.laser_mount, start));
@@ -244,8 +298,10 @@ RunSummary writeRun(const Options& options, std::int64_t steps, rosbag::Bag& bag
       const dog::core::Pose2D robot = simulation.robotPose(scan_index);
       const sensor_msgs::LaserScan scan = laserScan(simulation.scan(scan_index), options.scenario);
       tf2_msgs::TFMessage odometry;
-      odometry.transforms.push_back(transform(kFixedFrame, kRobotFrame, robot, scan.header.stamp));
+      odometry.transforms.push_back(
+          transform(kFixedFrame, kRobotFrame, drifting ? drift.update(robot) : robot, scan.header.stamp));
       bag.write(kTfTopic, scan.header.stamp, odometry);
+      if (drifting) bag.write(kTruePoseTopic, scan.header.stamp, poseStamped(robot, scan.header.stamp));
       bag.write(kScanTopic, scan.header.stamp, scan);
       ++summary.scans;
     }

@@ -5,8 +5,10 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <deque>
+#include <functional>
 #include <limits>
 #include <numeric>
 #include <stdexcept>
@@ -796,6 +798,91 @@ TEST(Scenarios, DividersRunsReproducePerSeedAndPeopleHideFromTheLaserInTheirCell
   EXPECT_LT(layout.a.x, layout.wall_x);
   EXPECT_GT(layout.b.x, layout.wall_x);
   EXPECT_THROW(Simulation(scenarioConfig("door"), 1, 2).dividersLayout(), std::logic_error);
+}
+
+// ---- drifting odometry -------------------------------------------------------------------
+
+// The sample variance of the last pose's error of `runs` runs of `motion` (one true pose per
+// step from the start (0, 0, 0)), for x, y and yaw.
+std::array<double, 3> driftVariance(const OdometryNoise& noise, int runs, int steps,
+                                    const std::function<Pose2D(int)>& truth_at) {
+  std::array<double, 3> sum{};
+  std::array<double, 3> sum_sq{};
+  for (int run = 0; run < runs; ++run) {
+    DriftingOdometry odometry(noise, mixSeed(static_cast<std::uint64_t>(run) + 100));
+    Pose2D last;
+    for (int step = 0; step <= steps; ++step) last = odometry.update(truth_at(step));
+    const Pose2D truth = truth_at(steps);
+    const std::array<double, 3> error{last.x_m - truth.x_m, last.y_m - truth.y_m,
+                                      std::remainder(last.yaw_rad - truth.yaw_rad, 2.0 * kPi)};
+    for (int k = 0; k < 3; ++k) {
+      sum[k] += error[k];
+      sum_sq[k] += error[k] * error[k];
+    }
+  }
+  std::array<double, 3> variance{};
+  for (int k = 0; k < 3; ++k) variance[k] = (sum_sq[k] - sum[k] * sum[k] / runs) / (runs - 1);
+  return variance;
+}
+
+TEST(DriftingOdometry, WithoutNoiseItIsTheTruth) {
+  const LoopPath path({{0.0, 0.0}, {6.0, 0.0}, {6.0, 4.0}, {0.0, 4.0}}, 0.35);
+  DriftingOdometry odometry(OdometryNoise{}, 7);
+  for (int step = 0; step < 200; ++step) {
+    const Pose2D truth = path.poseAt(step);
+    const Pose2D read = odometry.update(truth);
+    ASSERT_NEAR(read.x_m, truth.x_m, 1e-9) << step;
+    ASSERT_NEAR(read.y_m, truth.y_m, 1e-9) << step;
+    ASSERT_NEAR(std::remainder(read.yaw_rad - truth.yaw_rad, 2.0 * kPi), 0.0, 1e-9) << step;
+  }
+}
+
+TEST(DriftingOdometry, TranslationNoiseGrowsWithTheDistanceAsTheModelSays) {
+  // 400 steps of 0.5 m straight ahead, alpha3 = 0.01: each step's length has variance
+  // 0.01 * 0.25, so the end's x error has variance 400 * 0.0025 = 1 m^2; nothing turns.
+  OdometryNoise noise;
+  noise.trans_from_trans = 0.01;
+  const std::array<double, 3> variance =
+      driftVariance(noise, 400, 400, [](int step) { return Pose2D{0.5 * step, 0.0, 0.0}; });
+  EXPECT_NEAR(variance[0], 1.0, 0.2);  // the sample variance of 400 runs: sd 0.07
+  EXPECT_EQ(variance[1], 0.0);
+  EXPECT_EQ(variance[2], 0.0);
+}
+
+TEST(DriftingOdometry, RotationNoiseGrowsWithTheTurnsAsTheModelSays) {
+  // Turning on the spot 0.5 rad per step for 100 steps, alpha1 = 0.01: each turn has
+  // variance 0.01 * 0.25, the end's heading 100 * 0.0025 = 0.25 rad^2; nothing moves.
+  OdometryNoise noise;
+  noise.rot_from_rot = 0.01;
+  const std::array<double, 3> variance =
+      driftVariance(noise, 400, 100, [](int step) { return Pose2D{1.0, 2.0, 0.5 * step}; });
+  EXPECT_NEAR(variance[2], 0.25, 0.05);
+  EXPECT_EQ(variance[0], 0.0);
+  EXPECT_EQ(variance[1], 0.0);
+}
+
+TEST(DriftingOdometry, SameSeedSameDriftAndBadNoiseIsRefused) {
+  OdometryNoise noise{0.02, 0.01, 0.02, 0.01};
+  const LoopPath path({{0.0, 0.0}, {6.0, 0.0}, {6.0, 4.0}}, 0.4);
+  DriftingOdometry a(noise, 3);
+  DriftingOdometry b(noise, 3);
+  DriftingOdometry c(noise, 4);
+  Pose2D pa;
+  Pose2D pc;
+  for (int step = 0; step < 50; ++step) {
+    pa = a.update(path.poseAt(step));
+    const Pose2D pb = b.update(path.poseAt(step));
+    ASSERT_EQ(pa.x_m, pb.x_m);
+    ASSERT_EQ(pa.yaw_rad, pb.yaw_rad);
+    pc = c.update(path.poseAt(step));
+  }
+  EXPECT_NE(pa.x_m, pc.x_m);
+  EXPECT_GT(std::hypot(pa.x_m - path.poseAt(49).x_m, pa.y_m - path.poseAt(49).y_m), 0.0);
+  for (const double bad : {-0.1, std::numeric_limits<double>::quiet_NaN(), std::numeric_limits<double>::infinity()}) {
+    OdometryNoise wrong;
+    wrong.trans_from_rot = bad;
+    EXPECT_THROW(DriftingOdometry(wrong, 1), std::invalid_argument);
+  }
 }
 
 }  // namespace

@@ -394,6 +394,40 @@ class TestSimulate(unittest.TestCase):
         truths = [grid(run["/ground_truth_p_occ_given_free"][0][0]) for run in runs]
         np.testing.assert_array_equal(truths[0], truths[2])
 
+    def test_drifting_odometry(self):
+        # With --odometry-noise /tf drifts from the truth, which /ground_truth_pose keeps; the
+        # scans and the world are the same as without it (its own random stream).
+        paths = [os.path.join(self.tmp, name) for name in ("true_pose.bag", "drift.bag")]
+        for path, extra in zip(paths, ([], ["--odometry-noise", "0.01,0.0005,0.002,0.0005"])):
+            rc, _, stderr = run_tool("simulate", ["--scenario", "patrol", "--steps", 120, "--out", path] + extra)
+            self.assertEqual(rc, 0, stderr)
+        plain, drift = (read_bag(path) for path in paths)
+        self.assertNotIn("/ground_truth_pose", plain)
+        np.testing.assert_array_equal(np.array([m.ranges for m, _, _ in plain["/scan"]]),
+                                      np.array([m.ranges for m, _, _ in drift["/scan"]]))
+        truth = drift["/ground_truth_pose"]
+        self.assertEqual(len(truth), len(drift["/tf"]))
+        errors = []
+        for (pose, stamp, _), (tf, tf_stamp, _), (exact, _, _) in zip(truth, drift["/tf"], plain["/tf"]):
+            self.assertEqual(stamp, tf_stamp)
+            self.assertEqual(pose.header.frame_id, "odom")
+            odom = tf.transforms[0].transform.translation
+            true = exact.transforms[0].transform.translation
+            # The true pose is the pose /tf carries without drift.
+            self.assertAlmostEqual(pose.pose.position.x, true.x, places=9)
+            self.assertAlmostEqual(pose.pose.position.y, true.y, places=9)
+            errors.append(math.hypot(odom.x - true.x, odom.y - true.y))
+        self.assertEqual(errors[0], 0.0)  # odometry starts at the true pose
+        # It drifts, more the longer the robot drives (60 m here: decimetres, not kilometres).
+        quarter = len(errors) // 4
+        self.assertGreater(np.mean(errors[-quarter:]), np.mean(errors[:quarter]))
+        self.assertGreater(errors[-1], 0.05)
+        self.assertLess(max(errors), 20.0)
+        for bad in ("1,2,3", "0.1,-0.1,0.1,0.1", "a,b,c,d", "0.1,0.1,0.1,nan"):
+            rc, _, stderr = run_tool("simulate", ["--odometry-noise", bad, "--out", os.path.join(self.tmp, "bad.bag")])
+            self.assertEqual(rc, 2, stderr)
+            self.assertIn("--odometry-noise", stderr)
+
     # --- (c) errors ----------------------------------------------------------------------------
 
     def assert_fails(self, args, rc_expected, *words, preexec_fn=None):

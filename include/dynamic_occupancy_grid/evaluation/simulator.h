@@ -146,6 +146,38 @@ Scan simulateScan(const World& world, const Pose2D& laser_pose, const LaserConfi
 /// Pose of a frame mounted at `mount` (in the robot frame) on a robot at `robot`.
 Pose2D compose(const Pose2D& robot, const Pose2D& mount);
 
+/// Noise of the odometry motion model (Thrun, Burgard, Fox, "Probabilistic Robotics",
+/// §5.4; amcl's odom_alpha1..4): the variances of a motion's two rotations and translation
+/// grow as alpha1 rot^2 + alpha2 trans^2 (rotations), alpha3 trans^2 + alpha4 (rot1^2 +
+/// rot2^2) (translation), in rad and m.
+struct OdometryNoise {
+  double rot_from_rot = 0.0;      ///< alpha1
+  double rot_from_trans = 0.0;    ///< alpha2
+  double trans_from_trans = 0.0;  ///< alpha3
+  double trans_from_rot = 0.0;    ///< alpha4
+  /// Throws std::invalid_argument unless all four are finite and >= 0.
+  void validate() const;
+  bool none() const { return rot_from_rot == 0.0 && rot_from_trans == 0.0 && trans_from_trans == 0.0 && trans_from_rot == 0.0; }
+};
+
+/// Odometry that drifts: each true motion between two poses, taken as rotation,
+/// translation, rotation, is read with noise (the motion model's sampler, §5.4) and added
+/// to the odometry pose, which starts at the first true pose. The error so grows with the
+/// distance driven and is never corrected, as a wheel encoder's.
+class DriftingOdometry {
+ public:
+  /// Throws std::invalid_argument for bad noise (OdometryNoise::validate).
+  DriftingOdometry(const OdometryNoise& noise, std::uint64_t seed);
+  /// The odometry pose once the robot has moved to `truth` (the first call: `truth`).
+  Pose2D update(const Pose2D& truth);
+
+ private:
+  OdometryNoise noise_;
+  Rng rng_;
+  std::optional<Pose2D> last_truth_;
+  Pose2D odometry_;
+};
+
 /// A robot driving a closed polygon at constant speed, heading along the current segment.
 class LoopPath {
  public:
