@@ -17,7 +17,8 @@ The scene (metres): a 24 x 16 hall with a wall across it (a 1.2 m door in it tha
 closes), two pillars, three people walking back and forth, and the robot driving a 48 m loop
 at 0.5 m/s around the pillars and through the door's wall gap (always open). The laser is
 a Hokuyo UTM-30LX-like fan: 1081 beams over 270 degrees, 30 m, 1 cm noise. Ranges are cast
-analytically against boxes (numpy), so the publisher costs little next to the node.
+analytically against boxes (numpy), so the publisher costs little next to the node. The
+pace never catches up after a stall of the publisher (it reports the stalls).
 
 Usage: node_soak.py [--minutes 30] [--rate 4] [--csv FILE] [--port 11611]
 """
@@ -253,9 +254,11 @@ def main():
         scan.range_max = RANGE_MAX
         rows = []
         header = ['sim_minute', 'scans_published', 'received', 'integrated', 'dropped', 'cells_allocated', 'rss_mb',
-                  'cpu_percent', 'wall_s', 'layer_messages', 'loadavg_1min']
+                  'cpu_percent', 'wall_s', 'layer_messages', 'loadavg_1min', 'publisher_stalls']
         print(' '.join('%s' % h for h in header), flush=True)
         start_wall = time.monotonic()
+        schedule_origin = start_wall
+        stalls = {'count': 0, 'longest_s': 0.0}
         last_wall = start_wall
         last_cpu = read_cpu_s(node.pid)
         first_rss = read_rss_mb(node.pid)
@@ -275,17 +278,23 @@ def main():
                 loadavg = float(load.read().split()[0])
             row = [minute, published, int(c.get('received', 0)), int(c.get('integrated', 0)), dropped, allocated,
                    round(read_rss_mb(node.pid), 2), round(100.0 * (cpu - last_cpu) / (now - last_wall), 1),
-                   round(now - start_wall, 1), messages, loadavg]
+                   round(now - start_wall, 1), messages, loadavg, stalls['count']]
             last_wall, last_cpu = now, cpu
             rows.append(row)
             print(' '.join(str(v) for v in row), flush=True)
 
         for i in range(total):
             t = START_S + i / RATE_HZ
-            target = start_wall + i / (RATE_HZ * args.rate)
-            delay = target - time.monotonic()
+            # Paced at --rate; after a stall of this process the schedule moves on instead of
+            # catching up, so simulated time never runs faster than --rate (a burst would
+            # move /clock past scans the node has not read yet).
+            delay = schedule_origin + i / (RATE_HZ * args.rate) - time.monotonic()
             if delay > 0:
                 time.sleep(delay)
+            elif delay < -1.0 / (RATE_HZ * args.rate):
+                schedule_origin -= delay
+                stalls['count'] += 1
+                stalls['longest_s'] = max(stalls['longest_s'], -delay)
             if i % int(RATE_HZ) == 0 and i > 0:
                 hall.step_door()
             stamp = rospy.Time.from_sec(t)
@@ -317,6 +326,8 @@ def main():
         final = rows[-1]
         print('published %d scans in %.1f s of wall time (%.2fx real time)' % (total, publish_wall,
                                                                              total / RATE_HZ / publish_wall))
+        print('publisher stalls (late by more than a scan period, schedule moved on): %d, longest %.3f s'
+              % (stalls['count'], stalls['longest_s']))
         print('node: received %d, integrated %d, dropped %d; lost before the node (published - received): %d'
               % (final[2], final[3], final[4], total - final[2]))
         # The map stopped growing after the last minute in which cells were allocated.
