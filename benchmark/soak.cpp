@@ -341,9 +341,9 @@ int main(int argc, char** argv) {
   namespace po = boost::program_options;
   command_line.options().add_options()
       ("scans", cl::number(&options.scans, cl::atLeast<std::int64_t>(1)), "scans to run (default 1,000,000; --quick: 20,000)")
-      ("window", cl::number(&options.window, cl::atLeast<std::int64_t>(1)), "scans per CSV line (default 10,000; --quick: 1,000)")
+      ("window", cl::number(&options.window, cl::atLeast<std::int64_t>(1)), "scans per CSV line (default 10,000; --quick: 500)")
       ("csv", cl::nonEmpty(&options.csv, "a file name"), "write the windows to this CSV file")
-      ("quick", po::bool_switch(&options.quick), "a short run for CI: 20,000 scans in windows of 1,000, 3 windows compared")
+      ("quick", po::bool_switch(&options.quick), "a short run for CI: 20,000 scans in windows of 500, 8 windows compared")
       ("scan-rate", cl::number(&options.scan_rate_hz, cl::above(0.0)), "scans per second of sensor time (default 40)")
       ("speed", cl::number(&options.speed_m_s, cl::above(0.0)), "robot speed, m/s (default 1)")
       ("max-rss-growth", cl::number(&options.max_rss_growth_percent, cl::atLeast(0.0)),
@@ -351,13 +351,13 @@ int main(int argc, char** argv) {
       ("max-time-growth", cl::number(&options.max_time_growth_percent, cl::atLeast(0.0)),
        "bound on the growth of the per-scan median and of the map's CPU per scan, % (default 25)")
       ("compare-windows", cl::number(&options.compare_windows, cl::between(1, 1000)),
-       "looping windows compared at each end (default 10; --quick: 3)")
+       "looping windows compared at each end (default 10; --quick: 8)")
       ("seed", cl::number(&options.seed, cl::atLeast<std::uint64_t>(0)), "seed of the doors, chairs and sensor noise");
   const po::variables_map given = command_line.parse(argc, argv);
   if (options.quick) {
     if (given.count("scans") == 0) options.scans = 20000;
-    if (given.count("window") == 0) options.window = 1000;
-    if (given.count("compare-windows") == 0) options.compare_windows = 3;
+    if (given.count("window") == 0) options.window = 500;
+    if (given.count("compare-windows") == 0) options.compare_windows = 8;
   }
 
   // The node's defaults, through its own parameter struct (ros/parameters.h).
