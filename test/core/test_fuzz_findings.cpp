@@ -113,3 +113,23 @@ TEST(FuzzFindings, ModelWhoseCellsSpanAHugeTileIndexIsRefused) {
   fixChecksum(bytes);
   EXPECT_NE(refusal(bytes).find("tile index"), std::string::npos) << refusal(bytes);
 }
+
+// Fuzzing the node's scan path: the clock restarted at a scan the Mapper then refused
+// (MappingNode restarts before integrating), and the next scan was stamped a little before
+// it. It went into step -1; one stamped far before went into a step below INT32_MIN.
+TEST(FuzzFindings, ScanBeforeStepZeroAfterRestartClockAtIsLate) {
+  dog::Mapper mapper{dog::MapperConfig{}};
+  mapper.restartClockAt(100.0);
+  for (const double stamp_s : {99.5, 100.0 - 1.0e12}) {
+    const dog::ScanResult result = mapper.integrate(scanAt(stamp_s));
+    EXPECT_EQ(result.status, dog::ScanStatus::kRejectedTimeBackwards) << stamp_s << ": " << result.error;
+  }
+  EXPECT_EQ(mapper.integrate(scanAt(100.2)).status, dog::ScanStatus::kIntegrated);
+  mapper.finishStep();
+  EXPECT_EQ(mapper.lastAppliedStep(), std::optional<std::int64_t>(0));
+
+  // The same once steps were applied: the first allowed step is the next one.
+  mapper.restartClockAt(50.0);
+  EXPECT_EQ(mapper.integrate(scanAt(49.0)).status, dog::ScanStatus::kRejectedTimeBackwards);
+  EXPECT_EQ(mapper.integrate(scanAt(50.0)).status, dog::ScanStatus::kIntegrated);
+}
