@@ -133,3 +133,23 @@ TEST(FuzzFindings, ScanBeforeStepZeroAfterRestartClockAtIsLate) {
   EXPECT_EQ(mapper.integrate(scanAt(49.0)).status, dog::ScanStatus::kRejectedTimeBackwards);
   EXPECT_EQ(mapper.integrate(scanAt(50.0)).status, dog::ScanStatus::kIntegrated);
 }
+
+// Fuzzing the scan path: finite angle_min, angle_increment and yaw whose sum for some beam
+// is infinite gave NaN beam ends (cos(inf)), cast to int32 (undefined behaviour).
+TEST(FuzzFindings, BeamHeadingsThatOverflowAreRefused) {
+  const double huge = std::numeric_limits<double>::max() / 2.0;
+  const std::vector<dog::Scan> scans = {
+      scanAt(1.0, 0.0, 0.0, huge),          // the last beams' angles overflow
+      scanAt(1.0, huge * 1.5, huge, 0.25),  // yaw + angle_min overflows
+      scanAt(1.0, huge * 1.5, 0.0, huge * 0.4),  // only the last beams' headings overflow
+  };
+  for (const dog::Scan& scan : scans) {
+    const auto error = dog::scanFieldsError(scan);
+    ASSERT_TRUE(error.has_value());
+    EXPECT_NE(error->find("beam headings"), std::string::npos) << *error;
+    dog::Mapper mapper{dog::MapperConfig{}};
+    EXPECT_EQ(mapper.integrate(scan).status, dog::ScanStatus::kRejectedInvalid);
+  }
+  // Large but finite headings are fine (cos and sin reduce them).
+  EXPECT_FALSE(dog::scanFieldsError(scanAt(1.0, 1.0e300, -1.0e300, 0.25)).has_value());
+}
