@@ -1,8 +1,9 @@
 #!/usr/bin/env python3
 """Writes the hand-made seeds of the fuzz corpus (test/fuzz/corpus/, docs/reliability.md):
-a tiny bag (three scans of 16 beams, /tf and /tf_static) for bag_scan_source, the model
-process_bag maps from it for model_reader, and command lines for command_line. The rest of
-each corpus is what a fuzzing run kept (libFuzzer -merge=1).
+for model_reader the model process_bag maps from a tiny bag (three scans of 16 beams, /tf
+and /tf_static), and command lines for command_line. The rest of each corpus is what a
+fuzzing run kept (libFuzzer -merge=1); scan_integrate and bag_scan_source read structured
+inputs (FuzzedDataProvider) that only such runs make.
 
 usage: make_seeds.py PROCESS_BAG   (the built tool, e.g. ~/dog_ws/devel/lib/dynamic_occupancy_grid/process_bag)
 """
@@ -55,9 +56,9 @@ def write_bag(path):
 def main():
     if len(sys.argv) != 2:
         sys.exit(__doc__)
-    bag_path = os.path.join(CORPUS, "bag_scan_source", "three_scans.bag")
-    write_bag(bag_path)
     with tempfile.TemporaryDirectory() as out:
+        bag_path = os.path.join(out, "three_scans.bag")
+        write_bag(bag_path)
         model_path = os.path.join(CORPUS, "model_reader", "three_scans.dogm")
         subprocess.run([sys.argv[1], bag_path, "--out", out, "--model", model_path, "--resolution", "1.0"],
                        check=True, stdout=subprocess.DEVNULL)
