@@ -9,6 +9,7 @@
 
 #include <zlib.h>
 
+#include <algorithm>
 #include <cstddef>
 #include <cstdint>
 #include <cstdio>
@@ -64,7 +65,11 @@ void writeFile(const std::string& path, const std::string& bytes) {
   if (std::fclose(file) != 0 || !written) fail("cannot write the model file");
 }
 
+// One scan whose beams cross at most about 64 cells, whatever the model's resolution: a
+// beam allocates every 64 x 64-cell tile it crosses (280 kB each), so at the finest
+// resolutions a file may name a 2 m beam would allocate gigabytes (docs/reliability.md).
 void mapOn(core::Mapper& mapper) {
+  const float range_m = static_cast<float>(std::min(2.0, 64.0 * mapper.config().resolution_m));
   core::Scan scan;
   const auto step = mapper.lastAppliedStep();
   const double origin_s = mapper.clock().origin().value_or(0.0);
@@ -72,9 +77,12 @@ void mapOn(core::Mapper& mapper) {
   scan.laser_pose = core::Pose2D{mapper.config().origin_x_m, mapper.config().origin_y_m, 0.3};
   scan.angle_min_rad = -1.5;
   scan.angle_increment_rad = 0.25;
-  scan.range_min_m = 0.1;
-  scan.range_max_m = 2.0;
-  scan.ranges_m = {1.0f, 2.5f, 0.05f, 0.5f, 1.5f, 1.9f, 0.7f, 1.2f, 3.0f, 1.1f, 0.9f, 1.4f, 1.6f};
+  scan.range_min_m = 0.05 * range_m;
+  scan.range_max_m = range_m;
+  // Hits, no returns (beyond range_max) and ignored readings (below range_min).
+  for (const float fraction : {0.5f, 1.25f, 0.01f, 0.25f, 0.75f, 0.95f, 0.35f, 0.6f, 1.5f, 0.55f, 0.45f, 0.7f, 0.8f}) {
+    scan.ranges_m.push_back(fraction * range_m);
+  }
   mapper.integrate(scan);
   mapper.finishStep();
 }
