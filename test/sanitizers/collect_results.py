@@ -9,6 +9,7 @@ RESULTS_OUT/sanitizer_reports.xml: one failing testcase per report file the sani
 in REPORTS_DIR (ASAN_OPTIONS / UBSAN_OPTIONS log_path), with the report as its message, or
 one passing testcase when there are none. A report fails the run even when the test that
 caused it passed (a node's report does not fail the Python test that launched it).
+Exits 1 when there was a report.
 """
 import glob
 import os
@@ -48,7 +49,8 @@ def main():
         print(f"sanitizer report {report}:\n{body[:4000]}", file=sys.stderr)
     ET.ElementTree(suite).write(os.path.join(results_out, "sanitizer_reports.xml"), encoding="utf-8",
                                 xml_declaration=True)
+    return 1 if reports else 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())
