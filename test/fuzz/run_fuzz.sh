@@ -55,8 +55,10 @@ for target in "${targets[@]}"; do
   mkdir -p "$work" "$artifacts"
   log="$build_dir/$target.log"
   start=$(date +%s)
-  # -timeout: an input taking over 20 s is a hang; -rss_limit_mb: libFuzzer's default.
-  if timeout -k 10 $((seconds + 120)) "$build_dir/fuzz_$target" -max_total_time="$seconds" -timeout=20 \
+  # -timeout: an input taking over 60 s is a hang (a model asking for a tile index near the
+  # reader's 256 MiB limit takes 7 s here, four of them built per input); -rss_limit_mb:
+  # libFuzzer's default.
+  if timeout -k 10 $((seconds + 120)) "$build_dir/fuzz_$target" -max_total_time="$seconds" -timeout=60 \
        -rss_limit_mb=2048 -print_final_stats=1 -artifact_prefix="$artifacts" "$work" "$fuzz_dir/corpus/$target" \
        >"$log" 2>&1; then
     add_case "$target" $(($(date +%s) - start)) ""
