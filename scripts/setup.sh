@@ -17,12 +17,12 @@ workspace=${DOG_WORKSPACE:-$HOME/dog_ws}
 export PATH=/usr/bin:/bin:$PATH
 
 # Packages: build, tests (gtest, rostest, python message modules, pomegranate for the
-# cross-check), benchmarks (Google Benchmark; OctoMap as the peer of issue 6, optional in
-# CMake; Debian/Ubuntu names on both branches, like libbenchmark-dev), demo (rviz under
-# Xvfb, tf2 tools).
+# cross-check, clang with libFuzzer and its sanitizer runtimes for test/fuzz), benchmarks
+# (Google Benchmark; OctoMap as the peer of issue 6, optional in CMake; Debian/Ubuntu names
+# on both branches, like libbenchmark-dev), demo (rviz under Xvfb, tf2 tools).
 common_packages=(
   build-essential cmake libeigen3-dev libgtest-dev googletest libbenchmark-dev liboctomap-dev
-  zlib1g-dev libboost-program-options-dev
+  zlib1g-dev libboost-program-options-dev clang
   python3-numpy python3-matplotlib python3-pomegranate xvfb
 )
 debian_ros_packages=(
@@ -36,6 +36,8 @@ debian_ros_packages=(
   python3-yaml libnodeletlib-tools rosbash rviz tf2-tools
   libdiagnostic-updater-dev libdiagnostic-msgs-dev python3-diagnostic-msgs
   libdynamic-reconfigure-config-init-mutex-dev python3-dynamic-reconfigure
+  # not ROS: Debian 12's clang 14 runtimes for test/fuzz (libFuzzer, ASan, UBSan)
+  libclang-rt-14-dev libfuzzer-14-dev
 )
 noetic_ros_packages=(
   ros-noetic-catkin ros-noetic-roscpp ros-noetic-rosbag ros-noetic-tf2 ros-noetic-tf2-ros

@@ -1,8 +1,10 @@
 #!/usr/bin/env bash
 # Runs every test of dynamic_occupancy_grid from a fresh clone: installs what is missing,
-# builds, runs the catkin tests (GoogleTest, rostest) and the plain-CMake core build with
-# its include audit, then prints one summary line "N passed, N failed" computed from the
-# JUnit XML results. Exits non-zero if anything failed or did not run.
+# builds, runs the catkin tests (GoogleTest, rostest), the plain-CMake core build with its
+# include audit, the fuzz targets for a bounded time (test/fuzz) and the tests again in an
+# ASan + UBSan build (test/sanitizers), then prints one summary line "N passed, N failed"
+# computed from the JUnit XML results. Exits non-zero if anything failed or did not run.
+#   DOG_FUZZ_SECONDS=N   seconds per fuzz target (default 25)
 set -uo pipefail
 
 package_dir=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
@@ -45,6 +47,25 @@ else
   status=1
   broken+=("the plain-CMake build of the core failed")
 fi
+
+# Each fuzz target for a bounded time from its committed corpus (docs/reliability.md): one
+# testcase per target, failed by a crash, a sanitizer finding, a leak or a hang.
+start=$(date +%s)
+if ! "$package_dir/test/fuzz/run_fuzz.sh" "$workspace/build/fuzz" "$results_dir/fuzz.xml" "${DOG_FUZZ_SECONDS:-25}"; then
+  status=1
+  [ -s "$results_dir/fuzz.xml" ] || broken+=("test/fuzz/run_fuzz.sh wrote no $results_dir/fuzz.xml")
+fi
+echo "test: fuzzing took $(($(date +%s) - start)) s"
+
+# The GoogleTest binaries and the rostests again, built with ASan + UBSan in a workspace of
+# their own: their results under sanitized/, and every sanitizer report a failing testcase.
+start=$(date +%s)
+if ! "$package_dir/test/sanitizers/run_sanitized.sh" "$workspace/build/sanitized_ws" "$results_dir"; then
+  status=1
+  [ -s "$results_dir/sanitized/sanitizer_reports.xml" ] ||
+    broken+=("test/sanitizers/run_sanitized.sh failed before any result (log: $workspace/build/sanitized_ws/build.log)")
+fi
+echo "test: the sanitized build and tests took $(($(date +%s) - start)) s"
 
 # One line from the real results: every <testcase> of every JUnit file.
 /usr/bin/python3 - "$results_dir" "${broken[@]}" <<'PY' || status=1

@@ -118,15 +118,15 @@ ScanResult Mapper::integrate(const Scan& scan) {
 
   // The first accepted scan starts step 0.
   const std::int64_t step = clock_.origin() ? clock_.stepOf(scan.stamp_s) : 0;
-  // Scans may arrive out of order within the step being gathered, never before it, and
-  // never into a step already applied.
-  const std::optional<std::int64_t> first_allowed =
-      gathering_step_ ? gathering_step_
-                      : (last_applied_step_ ? std::optional<std::int64_t>(*last_applied_step_ + 1) : std::nullopt);
-  if (first_allowed && step < *first_allowed) {
+  // Scans may arrive out of order within the step being gathered, never before it, never
+  // into a step already applied, and never before step 0 (restartClockAt anchors step 0, or
+  // the step after the last applied one, at a stamp; nothing may come before it).
+  const std::int64_t first_allowed =
+      gathering_step_ ? *gathering_step_ : (last_applied_step_ ? *last_applied_step_ + 1 : 0);
+  if (step < first_allowed) {
     return reject(ScanStatus::kRejectedTimeBackwards,
                   "stamp " + std::to_string(scan.stamp_s) + " s is in step " + std::to_string(step) +
-                      ", before the first step still open (" + std::to_string(*first_allowed) + ")");
+                      ", before the first step still open (" + std::to_string(first_allowed) + ")");
   }
   if (step > std::numeric_limits<std::int32_t>::max() - 1) {
     return reject(ScanStatus::kRejectedInvalid, "stamp too far after the first one for time_step");

@@ -175,6 +175,49 @@ std::string cellName(std::uint64_t index, std::int32_t x, std::int32_t y) {
   return "cell " + std::to_string(index) + " at (" + std::to_string(x) + ", " + std::to_string(y) + ")";
 }
 
+// The tile index of a loaded model is one pointer per tile of the area it covers, allocated
+// (and zeroed) as the Mapper is built and its cells restored: the whole fixed bounds, or the
+// box of the cells of a growing map. max_map_size allows 1e8 cells per side, so a header of a
+// few hundred bytes (or two cells far apart) could ask for terabytes; no real map needs more
+// than this (2^25 tiles: an 18 km square at 5 cm), so a file asking for more is refused
+// before anything is allocated.
+constexpr std::uint64_t kMaxTileIndexBytes = std::uint64_t{256} << 20;
+
+// Tiles along one side of `size_m` at `resolution_m`, at least as many as CellGrid indexes.
+double tilesAlong(double size_m, double resolution_m) {
+  return std::floor(size_m / resolution_m / CellGrid::kTileSize) + 2.0;
+}
+
+// Tiles from cell `min` to cell `max` (inclusive), as CellGrid's index spans them.
+double tilesSpanned(std::int32_t min, std::int32_t max) {
+  return static_cast<double>((max >> CellGrid::kTileBits) - (min >> CellGrid::kTileBits)) + 1.0;
+}
+
+// Throws when the model in `data` (checked sizes: `cell_count` records of `cell_size` bytes
+// from `cells`) would need a tile index over kMaxTileIndexBytes.
+void checkTileIndex(const MapperConfig& config, const unsigned char* cells, std::uint64_t cell_count,
+                    std::size_t cell_size) {
+  double tiles = 0.0;
+  if (config.fixed_bounds) {
+    tiles = tilesAlong(config.width_m, config.resolution_m) * tilesAlong(config.height_m, config.resolution_m);
+  } else if (cell_count > 0) {
+    CellBox box;
+    for (std::uint64_t index = 0; index < cell_count; ++index) {
+      Reader reader(cells + index * cell_size);
+      const std::int32_t x = reader.i32();
+      box.include(x, reader.i32());
+    }
+    tiles = tilesSpanned(box.min_x, box.max_x) * tilesSpanned(box.min_y, box.max_y);
+  }
+  const double index_bytes = tiles * static_cast<double>(sizeof(std::unique_ptr<CellGrid::Tile>));
+  if (index_bytes > static_cast<double>(kMaxTileIndexBytes)) {
+    throw std::runtime_error("invalid model file: its map would need a tile index of " +
+                             std::to_string(static_cast<std::uint64_t>(index_bytes / static_cast<double>(1 << 20))) +
+                             " MiB (" + (config.fixed_bounds ? "fixed bounds" : "the box of its cells") +
+                             "), more than the " + std::to_string(kMaxTileIndexBytes >> 20) + " MiB any real map needs");
+  }
+}
+
 std::unique_ptr<Mapper> deserializeChecked(const std::string& bytes) {
   const auto* data = reinterpret_cast<const unsigned char*>(bytes.data());
   const std::size_t size = bytes.size();
@@ -294,9 +337,14 @@ std::unique_ptr<Mapper> deserializeChecked(const std::string& bytes) {
   }
   static_cast<void>(reader.u64());  // the cell count, read above
 
-  std::unique_ptr<Mapper> mapper;
   try {
     config.validate();
+  } catch (const std::invalid_argument& error) {
+    throw std::runtime_error(std::string("invalid configuration in model file: ") + error.what());
+  }
+  checkTileIndex(config, data + header_size, cell_count, cell_size);
+  std::unique_ptr<Mapper> mapper;
+  try {
     mapper = std::make_unique<Mapper>(config);
   } catch (const std::invalid_argument& error) {
     throw std::runtime_error(std::string("invalid configuration in model file: ") + error.what());
@@ -476,8 +524,8 @@ std::unique_ptr<Mapper> deserializeModel(const std::string& bytes) {
   try {
     return deserializeChecked(bytes);
   } catch (const std::bad_alloc&) {
-    // Only a configuration that passes validation yet asks for an enormous tile index gets
-    // here (the cell count is checked against the file's size before anything is built).
+    // Only a model within kMaxTileIndexBytes and the cells its size allows, yet larger than
+    // this machine's memory, gets here (both are checked before anything is built).
     throw std::runtime_error("model file needs more memory than is available");
   } catch (const std::length_error& error) {
     throw std::runtime_error(std::string("model file needs more memory than is available: ") + error.what());

@@ -6,6 +6,15 @@
 
 namespace dynamic_occupancy_grid {
 namespace core {
+namespace {
+
+// The heading of beam i in the map frame (Scan's definition).
+double beamHeading(const Scan& scan, std::size_t i) {
+  const double beam_angle = scan.angle_min_rad + static_cast<double>(i) * scan.angle_increment_rad;
+  return scan.laser_pose.yaw_rad + (scan.upside_down ? -beam_angle : beam_angle);
+}
+
+}  // namespace
 
 std::optional<std::string> scanFieldsError(const Scan& scan) {
   if (scan.ranges_m.empty()) return std::string("empty scan (no ranges)");
@@ -17,6 +26,12 @@ std::optional<std::string> scanFieldsError(const Scan& scan) {
   if (!std::isfinite(scan.angle_min_rad) || !std::isfinite(scan.angle_increment_rad) ||
       (scan.ranges_m.size() > 1 && scan.angle_increment_rad == 0.0)) {
     return std::string("angle_min and angle_increment must be finite, and angle_increment non-zero");
+  }
+  // Finite angles can still add up to an infinite heading (angle_increment 1e308 over a few
+  // beams, a yaw near the largest double), whose cosine is NaN. The headings are monotonic
+  // in the beam index, so the first and the last beam bound them all.
+  if (!std::isfinite(beamHeading(scan, 0)) || !std::isfinite(beamHeading(scan, scan.ranges_m.size() - 1))) {
+    return std::string("beam headings are not finite (laser yaw + angle_min + i * angle_increment overflows)");
   }
   if (!(scan.range_min_m >= 0.0) || !std::isfinite(scan.range_min_m) || !(scan.range_max_m > scan.range_min_m)) {
     return "need 0 <= range_min < range_max, got range_min " + std::to_string(scan.range_min_m) + ", range_max " +
@@ -55,8 +70,7 @@ std::optional<std::size_t> beamEnds(const Scan& scan, double u0, double v0, cons
       length_m = rules.max_beam_m;
       hit = false;
     }
-    const double beam_angle = scan.angle_min_rad + static_cast<double>(i) * scan.angle_increment_rad;
-    const double angle = scan.laser_pose.yaw_rad + (scan.upside_down ? -beam_angle : beam_angle);
+    const double angle = beamHeading(scan, i);
     const double u1 = u0 + std::cos(angle) * length_m * rules.cells_per_m;
     const double v1 = v0 + std::sin(angle) * length_m * rules.cells_per_m;
     if (std::abs(u1) > kMaxLatticeCoordinate || std::abs(v1) > kMaxLatticeCoordinate) return i;

@@ -153,22 +153,30 @@ class CommandLine {
   /// Parses argv; prints the usage and exits 0 on --help, exits 2 on an error. The targets
   /// of the options are set when this returns.
   boost::program_options::variables_map parse(int argc, char** argv) const {
+    boost::program_options::variables_map values;
+    try {
+      values = read(argc, argv);
+    } catch (const boost::program_options::error& error) {
+      fail(error.what());
+    }
+    if (values.count("help") > 0) {
+      std::cout << usageText();
+      std::exit(0);
+    }
+    return values;
+  }
+
+  /// parse() without leaving the process: throws boost::program_options::error for a bad
+  /// command line; with --help the map holds "help" and no target is set.
+  boost::program_options::variables_map read(int argc, const char* const* argv) const {
     namespace po = boost::program_options;
     po::options_description all;
     all.add(options_).add(hidden_);
     po::variables_map values;
-    try {
-      // Only the full names: a prefix is no abbreviation of an option (--res is unknown).
-      const int style = po::command_line_style::unix_style & ~po::command_line_style::allow_guessing;
-      po::store(po::command_line_parser(argc, argv).options(all).positional(positional_).style(style).run(), values);
-      if (values.count("help") > 0) {
-        std::cout << usageText();
-        std::exit(0);
-      }
-      po::notify(values);
-    } catch (const po::error& error) {
-      fail(error.what());
-    }
+    // Only the full names: a prefix is no abbreviation of an option (--res is unknown).
+    const int style = po::command_line_style::unix_style & ~po::command_line_style::allow_guessing;
+    po::store(po::command_line_parser(argc, argv).options(all).positional(positional_).style(style).run(), values);
+    if (values.count("help") == 0) po::notify(values);
     return values;
   }
 

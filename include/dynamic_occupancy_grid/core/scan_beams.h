@@ -20,7 +20,8 @@ namespace core {
 constexpr double kMaxLatticeCoordinate = 1.0e9;
 
 /// Why `scan` cannot be integrated (no ranges, a non-finite stamp, pose or angle, a zero
-/// angle increment with several beams, not 0 <= range_min < range_max); nullopt if it can.
+/// angle increment with several beams, a beam heading that overflows to infinity, not
+/// 0 <= range_min < range_max); nullopt if it can.
 std::optional<std::string> scanFieldsError(const Scan& scan);
 
 /// The end of one beam in lattice coordinates: misses up to the end cell; the end cell is a

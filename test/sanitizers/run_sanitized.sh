@@ -1,0 +1,61 @@
+#!/usr/bin/env bash
+# The tests again in an ASan + UBSan build (docs/reliability.md): the package built by gcc
+# with -fsanitize=address,undefined in a catkin workspace of its own, then its GoogleTest
+# binaries (core and evaluation) and its rostests (the node and the tools they launch are
+# sanitized executables). Any sanitizer report fails: each one stops its process
+# (halt_on_error, -fno-sanitize-recover) and is written to a report directory that
+# collect_results.py turns into a failing testcase, also when the process was a node whose
+# test went on.
+#
+#   run_sanitized.sh WORKSPACE RESULTS_DIR
+#     WORKSPACE    the sanitized catkin workspace (created; its src links this checkout)
+#     RESULTS_DIR  where the JUnit files go (RESULTS_DIR/sanitized/*.xml)
+#
+# Not run sanitized: nodelet.test. It loads the mapper into Debian's nodelet manager, which
+# is not built with ASan, and an ASan library cannot be loaded into it.
+set -uo pipefail
+
+package_dir=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
+workspace=$1
+results_dir=$2
+export PATH=/usr/bin:/bin:$PATH
+
+flags="-O1 -g1 -fno-omit-frame-pointer -fsanitize=address,undefined -fno-sanitize-recover=all"
+mkdir -p "$workspace/src"
+ln -sfn "$package_dir" "$workspace/src/dynamic_occupancy_grid"
+# A workspace configured from another checkout names it in its cache: start afresh.
+if [ -f "$workspace/build/CMakeCache.txt" ] &&
+   ! grep -q "^dynamic_occupancy_grid_SOURCE_DIR:STATIC=$workspace/src/dynamic_occupancy_grid$" "$workspace/build/CMakeCache.txt"; then
+  rm -rf "$workspace/build" "$workspace/devel"
+fi
+# The benchmarks are not tests: not built here.
+configure=(-DCMAKE_BUILD_TYPE=None "-DCMAKE_CXX_FLAGS=$flags" "-DCMAKE_C_FLAGS=$flags"
+           -DCMAKE_EXE_LINKER_FLAGS=-fsanitize=address,undefined
+           -DCMAKE_SHARED_LINKER_FLAGS=-fsanitize=address,undefined
+           -DCATKIN_ENABLE_TESTING=ON -DCMAKE_DISABLE_FIND_PACKAGE_benchmark=ON)
+if ! (cd "$workspace" && catkin_make "${configure[@]}" -j2 >"$workspace/build.log" 2>&1); then
+  tail -30 "$workspace/build.log"
+  echo "run_sanitized: the sanitized build failed (log: $workspace/build.log)" >&2
+  exit 1
+fi
+
+reports="$workspace/sanitizer_reports"
+rm -rf "$reports" "$workspace/build/test_results"
+mkdir -p "$reports"
+# Leak detection on for every process, without suppressions: the ROS libraries the tests
+# reach reported no leak of their own (docs/reliability.md).
+export ASAN_OPTIONS="halt_on_error=1:abort_on_error=1:detect_leaks=1:log_path=$reports/asan"
+export UBSAN_OPTIONS="halt_on_error=1:abort_on_error=1:print_stacktrace=1:log_path=$reports/ubsan"
+
+targets=(run_tests_dynamic_occupancy_grid_gtest)
+for test_file in "$package_dir"/test/ros/*.test; do
+  name=$(basename "$test_file")
+  [ "$name" = nodelet.test ] && continue
+  targets+=("run_tests_dynamic_occupancy_grid_rostest_test_ros_$name")
+done
+status=0
+(cd "$workspace" && catkin_make "${targets[@]}" -j2) >"$workspace/test.log" 2>&1 || status=1
+
+/usr/bin/python3 "$package_dir/test/sanitizers/collect_results.py" \
+  "$workspace/build/test_results" "$reports" "$results_dir/sanitized" || status=1
+exit $status
