@@ -572,7 +572,9 @@ void MappingNode::diagnoseOfflineEm(diagnostic_updater::DiagnosticStatusWrapper&
 }
 
 DynamicOccupancyGridConfig MappingNode::reconfigurableValues() const {
-  DynamicOccupancyGridConfig values;
+  // From the .cfg defaults: a default-constructed config leaves its members uninitialised
+  // (UBSan: a bool holding 191), and the copy below would read them.
+  DynamicOccupancyGridConfig values = DynamicOccupancyGridConfig::__getDefault__();
   // A loaded model's sensor model (the start of learning, with learn_sensor_model) and
   // learning flags are the ones in use.
   const core::MapperConfig& mapper = mapper_ ? mapper_->config() : parameters_.mapper;
