@@ -49,6 +49,11 @@ class TestMappingNode(unittest.TestCase):
         cls.last_step = cls.scene.last_step
         cls.scene.finish()
         cls.final_stamp = cls.scene.step_end(cls.last_step)
+        # The node applies the last step at its next publish tick; a subscriber that connects
+        # before it gets the step before as its full grid and then only updates (final_grid
+        # waits for a full grid of the last step).
+        applied = cls.scene.wait_for_cell_step(cls.last_step)
+        assert applied is not None and applied.last_observed_step >= cls.scene.step_offset + cls.last_step, applied
 
     def final_grid(self, layer, recorder=None):
         """A full grid of `layer` showing the last step. Full grids are only sent when the
