@@ -273,6 +273,7 @@ BENCHMARK(BM_OctoMapInsertScan)->Unit(benchmark::kMicrosecond);
 void BM_StepUpdate(benchmark::State& state) {
   dog::MapperConfig config = benchmarkConfig();
   config.learn_transitions = state.range(0) != 0;
+  if (state.range(0) == 2) config.learner = dog::TransitionLearner::kCellEm;
   dog::Mapper mapper(config);
   double stamp = 0.0;
   std::size_t touched = 0;
@@ -302,9 +303,12 @@ void BM_StepUpdate(benchmark::State& state) {
   state.counters["touched_cells"] = static_cast<double>(touched);
   // items_per_second = touched cells per second: ns per cell = 1e9 / items_per_second.
   state.SetItemsProcessed(static_cast<std::int64_t>(touched) * state.iterations());
-  state.SetLabel(config.learn_transitions ? "filter + online EM" : "filter only");
+  state.SetLabel(!config.learn_transitions ? "filter only"
+                 : config.learner == dog::TransitionLearner::kKinds ? "kinds of cells (the default)"
+                                                                       : "each cell's online EM");
 }
-BENCHMARK(BM_StepUpdate)->Arg(0)->Arg(1)->Unit(benchmark::kMicrosecond);
+// 0: learning off; 1: the default learner (kinds of cells); 2: each cell's online EM.
+BENCHMARK(BM_StepUpdate)->Arg(0)->Arg(1)->Arg(2)->Unit(benchmark::kMicrosecond);
 
 // The online EM kernel alone (onlineLearnStep in double, no grid): argument = the gap of
 // unobserved steps before each observed step (0: seen every step; 5: the closed-form skip).

@@ -13,6 +13,7 @@ add_library(dynamic_occupancy_grid_core
   # the cell and its learning
   ${DOG_ROOT}/src/core/cell_model.cpp
   ${DOG_ROOT}/src/core/online_em.cpp
+  ${DOG_ROOT}/src/core/cell_kinds.cpp
   ${DOG_ROOT}/src/core/offline_em.cpp
   ${DOG_ROOT}/src/core/mrf.cpp
   # the grid and a scan's way into it

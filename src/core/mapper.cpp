@@ -77,6 +77,7 @@ void MapperConfig::validate() const {
             "fixed width and height must not exceed max_map_size");
   }
   online_em.validate();
+  kinds.validate();
   require(std::isfinite(sensor_model_prior_weight) && sensor_model_prior_weight > 0.0,
           "sensor_model_prior_weight must be > 0, got " + std::to_string(sensor_model_prior_weight));
   require(sensor_model_p_min > 0.0 && sensor_model_p_min <= 0.4,
@@ -99,7 +100,8 @@ Mapper::Mapper(const MapperConfig& config)
             maxCellsPerSide(config),
             CellGrid::CellDefaults{static_cast<float>(config.prior_transitions.p_occ_given_free),
                                    static_cast<float>(config.prior_transitions.p_free_given_occ)}),
-      current_prior_(config.prior_transitions) {}
+      current_prior_(config.prior_transitions),
+      kinds_(config.kinds, std::max(config.online_em.p_min, 1e-6), std::min(config.online_em.p_max, 0.5)) {}
 
 ScanResult Mapper::integrate(const Scan& scan) {
   ScanResult result;
@@ -256,6 +258,7 @@ void Mapper::applyGatheredStep() {
   last_applied_step_ = gathering_step_;
   updatePrior();
   if (config_.learn_sensor_model) updateSensorModel();
+  if (config_.learn_transitions && config_.learner == TransitionLearner::kKinds) kinds_.update();
 }
 
 void Mapper::applyCellStep(CellGrid::Tile& tile, int i, std::int32_t step) {
@@ -264,11 +267,21 @@ void Mapper::applyCellStep(CellGrid::Tile& tile, int i, std::int32_t step) {
   const std::uint32_t misses = ScanRecord::misses(record);
   tile.scan_record[i] = record & ScanRecord::kMarkMask;
   const double evidence = sensor_.logLikelihoodRatio(hits, misses);
+  const bool kinds = config_.learner == TransitionLearner::kKinds;
+  const bool learn_kinds = kinds && config_.learn_transitions;
   if (config_.learn_sensor_model && tile.last_step[i] != kNeverObserved) {
-    addSensorEvidence(tile, i, step, evidence);
+    if (learn_kinds) {
+      addKindsSensorEvidence(tile, i, step, evidence);
+    } else {
+      addSensorEvidence(tile, i, step, evidence);
+    }
   }
   if (config_.learn_transitions) {
-    learnStep(tile, i, step, evidence);
+    if (kinds) {
+      learnKindsStep(tile, i, step, evidence);
+    } else {
+      learnStep(tile, i, step, evidence);
+    }
   } else {
     const TransitionParams params{tile.p_occ_given_free[i], tile.p_free_given_occ[i]};
     const std::int32_t last = tile.last_step[i];
@@ -278,6 +291,16 @@ void Mapper::applyCellStep(CellGrid::Tile& tile, int i, std::int32_t step) {
                               ? config_.initial_p_occ
                               : predictOccupancy(tile.p_occ[i], params, std::int64_t{step} - 1 - last);
     tile.p_occ[i] = static_cast<float>(filterStep(before, params, evidence));
+    if (kinds) {
+      // The kind posterior stays as it was; the state follows the filter, so that learning
+      // turned on again goes on from this belief.
+      for (int k = 0; k < kKindCount; ++k) {
+        const double mass = last == kNeverObserved ? kinds_.weight(k)
+                                                   : double{tile.em_stats[2 * k][i]} + tile.em_stats[2 * k + 1][i];
+        tile.em_stats[2 * k][i] = static_cast<float>(mass * tile.p_occ[i]);
+        tile.em_stats[2 * k + 1][i] = static_cast<float>(mass * (1.0 - tile.p_occ[i]));
+      }
+    }
   }
   // The static baseline weighs the step with the configured sensor model, learned or not:
   // it stays the textbook grid its clamp was chosen for.
@@ -405,6 +428,72 @@ void Mapper::learnStep(CellGrid::Tile& tile, int i, std::int32_t step, double ev
   tile.p_free_given_occ[i] = static_cast<float>(cell.params.p_free_given_occ);
 }
 
+void Mapper::learnKindsStep(CellGrid::Tile& tile, int i, std::int32_t step, double evidence) {
+  const std::int32_t last = tile.last_step[i];
+  const bool first = last == kNeverObserved;
+  KindJoint joint;
+  std::int64_t gap = 0;
+  if (first) {
+    joint = kinds_.newCell(config_.initial_p_occ);
+  } else {
+    for (int k = 0; k < 2 * kKindCount; ++k) joint.p[k] = tile.em_stats[k][i];
+    gap = std::int64_t{step} - 1 - last;
+  }
+  std::array<double, kKindCount> before{};
+  if (!first) {
+    for (int k = 0; k < kKindCount; ++k) before[k] = joint.kind(k);
+  }
+  kinds_.skip(joint, gap);
+  // Only consecutive observed steps teach the kinds their transitions (cell_kinds.h).
+  KindTransitions transitions;
+  const bool count = !first && gap == 0;
+  tile.p_occ[i] = static_cast<float>(kinds_.observe(joint, gap, evidence, count ? &transitions : nullptr));
+  if (count) kinds_.addTransitions(transitions);
+  std::array<double, kKindCount> delta{};
+  for (int k = 0; k < kKindCount; ++k) delta[k] = joint.kind(k) - before[k];
+  kinds_.addMembership(delta, first);
+  for (int k = 0; k < 2 * kKindCount; ++k) tile.em_stats[k][i] = static_cast<float>(joint.p[k]);
+  const TransitionParams params = kinds_.summary(joint);
+  tile.p_occ_given_free[i] = static_cast<float>(params.p_occ_given_free);
+  tile.p_free_given_occ[i] = static_cast<float>(params.p_free_given_occ);
+  if (tile.observed_steps[i] < std::numeric_limits<std::uint16_t>::max()) ++tile.observed_steps[i];
+}
+
+void Mapper::addKindsSensorEvidence(const CellGrid::Tile& tile, int i, std::int32_t step, double evidence) {
+  // As addSensorEvidence, per kind: p(k, x_last = s | z up to this step) ∝ p(k, s | z up to
+  // last) * sum_m A_k^n(s, m) p(z|m), n the transitions in between, counted only for the
+  // kinds expected to keep their state in between (lambda_k^n >= 0.95), and only once the
+  // cell has shown what it is (min_observed_steps).
+  const std::uint32_t hits = tile.last_hits[i];
+  const std::uint32_t trials = hits + tile.last_misses[i];
+  if (trials == 0 || tile.observed_steps[i] < config_.online_em.min_observed_steps) return;
+  const std::int64_t n = std::int64_t{step} - tile.last_step[i];
+  const double like_occ = evidence >= 0.0 ? 1.0 : std::exp(evidence);
+  const double like_free = evidence >= 0.0 ? std::exp(-evidence) : 1.0;
+  double counted[2] = {0.0, 0.0};
+  double total = 0.0;
+  for (int k = 0; k < kKindCount; ++k) {
+    const TransitionParams& t = kinds_.transitions(k);
+    const double lambda_n = kinds_.lambdaPower(k, n);
+    const double pi = t.p_occ_given_free / (t.p_occ_given_free + t.p_free_given_occ);
+    const double occ_to_occ = pi + lambda_n * (1.0 - pi);
+    const double free_to_occ = pi - lambda_n * pi;
+    const double w_occ = tile.em_stats[2 * k][i] * (occ_to_occ * like_occ + (1.0 - occ_to_occ) * like_free);
+    const double w_free = tile.em_stats[2 * k + 1][i] * (free_to_occ * like_occ + (1.0 - free_to_occ) * like_free);
+    total += w_occ + w_free;
+    if (lambda_n >= kSensorModelMinCorrelation) {
+      counted[0] += w_occ;
+      counted[1] += w_free;
+    }
+  }
+  if (!(total > 0.0)) return;
+  for (int s = 0; s < 2; ++s) {
+    const double p = counted[s] / total;
+    sensor_stats_.trials[s] += p * trials;
+    sensor_stats_.hits[s] += p * hits;
+  }
+}
+
 void Mapper::finishStep() {
   applyGatheredStep();
   gathering_step_.reset();
@@ -527,8 +616,9 @@ void Mapper::restoreCell(std::int32_t x, std::int32_t y, const CellState& state)
   tile->p_occ_given_free[i] = state.p_occ_given_free;
   tile->p_free_given_occ[i] = state.p_free_given_occ;
   TransitionStats stats;
-  for (std::size_t k = 0; k < state.em_stats.size(); ++k) stats.s[k] = state.em_stats[k];
+  for (std::size_t k = 0; k < stats.s.size(); ++k) stats.s[k] = state.em_stats[k];
   storeStats(*tile, i, stats);
+  for (std::size_t k = stats.s.size(); k < state.em_stats.size(); ++k) tile->em_stats[k][i] = state.em_stats[k];
   tile->observed_steps[i] = state.observed_steps;
   tile->last_hits[i] = state.last_hits;
   tile->last_misses[i] = state.last_misses;

@@ -42,19 +42,35 @@ constexpr std::size_t kTimeEnd = kHeaderSizeV1 - 8;
 // schedule, 5 doubles, 1 uint32) and the sensor model's sums (4 doubles).
 constexpr std::size_t kHeaderSizeV2 = kTimeEnd + (2 * 1 + 1 + 5 * 8 + 4) + 4 * 8 + 8;
 static_assert(kHeaderSizeV2 == 276, "docs/model_format.md documents a 276-byte version 2 header");
+// Version 3 adds, before the cell count, the transition learner and the kinds of cells:
+// learner and kind count (2 bytes), per kind its initial transitions (2 doubles) and share,
+// 4 doubles of options, 2 bytes of choices, and the sums: per kind 4 transitions and a
+// membership, and the number of cells.
+constexpr std::size_t kHeaderSizeV3 =
+    kHeaderSizeV2 - 8 + 2 + kKindCount * (2 + 1) * 8 + 4 * 8 + 2 + (kKindCount * (4 + 1) + 1) * 8 + 8;
+static_assert(kHeaderSizeV3 == 640, "docs/model_format.md documents a 640-byte version 3 header");
 // x, y, p_occ, last_step, log_odds, p_occ_given_free, p_free_given_occ, em_stats[8],
-// observed_steps; version 2 adds last_hits and last_misses.
+// observed_steps; version 2 adds last_hits and last_misses; version 3 stores the learner's
+// state in kLearnerStateSize floats instead of 8.
 constexpr std::size_t kCellSizeV1 = 4 * 7 + 4 * 8 + 2;
 static_assert(kCellSizeV1 == 62, "docs/model_format.md documents 62-byte version 1 cell records");
 constexpr std::size_t kCellSizeV2 = kCellSizeV1 + 2;
+constexpr std::size_t kCellSizeV3 = kCellSizeV2 + 4 * (kLearnerStateSize - 8);
+static_assert(kCellSizeV3 == 72, "docs/model_format.md documents 72-byte version 3 cell records");
+// Version 1 and 2 files hold 8 learner floats per cell.
+constexpr std::size_t kLearnerStateSizeV2 = 8;
 
 struct Layout {
   std::size_t header;
   std::size_t cell;
+  std::size_t learner_floats;
 };
 Layout layoutOf(std::uint32_t version) {
-  return version == 1 ? Layout{kHeaderSizeV1, kCellSizeV1} : Layout{kHeaderSizeV2, kCellSizeV2};
+  if (version == 1) return Layout{kHeaderSizeV1, kCellSizeV1, kLearnerStateSizeV2};
+  if (version == 2) return Layout{kHeaderSizeV2, kCellSizeV2, kLearnerStateSizeV2};
+  return Layout{kHeaderSizeV3, kCellSizeV3, kLearnerStateSize};
 }
+bool readableVersion(std::uint32_t version) { return version >= 1 && version <= kModelFormatVersion; }
 constexpr std::size_t kChecksumSize = 4;
 
 // ---- CRC-32: zlib's own, the one the format promises and Python's zlib.crc32 computes ----
@@ -234,7 +250,7 @@ std::unique_ptr<Mapper> deserializeChecked(const std::string& bytes) {
   if (size < kVersionEnd) throw truncated("at least " + std::to_string(kHeaderSizeV1 + kChecksumSize) + " bytes");
   Reader reader(data + kMagicSize);
   const std::uint32_t version = reader.u32();
-  if (version != 1 && version != kModelFormatVersion) {
+  if (!readableVersion(version)) {
     throw std::runtime_error("model format version " + std::to_string(version) + ", this build reads versions 1 to " +
                              std::to_string(kModelFormatVersion));
   }
@@ -335,6 +351,48 @@ std::unique_ptr<Mapper> deserializeChecked(const std::string& bytes) {
     for (int state = 0; state < 2; ++state) sensor_stats.trials[state] = reader.f64();
     for (int state = 0; state < 2; ++state) sensor_stats.hits[state] = reader.f64();
   }
+  // Version 3: the transition learner and the kinds of cells. Older files were written by
+  // each cell's online EM, and their cells hold its statistics: they go on with it.
+  CellKinds::Sums kind_sums;
+  if (version >= 3) {
+    const std::uint8_t learner = reader.u8();
+    if (learner > 1) {
+      throw std::runtime_error("invalid model file: learner is " + std::to_string(learner) +
+                               ", must be 0 (cell_em) or 1 (kinds)");
+    }
+    config.learner = learner == 0 ? TransitionLearner::kCellEm : TransitionLearner::kKinds;
+    const std::uint8_t kinds = reader.u8();
+    if (kinds != kKindCount) {
+      throw std::runtime_error("model file with " + std::to_string(kinds) + " kinds of cells, this build has " +
+                               std::to_string(kKindCount));
+    }
+    for (TransitionParams& start : config.kinds.initial_transitions) {
+      start.p_occ_given_free = reader.f64();
+      start.p_free_given_occ = reader.f64();
+    }
+    for (double& weight : config.kinds.initial_weights) weight = reader.f64();
+    config.kinds.transition_prior_weight = reader.f64();
+    config.kinds.weight_prior_cells = reader.f64();
+    config.kinds.switch_probability = reader.f64();
+    config.kinds.forgetting = reader.f64();
+    const std::uint8_t summary = reader.u8();
+    const std::uint8_t counting = reader.u8();
+    if (summary > 2 || counting > 1) {
+      throw std::runtime_error("invalid model file: kinds summary " + std::to_string(summary) + " or counting " +
+                               std::to_string(counting) + " out of range");
+    }
+    config.kinds.summary = static_cast<KindSummary>(summary);
+    config.kinds.counting = static_cast<KindCounting>(counting);
+    for (auto& kind : kind_sums.transitions.n) {
+      for (auto& row : kind) {
+        for (double& value : row) value = reader.f64();
+      }
+    }
+    for (double& membership : kind_sums.membership) membership = reader.f64();
+    kind_sums.cells = reader.f64();
+  } else {
+    config.learner = TransitionLearner::kCellEm;
+  }
   static_cast<void>(reader.u64());  // the cell count, read above
 
   try {
@@ -360,6 +418,11 @@ std::unique_ptr<Mapper> deserializeChecked(const std::string& bytes) {
   } catch (const std::invalid_argument& error) {
     throw std::runtime_error(std::string("invalid sensor model sums in model file: ") + error.what());
   }
+  try {
+    mapper->restoreKindSums(kind_sums);
+  } catch (const std::invalid_argument& error) {
+    throw std::runtime_error(std::string("invalid kinds of cells in model file: ") + error.what());
+  }
 
   for (std::uint64_t index = 0; index < cell_count; ++index) {
     const std::int32_t x = reader.i32();
@@ -370,7 +433,8 @@ std::unique_ptr<Mapper> deserializeChecked(const std::string& bytes) {
     state.log_odds = reader.f32();
     state.p_occ_given_free = reader.f32();
     state.p_free_given_occ = reader.f32();
-    for (float& stat : state.em_stats) stat = reader.f32();
+    state.em_stats.fill(0.0f);
+    for (std::size_t k = 0; k < layout.learner_floats; ++k) state.em_stats[k] = reader.f32();
     state.observed_steps = reader.u16();
     if (version >= 2) {
       state.last_hits = reader.u8();
@@ -406,13 +470,13 @@ std::string readModelFile(const std::string& path) {
   RegularFileReader file(path, loadError(path));
   const auto fail = [&path](const std::string& what) { return std::runtime_error(loadError(path) + ": " + what); };
   std::string bytes;
-  const std::size_t first = kHeaderSizeV2 + kChecksumSize;
+  const std::size_t first = kHeaderSizeV3 + kChecksumSize;
   if (file.read(first, &bytes) < first) return bytes;  // all of it
   const auto* data = reinterpret_cast<const unsigned char*>(bytes.data());
   if (std::memcmp(data, kMagic, kMagicSize) != 0) return bytes;
   Reader reader(data + kMagicSize);
   const std::uint32_t version = reader.u32();
-  if (version != 1 && version != kModelFormatVersion) return bytes;
+  if (!readableVersion(version)) return bytes;
   const Layout layout = layoutOf(version);
   const std::size_t minimum_size = layout.header + kChecksumSize;
   Reader count_reader(data + layout.header - 8);
@@ -448,7 +512,7 @@ std::string serializeModel(const Mapper& mapper) {
   const std::size_t cell_count = countObservedCells(grid);
   // The file is built in one buffer of its exact size: the only copy of the cells besides
   // the grid itself.
-  std::string bytes(kHeaderSizeV2 + kChecksumSize + cell_count * kCellSizeV2, '\0');
+  std::string bytes(kHeaderSizeV3 + kChecksumSize + cell_count * kCellSizeV3, '\0');
   auto* const begin = reinterpret_cast<unsigned char*>(&bytes[0]);
   Writer writer(begin);
   writer.bytes(kMagic, kMagicSize);
@@ -496,6 +560,27 @@ std::string serializeModel(const Mapper& mapper) {
   const SensorModelStats& sensor_stats = mapper.sensorModelStats();
   for (int state = 0; state < 2; ++state) writer.f64(sensor_stats.trials[state]);
   for (int state = 0; state < 2; ++state) writer.f64(sensor_stats.hits[state]);
+  writer.u8(config.learner == TransitionLearner::kCellEm ? 0 : 1);
+  writer.u8(kKindCount);
+  for (const TransitionParams& start : config.kinds.initial_transitions) {
+    writer.f64(start.p_occ_given_free);
+    writer.f64(start.p_free_given_occ);
+  }
+  for (const double weight : config.kinds.initial_weights) writer.f64(weight);
+  writer.f64(config.kinds.transition_prior_weight);
+  writer.f64(config.kinds.weight_prior_cells);
+  writer.f64(config.kinds.switch_probability);
+  writer.f64(config.kinds.forgetting);
+  writer.u8(static_cast<std::uint8_t>(config.kinds.summary));
+  writer.u8(static_cast<std::uint8_t>(config.kinds.counting));
+  const CellKinds::Sums& kind_sums = mapper.kinds().sums();
+  for (const auto& kind : kind_sums.transitions.n) {
+    for (const auto& row : kind) {
+      for (const double value : row) writer.f64(value);
+    }
+  }
+  for (const double membership : kind_sums.membership) writer.f64(membership);
+  writer.f64(kind_sums.cells);
   writer.u64(cell_count);
 
   forEachObservedCell(grid, [&writer](std::int32_t x, std::int32_t y, const CellGrid::Tile& tile, int i) {
@@ -506,7 +591,7 @@ std::string serializeModel(const Mapper& mapper) {
     writer.f32(tile.log_odds[i]);
     writer.f32(tile.p_occ_given_free[i]);
     writer.f32(tile.p_free_given_occ[i]);
-    for (const auto& stat : tile.em_stats) writer.f32(stat[i]);
+    for (const auto& state : tile.em_stats) writer.f32(state[i]);
     writer.u16(tile.observed_steps[i]);
     writer.u8(tile.last_hits[i]);
     writer.u8(tile.last_misses[i]);

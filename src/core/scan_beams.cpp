@@ -44,7 +44,11 @@ std::optional<std::size_t> beamEnds(const Scan& scan, double u0, double v0, cons
                                     std::vector<BeamEnd>& ends, BeamCounts& counts, CellBox& box) {
   ends.clear();
   ends.reserve(scan.ranges_m.size());
-  const double free_range_m = std::min(rules.max_free_range_m, scan.range_max_m);
+  // A beam without return says nothing is nearer than range_max, but a surface just inside
+  // range_max reads beyond it about as often as not (range noise): stop one cell short, or
+  // the cell of a wall at the laser's limit collects misses and looks like a cell that
+  // changes.
+  const double free_range_m = std::min(rules.max_free_range_m, scan.range_max_m - 1.0 / rules.cells_per_m);
   box.include(static_cast<std::int32_t>(std::floor(u0)), static_cast<std::int32_t>(std::floor(v0)));
   for (std::size_t i = 0; i < scan.ranges_m.size(); ++i) {
     const double range = scan.ranges_m[i];

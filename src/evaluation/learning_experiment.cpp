@@ -34,7 +34,7 @@ int trinary(double p) {
   return -1;
 }
 
-enum class Reading { kBelief, kStaticClamped, kStaticUnclamped };
+enum class Reading { kBelief, kStaticClamped, kStaticUnclamped, kKindsExact };
 
 struct MethodMapper {
   std::string name;
@@ -48,6 +48,11 @@ double readCell(const MethodMapper& method, const CellState& cell, std::int64_t 
     case Reading::kStaticClamped:
     case Reading::kStaticUnclamped:
       return logOddsToProbability(cell.log_odds);
+    case Reading::kKindsExact: {
+      KindJoint joint;
+      for (int k = 0; k < 2 * kKindCount; ++k) joint.p[k] = cell.em_stats[k];
+      return method.mapper->kinds().predict(joint, now - cell.last_step);
+    }
     case Reading::kBelief:
       break;
   }
@@ -71,6 +76,7 @@ struct KindSamples {
 struct MethodRun {
   double accuracy_all = 0.0;
   double accuracy_changing = 0.0;
+  std::map<std::string, Accuracy> accuracy_by_kind;
   std::map<std::string, KindSamples> kinds;
   double dynamic_mae = 0.0;
   double retention = 0.0;
@@ -109,6 +115,18 @@ RepetitionRun runRepetition(const ScenarioConfig& scenario, const LearningExperi
   MapperConfig fixed = base;
   fixed.learn_transitions = false;
   add("static", fixed, Reading::kStaticClamped, false);
+  if (config.node_defaults) {
+    // What a user gets who sets nothing about the sensor: the package's start (0.7 / 0.2),
+    // learned by the default learner, against the static_map that start gives.
+    MapperConfig node = base;
+    node.p_hit_given_occ = MapperConfig{}.p_hit_given_occ;
+    node.p_hit_given_free = MapperConfig{}.p_hit_given_free;
+    node.learn_sensor_model = true;
+    MapperConfig node_static = node;
+    node_static.learn_transitions = false;
+    add("node_static", node_static, Reading::kStaticClamped, false);
+    add("node_default", node, Reading::kBelief, true);
+  }
   MapperConfig unclamped = fixed;
   unclamped.static_clamp = kUnclamped;
   add("textbook", unclamped, Reading::kStaticUnclamped, false);
@@ -117,7 +135,7 @@ RepetitionRun runRepetition(const ScenarioConfig& scenario, const LearningExperi
     MapperConfig learner = base;
     learner.learn_transitions = true;
     if (variant.configure) variant.configure(learner);
-    add(variant.name, learner, Reading::kBelief, true);
+    add(variant.name, learner, variant.exact_kinds ? Reading::kKindsExact : Reading::kBelief, true);
   }
   // Offline EM's own sensor model, learned with its transitions (or the configured one).
   MapperConfig offline_fixed = fixed;
@@ -155,6 +173,12 @@ RepetitionRun runRepetition(const ScenarioConfig& scenario, const LearningExperi
   const auto window_start = static_cast<std::int64_t>(std::floor((1.0 - config.window_fraction) * scenario.steps));
   std::vector<Accuracy> all(methods.size());
   std::vector<Accuracy> changing(methods.size());
+  std::vector<std::map<std::string, Accuracy>> by_kind(methods.size());
+  std::vector<std::string> kind_of(world.occupancy().size());
+  for (std::size_t i = 0; i < kind_of.size(); ++i) {
+    const CellXY c = world.cellOf(i);
+    kind_of[i] = kindName(world.truth(c.x, c.y), world.occupancy()[i] != 0);
+  }
   std::vector<std::uint8_t> is_dynamic(world.occupancy().size(), 0);
   for (const std::size_t i : dynamic) is_dynamic[i] = 1;
 
@@ -183,6 +207,9 @@ RepetitionRun runRepetition(const ScenarioConfig& scenario, const LearningExperi
           const bool right = (p > 0.5) == (world.occupancy()[i] != 0);
           ++all[m].classified;
           all[m].correct += right ? 1 : 0;
+          Accuracy& kind = by_kind[m][kind_of[i]];
+          ++kind.classified;
+          kind.correct += right ? 1 : 0;
           if (is_dynamic[i] != 0) {
             ++changing[m].classified;
             changing[m].correct += right ? 1 : 0;
@@ -219,6 +246,7 @@ RepetitionRun runRepetition(const ScenarioConfig& scenario, const LearningExperi
     MethodRun result;
     result.accuracy_all = all[m].value();
     result.accuracy_changing = changing[m].value();
+    result.accuracy_by_kind = by_kind[m];
     result.p_hit_given_occ = methods[m].mapper->sensor().pHitGivenOcc();
     result.p_hit_given_free = methods[m].mapper->sensor().pHitGivenFree();
     double kept = 0.0;
@@ -271,22 +299,39 @@ double median(std::vector<double> values) {
 }  // namespace
 
 std::vector<LearnerVariant> defaultLearnerVariants() {
+  const auto cell_em = [](MapperConfig& c) { c.learner = TransitionLearner::kCellEm; };
   return {
       {"default", {}},
-      {"eb", [](MapperConfig& c) { c.learn_prior = true; }},
+      {"cell_em", cell_em},
+      {"eb",
+       [cell_em](MapperConfig& c) {
+         cell_em(c);
+         c.learn_prior = true;
+       }},
       {"rm",
-       [](MapperConfig& c) {
+       [cell_em](MapperConfig& c) {
+         cell_em(c);
          c.learn_prior = true;
          c.online_em.schedule = StepSchedule::kRobbinsMonro;
          c.online_em.step_size_exponent = 0.75;
        }},
       {"rm_averaged",
-       [](MapperConfig& c) {
+       [cell_em](MapperConfig& c) {
+         cell_em(c);
          c.learn_prior = true;
          c.online_em.schedule = StepSchedule::kRobbinsMonro;
          c.online_em.step_size_exponent = 0.75;
          c.online_em.averaging_start = 30;
        }},
+  };
+}
+
+std::vector<LearnerVariant> kindsAblationVariants() {
+  return {
+      {"kinds_posterior_counting", [](MapperConfig& c) { c.kinds.counting = KindCounting::kPosterior; }},
+      {"kinds_mean_summary", [](MapperConfig& c) { c.kinds.summary = KindSummary::kMean; }},
+      {"kinds_most_probable_summary", [](MapperConfig& c) { c.kinds.summary = KindSummary::kMostProbable; }},
+      {"kinds_exact_prediction", {}, true},
   };
 }
 
@@ -315,7 +360,13 @@ LearningExperimentResult runLearningExperiment(const ScenarioConfig& scenario, c
 
   LearningExperimentResult result;
   result.scenario = scenario.name;
-  std::vector<std::string> names{"static", "textbook", "learning_off"};
+  std::vector<std::string> names{"static"};
+  if (config.node_defaults) {
+    names.push_back("node_static");
+    names.push_back("node_default");
+  }
+  names.push_back("textbook");
+  names.push_back("learning_off");
   for (const LearnerVariant& variant : config.variants) names.push_back(variant.name);
   names.push_back("offline");
   names.push_back("oracle");
@@ -334,8 +385,13 @@ LearningExperimentResult runLearningExperiment(const ScenarioConfig& scenario, c
     MethodScore score;
     score.method = names[m];
     std::map<std::string, KindSamples> pooled;
+    std::map<std::string, Accuracy> pooled_accuracy;
     for (const RepetitionRun& run : runs) {
       const MethodRun& r = run.methods[m];
+      for (const auto& [kind, accuracy] : r.accuracy_by_kind) {
+        pooled_accuracy[kind].correct += accuracy.correct;
+        pooled_accuracy[kind].classified += accuracy.classified;
+      }
       score.accuracy_all.push_back(r.accuracy_all);
       score.accuracy_changing.push_back(r.accuracy_changing);
       score.dynamic_mae.push_back(r.dynamic_mae);
@@ -353,6 +409,7 @@ LearningExperimentResult runLearningExperiment(const ScenarioConfig& scenario, c
         into.p_fo.insert(into.p_fo.end(), samples.p_fo.begin(), samples.p_fo.end());
       }
     }
+    for (const auto& [kind, accuracy] : pooled_accuracy) score.accuracy_by_kind[kind] = accuracy.value();
     for (const auto& [kind, samples] : pooled) {
       KindScore k;
       k.kind = kind;

@@ -397,7 +397,7 @@ void ScenarioConfig::validate() const {
 
 std::vector<std::string> scenarioNames() {
   return {"dynamic_5_5", "dynamic_25_25", "redraw_100", "redraw_300", "parking_lot", "door", "mrf_squares",
-          "dividers", "patrol", "patrol_long"};
+          "dividers", "patrol", "patrol_long", "patrol_office"};
 }
 
 ScenarioConfig scenarioConfig(const std::string& name) {
@@ -556,6 +556,29 @@ ScenarioConfig scenarioConfig(const std::string& name) {
     config.robot_speed_m_per_step = 0.5;
     config.description = "a robot patrolling a 56 m loop around two rooms (112 steps a loop, 3 m laser): doors "
                          "(0.025 / 0.05 per step), carts (0.004 / 0.012), people (0.12 / 0.25)";
+    return config;
+  }
+  if (name == "patrol_office") {
+    // The learning issue's kind of world, on a floor of our own: each place seen for a few
+    // steps every 100, and every moving part forgets its state within about one loop.
+    config.kind = ScenarioKind::kPatrol;
+    config.patrol_floor = PatrolFloor::kOffice;
+    config.width_cells = 200;
+    config.height_cells = 140;
+    config.resolution_m = 0.1;
+    config.steps = 1800;
+    config.scans_per_step = 2;
+    config.laser.beams = 360;
+    config.laser.range_max_m = 4.0;
+    config.laser.noise_sigma_m = 0.01;
+    config.laser.dropout_probability = 0.01;
+    config.laser_mount = Pose2D{0.0, 0.0, 0.0};
+    config.robot_speed_m_per_step = 0.5;
+    config.patrol_door = TransitionParams{0.02, 0.04};
+    config.patrol_cart = TransitionParams{0.01, 0.02};
+    config.patrol_person = TransitionParams{0.1, 0.2};
+    config.description = "a robot patrolling a 50 m loop around three offices (100 steps a loop, 4 m laser): doors "
+                         "(0.02 / 0.04 per step), carts (0.01 / 0.02), people (0.1 / 0.2)";
     return config;
   }
   std::string names;
@@ -834,6 +857,45 @@ void Simulation::buildPatrol() {
   addBorderWalls();
   const double r = world_.resolution();
   const auto cell = [r](double m) { return static_cast<std::int32_t>(std::floor(m / r + 1e-9)); };
+  const auto add_part = [&](const std::string& kind, const TransitionParams& truth, std::int32_t x0, std::int32_t y0,
+                            std::int32_t w, std::int32_t h) {
+    PatrolLayout::Part part{kind, {}, truth};
+    for (std::int32_t y = y0; y < y0 + h; ++y) {
+      for (std::int32_t x = x0; x < x0 + w; ++x) part.cells.push_back(CellXY{x, y});
+    }
+    patrol_.parts.push_back(std::move(part));
+  };
+  if (config_.patrol_floor == PatrolFloor::kOffice) {
+    // The block of offices, x in [4, 16) m, y in [4.5, 9.5) m: 0.2 m walls, three rooms.
+    const std::int32_t bx0 = cell(4.0), bx1 = cell(16.0) - 1, by0 = cell(4.5), by1 = cell(9.5) - 1;
+    for (std::int32_t x = bx0; x <= bx1; ++x) {
+      for (std::int32_t y = by0; y <= by1; ++y) {
+        const bool inner = (x >= cell(8.0) && x < cell(8.0) + 2) || (x >= cell(12.0) && x < cell(12.0) + 2);
+        if (x < bx0 + 2 || x > bx1 - 2 || y < by0 + 2 || y > by1 - 2 || inner) world_.setStatic(x, y, true);
+      }
+    }
+    // Doors: 1 m leaves, one cell thick, in the outer row of the wall's gap (the inner row is
+    // floor): three facing the lower corridor, two the upper one.
+    for (const double door_x : {5.5, 9.5, 14.0}) add_part("door", config_.patrol_door, cell(door_x), by0, 10, 1);
+    for (const double door_x : {6.5, 13.0}) add_part("door", config_.patrol_door, cell(door_x), by1, 10, 1);
+    for (const std::int32_t y : {by0 + 1, by1 - 1}) {
+      for (const double door_x : {5.5, 9.5, 14.0, 6.5, 13.0}) {
+        for (std::int32_t x = cell(door_x); x < cell(door_x) + 10; ++x) world_.setStatic(x, y, false);
+      }
+    }
+    // Carts of 0.6 m x 0.6 m against the outer walls (0.1 m clear of them).
+    add_part("cart", config_.patrol_cart, cell(10.0), 2, 6, 6);
+    add_part("cart", config_.patrol_cart, cell(7.0), world_.height() - 8, 6, 6);
+    add_part("cart", config_.patrol_cart, world_.width() - 8, cell(6.5), 6, 6);
+    // People: 0.3 m spots beside the corridor, inside and outside the loop.
+    const std::array<std::array<double, 2>, 8> spots{{{3.0, 1.0}, {15.0, 3.4}, {19.0, 9.0}, {11.0, 12.8},
+                                                      {2.8, 10.4}, {0.8, 5.0}, {17.0, 10.6}, {7.5, 3.4}}};
+    for (const auto& spot : spots) add_part("person", config_.patrol_person, cell(spot[0]), cell(spot[1]), 3, 3);
+    startPatrolParts();
+    // The loop in the corridor, 2.25 m from the outer walls.
+    route_ = {{2.25, 2.25}, {17.75, 2.25}, {17.75, 11.75}, {2.25, 11.75}};
+    return;
+  }
   // The block of rooms, x in [5, 19) m, y in [5, 9) m: 0.2 m walls, split in two rooms.
   const std::int32_t bx0 = cell(5.0), bx1 = cell(19.0) - 1, by0 = cell(5.0), by1 = cell(9.0) - 1;
   const std::int32_t split = cell(12.0);
@@ -843,14 +905,6 @@ void Simulation::buildPatrol() {
       if (wall) world_.setStatic(x, y, true);
     }
   }
-  const auto add_part = [&](const std::string& kind, const TransitionParams& truth, std::int32_t x0, std::int32_t y0,
-                            std::int32_t w, std::int32_t h) {
-    PatrolLayout::Part part{kind, {}, truth};
-    for (std::int32_t y = y0; y < y0 + h; ++y) {
-      for (std::int32_t x = x0; x < x0 + w; ++x) part.cells.push_back(CellXY{x, y});
-    }
-    patrol_.parts.push_back(std::move(part));
-  };
   // Doors: 1 m gaps in the block's long walls, two per room, one facing each corridor.
   for (const double door_x : {7.0, 15.0}) {
     add_part("door", config_.patrol_door, cell(door_x), by0, 10, 2);
@@ -867,6 +921,12 @@ void Simulation::buildPatrol() {
   const std::array<std::array<double, 2>, 6> spots{{{6.0, 1.2}, {14.5, 3.8}, {22.8, 4.0}, {17.0, 12.8},
                                                     {9.0, 10.2}, {1.1, 9.0}}};
   for (const auto& spot : spots) add_part("person", config_.patrol_person, cell(spot[0]), cell(spot[1]), 3, 3);
+  startPatrolParts();
+  // The loop in the corridor, 2.5 m from the outer walls: 19 m + 9 m, twice.
+  route_ = {{2.5, 2.5}, {21.5, 2.5}, {21.5, 11.5}, {2.5, 11.5}};
+}
+
+void Simulation::startPatrolParts() {
   // Each part starts in its stationary distribution.
   for (const PatrolLayout::Part& part : patrol_.parts) {
     const std::optional<double> pi = stationaryOccupancy(part.truth);
@@ -874,8 +934,6 @@ void Simulation::buildPatrol() {
     part_occupied_.push_back(occupied ? 1 : 0);
     for (const CellXY& c : part.cells) world_.setScheduled(c.x, c.y, part.truth, occupied);
   }
-  // The loop in the corridor, 2.5 m from the outer walls: 19 m + 9 m, twice.
-  route_ = {{2.5, 2.5}, {21.5, 2.5}, {21.5, 11.5}, {2.5, 11.5}};
 }
 
 void Simulation::stepPatrolParts() {

@@ -268,6 +268,9 @@ TEST(Layers, MapperBeliefAtLaterStepsEqualsStepwiseReference) {
   config.prior_transitions = dog::TransitionParams{0.2, 0.3};
   config.p_hit_given_occ = 0.7;
   config.p_hit_given_free = 0.2;
+  // Each cell's online EM keeps the prior transitions for its first steps: the reference
+  // below iterates them.
+  config.learner = dog::TransitionLearner::kCellEm;
   dog::Mapper mapper(config);
   dog::Scan scan;
   scan.stamp_s = 0.0;
@@ -313,6 +316,7 @@ TEST(Layers, MapperStaticCellStationaryIsItsBelief) {
   dog::MapperConfig config;
   config.resolution_m = 0.25;
   config.prior_transitions = dog::TransitionParams{0.0, 0.0};
+  config.learner = dog::TransitionLearner::kCellEm;
   dog::Mapper mapper(config);
   dog::Scan scan;
   scan.laser_pose.x_m = 0.125;

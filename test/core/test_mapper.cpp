@@ -356,11 +356,12 @@ TEST(MapperBeams, NoReturnFreeRangeIsCappedAtTheScansRangeMax) {
   dog::MapperConfig config = testConfig();
   config.max_free_range_m = 10.0;
   dog::Mapper mapper(config);
-  // range_max 1.5 m = 6 cells: lattice end 6.5 -> cells 0..6 missed.
+  // range_max 1.5 m = 6 cells, cleared one cell short of it (a surface at the limit may read
+  // beyond it): lattice end 5.5 -> cells 0..5 missed.
   const dog::ScanResult r = mapper.integrate(makeScan(0.0, {kInfF}, 0.0, 0.0, 0.1, 0.0, 1.5));
   EXPECT_EQ(r.beams_no_return, 1u);
   mapper.finishStep();
-  expectFirstStepEvidence(mapper, rowEvidence(0, 6, {0, 1}));
+  expectFirstStepEvidence(mapper, rowEvidence(0, 5, {0, 1}));
 }
 
 TEST(MapperBeams, NoReturnWithZeroMaxFreeRangeTouchesNothing) {
@@ -1121,9 +1122,12 @@ TEST(MapperHugeRange, BeamIsCutAtTheMapSizeAndCountsNoHit) {
 
 namespace {
 
+// Each cell's own online EM (TransitionLearner::kCellEm); the kinds learner has its tests in
+// MapperKinds and test_cell_kinds.cpp.
 dog::MapperConfig learningConfig() {
   dog::MapperConfig config = testConfig();
   config.learn_transitions = true;
+  config.learner = dog::TransitionLearner::kCellEm;
   config.prior_transitions = dog::TransitionParams{0.125, 0.0625};
   config.online_em.prior_weight = 4.0;
   config.online_em.learning_rate_floor = 0.01;
@@ -1574,6 +1578,7 @@ TEST(MapperReconfigure, NewSensorModelWeighsTheStepsAppliedFromNowOn) {
 TEST(MapperReconfigure, LearningTurnedOffKeepsTheLearnedTransitionsAndOnAgainResumes) {
   dog::MapperConfig config = testConfig();
   config.learn_transitions = true;
+  config.learner = dog::TransitionLearner::kCellEm;
   config.online_em.min_observed_steps = 0;
   dog::Mapper mapper(config);
   // Cell (1, 0) flickers: hit, miss (the beam ends beyond it), hit, ...

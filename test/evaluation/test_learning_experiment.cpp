@@ -75,11 +75,14 @@ TEST(LearningExperiment, ScoresEveryMethodOnAShortPatrol) {
   const dog::LearningExperimentResult result = dog::runLearningExperiment(scenario, config);
   std::vector<std::string> names;
   for (const auto& m : result.methods) names.push_back(m.method);
-  EXPECT_EQ(names, (std::vector<std::string>{"static", "textbook", "learning_off", "default", "eb", "rm", "rm_averaged",
-                                             "offline", "oracle"}));
+  EXPECT_EQ(names, (std::vector<std::string>{"static", "node_static", "node_default", "textbook", "learning_off",
+                                             "default", "cell_em", "eb", "rm", "rm_averaged", "offline", "oracle"}));
   const auto& oracle = result.method("oracle");
   EXPECT_NEAR(oracle.dynamic_mae[0], 0.0, 1e-7);  // the truth, rounded to float
   EXPECT_TRUE(result.method("static").kinds.empty());
+  EXPECT_TRUE(result.method("node_static").kinds.empty());
+  // Every method scores each kind of cell it classified.
+  for (const auto& m : result.methods) EXPECT_EQ(m.accuracy_by_kind.count("0.12 / 0.25"), 1U) << m.method;
   std::set<std::string> kinds;
   for (const auto& k : oracle.kinds) kinds.insert(k.kind);
   EXPECT_EQ(kinds, (std::set<std::string>{"static free", "static occupied", "0.004 / 0.012", "0.025 / 0.05",

@@ -42,7 +42,8 @@ constexpr double kPi = 3.14159265358979323846;
 constexpr float kNoReturn = std::numeric_limits<float>::infinity();
 constexpr float kIgnored = std::numeric_limits<float>::quiet_NaN();
 constexpr double kRangeMax = 3.0;
-constexpr int kNoReturnCells = 12;  // a beam without return misses cells 0..12 of its axis
+// A beam without return clears one cell short of range_max (3 m = 12 cells): cells 0..11.
+constexpr int kNoReturnCells = 11;
 constexpr double kBrierTolerance = 1e-12;
 
 // Axis directions of the four beams: +x, +y, -x, -y.
@@ -396,10 +397,10 @@ TEST(PredictionCheck, StepsWithoutScansAreOriginsToo) {
       scans.push_back(scanAt(step, j, {rangeToCell(step < 5 ? 3 : 5), rangeToCell(2), kNoReturn, rangeToCell(4)}));
     }
   }
-  // Labels per step: cell (0, 0), +x 3 cells (5 from step 5 on), +y 2, -x 12 (the beam
-  // without return clears cells 1..12), -y 4. Two equal scans per step: no ties.
-  const std::size_t before = 1 + 3 + 2 + 12 + 4;
-  const std::size_t after = 1 + 5 + 2 + 12 + 4;
+  // Labels per step: cell (0, 0), +x 3 cells (5 from step 5 on), +y 2, -x 11 (the beam
+  // without return clears cells 1..11), -y 4. Two equal scans per step: no ties.
+  const std::size_t before = 1 + 3 + 2 + 11 + 4;
+  const std::size_t after = 1 + 5 + 2 + 11 + 4;
   const std::vector<std::int64_t> horizons{0, 1, 2, 3, 4, 5, 6, 7, 8};
   const dog::PredictionCheckResult result = dog::checkPredictions(testConfig(true), replayOf(scans), horizons);
   for (std::size_t k = 0; k < horizons.size(); ++k) {

@@ -12,10 +12,15 @@
 #include <optional>
 #include <vector>
 
+#include "dynamic_occupancy_grid/core/cell_kinds.h"
 #include "dynamic_occupancy_grid/core/traversal.h"
 
 namespace dynamic_occupancy_grid {
 namespace core {
+
+/// Floats of a cell's learner state: online EM's eight statistics S(i, j, m)
+/// (TransitionLearner::kCellEm), or the joint posterior over (kind, state) (kKinds).
+constexpr int kLearnerStateSize = 2 * kKindCount > 8 ? 2 * kKindCount : 8;
 
 /// last_step of a cell that was never observed.
 constexpr std::int32_t kNeverObserved = std::numeric_limits<std::int32_t>::min();
@@ -55,7 +60,9 @@ struct CellState {
   float log_odds;                ///< standard occupancy grid baseline (clamped log-odds)
   float p_occ_given_free;        ///< p_of the filter uses, per step
   float p_free_given_occ;        ///< p_fo the filter uses, per step
-  std::array<float, 8> em_stats; ///< online EM statistics S(i, j, m), TransitionStats order
+  /// The learner's state: online EM statistics S(i, j, m) in TransitionStats order (the
+  /// first 8), or p(kind, state) at index 2 kind + state.
+  std::array<float, kLearnerStateSize> em_stats;
   std::uint16_t observed_steps;  ///< steps with an observation (saturating)
   /// The evidence of the cell's last step (hits, misses; saturating at 255): online
   /// sensor-model learning weighs it by the cell's state once the next step is seen.
@@ -76,8 +83,8 @@ class CellGrid {
     std::array<float, kTileCells> log_odds;
     std::array<float, kTileCells> p_occ_given_free;
     std::array<float, kTileCells> p_free_given_occ;
-    // Online EM statistics S(i, j, m) (THEORY.md §6), one array per TransitionStats index.
-    std::array<std::array<float, kTileCells>, 8> em_stats;
+    // The learner's state (CellState::em_stats), one array per float.
+    std::array<std::array<float, kTileCells>, kLearnerStateSize> em_stats;
     std::array<std::uint16_t, kTileCells> observed_steps;
     std::array<std::uint8_t, kTileCells> last_hits;    ///< evidence of the cell's last step
     std::array<std::uint8_t, kTileCells> last_misses;

@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "dynamic_occupancy_grid/core/cell_grid.h"
+#include "dynamic_occupancy_grid/core/cell_kinds.h"
 #include "dynamic_occupancy_grid/core/cell_model.h"
 #include "dynamic_occupancy_grid/core/layers.h"
 #include "dynamic_occupancy_grid/core/offline_em.h"
@@ -19,6 +20,15 @@
 
 namespace dynamic_occupancy_grid {
 namespace core {
+
+/// How cells learn their transitions (docs/online_learning.md).
+enum class TransitionLearner {
+  /// Each cell by itself: online EM of its own two probabilities (THEORY.md §6, online_em.h).
+  kCellEm,
+  /// A few kinds of cells learned from the whole map, each cell's kind a hidden variable
+  /// of its filter (cell_kinds.h).
+  kKinds,
+};
 
 struct MapperConfig {
   double resolution_m = 0.05;         ///< cell side, metres
@@ -45,6 +55,9 @@ struct MapperConfig {
   TransitionParams prior_transitions{0.01, 0.01};
   /// Learn each cell's transitions online (THEORY.md §6); false keeps prior_transitions.
   bool learn_transitions = true;
+  TransitionLearner learner = TransitionLearner::kKinds;
+  /// learner kKinds: the kinds and how they are learned.
+  KindsConfig kinds;
   /// With learning on: the prior a new cell starts from (and uses until
   /// online_em.min_observed_steps) is learned from the map itself (empirical Bayes,
   /// docs/online_learning.md): the transitions pooled over every learning cell's
@@ -114,6 +127,8 @@ class Mapper {
   const SensorModelStats& sensorModelStats() const { return sensor_stats_; }
   const StepClock& clock() const { return clock_; }
   const CellGrid& grid() const { return grid_; }
+  /// learner kKinds: the kinds learned so far.
+  const CellKinds& kinds() const { return kinds_; }
   /// A bump for every tile whose cells this mapper wrote (steps, restored cells, set
   /// transitions; every tile for applyOfflineEm): what LayerTileCache needs to stay exact.
   const TileVersions& tileVersions() const { return tile_versions_; }
@@ -188,10 +203,16 @@ class Mapper {
   /// Model loading: learn_sensor_model's saved sums; the sensor model becomes the one they
   /// give. Throws std::invalid_argument for negative or non-finite sums, or hits above trials.
   void restoreSensorModelStats(const SensorModelStats& stats);
+  /// Model loading: the kinds' saved sums (learner kKinds); the kinds become the ones they
+  /// give. Throws std::invalid_argument for negative or non-finite sums.
+  void restoreKindSums(const CellKinds::Sums& sums) { kinds_.restore(sums); }
 
  private:
   void applyGatheredStep();
   void learnStep(CellGrid::Tile& tile, int offset, std::int32_t step, double evidence);
+  /// learner kKinds: the cell's joint posterior over (kind, state), stored in em_stats.
+  void learnKindsStep(CellGrid::Tile& tile, int offset, std::int32_t step, double evidence);
+  void addKindsSensorEvidence(const CellGrid::Tile& tile, int offset, std::int32_t step, double evidence);
   /// Writes a cell's statistics, keeping the population's pooled transitions up to date.
   void storeStats(CellGrid::Tile& tile, int offset, const TransitionStats& stats);
   void updatePrior();
@@ -232,6 +253,7 @@ class Mapper {
   /// Sum over cells of their statistics' expected transitions i -> j, [i][j] (learn_prior).
   double population_[2][2] = {{0.0, 0.0}, {0.0, 0.0}};
   TransitionParams current_prior_;
+  CellKinds kinds_;
   SensorModelStats sensor_stats_;
 };
 

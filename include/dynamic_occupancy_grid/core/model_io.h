@@ -20,14 +20,15 @@
 namespace dynamic_occupancy_grid {
 namespace core {
 
-/// The format version saveModel writes. loadModel reads it and version 1 (which lacks the
-/// learners' options, the sensor model's sums and the cells' last evidence: they get
-/// MapperConfig's defaults and zeros).
-constexpr std::uint32_t kModelFormatVersion = 2;
+/// The format version saveModel writes. loadModel reads it and versions 1 and 2: both were
+/// written by each cell's online EM (TransitionLearner::kCellEm) and go on with it; version
+/// 1 also lacks the learners' options, the sensor model's sums and the cells' last evidence
+/// (MapperConfig's defaults and zeros).
+constexpr std::uint32_t kModelFormatVersion = 3;
 
 /// The model as bytes. The evidence of the step still being gathered is not part of it
 /// (call Mapper::finishStep first to include it). Needs one buffer of the file's size
-/// (64 bytes per observed cell) besides the map.
+/// (72 bytes per observed cell) besides the map.
 std::string serializeModel(const Mapper& mapper);
 /// A Mapper holding the model in `bytes`. Throws std::runtime_error with a clear message for
 /// anything but a complete, intact file of version 1 or kModelFormatVersion (bad magic, other version,

@@ -41,8 +41,8 @@ struct BeamCounts {
 /// How beams become segments.
 struct BeamRules {
   double cells_per_m = 1.0;
-  /// Beams without return clear up to this distance (0: they are ignored); at most the
-  /// scan's range_max.
+  /// Beams without return clear up to this distance (0: they are ignored); at most one cell
+  /// short of the scan's range_max.
   double max_free_range_m = 0.0;
   /// No beam is walked further than this (the far part of it would be outside the map);
   /// a beam cut short ends in a miss.
@@ -52,7 +52,8 @@ struct BeamRules {
 /// The beams of a scan whose fields passed scanFieldsError, from the laser at lattice
 /// coordinates (u0, v0). Readings:
 ///   finite range in [range_min, range_max): misses up to the end cell, a hit in it;
-///   range >= range_max or +inf: misses up to max_free_range (capped at range_max), no hit;
+///   range >= range_max or +inf: misses up to max_free_range (capped one cell short of
+///     range_max: a surface there may read beyond it), no hit;
 ///   NaN, -inf, < range_min: ignored.
 /// Appends to `ends` (cleared first), counts the beams, and grows `box` by the end cells.
 /// Returns the index of the first beam that ends beyond kMaxLatticeCoordinate (the scan

@@ -8,6 +8,10 @@
 //
 // Methods, all fed the same scans with the same sensor model:
 //   static        the package's static_map (clamped log-odds; the same in every mapper)
+//   node_static   static_map as a user gets it who sets no sensor model: the package's
+//                 default start (0.7 / 0.2)
+//   node_default  the default learner from that start, learning the sensor model (the
+//                 node's defaults: "no parameter set to the world")
 //   textbook      the textbook occupancy grid (log-odds, no clamp)
 //   learning_off  the HMM filter with MapperConfig::prior_transitions fixed
 //   <variant>     the HMM filter learning online with the variant's settings
@@ -18,6 +22,7 @@
 
 #include <cstdint>
 #include <functional>
+#include <map>
 #include <string>
 #include <vector>
 
@@ -32,13 +37,21 @@ namespace core {
 struct LearnerVariant {
   std::string name;
   std::function<void(MapperConfig&)> configure;
+  /// learner kKinds: score the exact mixture prediction of each cell (CellKinds::predict)
+  /// instead of the published two-parameter summary (what the layers show).
+  bool exact_kinds = false;
 };
 /// The learners of the comparison in docs/online_learning.md: "default" (the package's
-/// defaults: 1/t schedule, prior_transitions as every cell's prior), "eb" (the same with
-/// the empirical-Bayes prior), "rm" (Robbins–Monro, alpha 0.75, with the empirical-Bayes
-/// prior), "rm_averaged" (the same with Polyak–Ruppert averaging from the 30th observed
-/// step).
+/// defaults: kinds of cells, cell_kinds.h), "cell_em" (each cell's own online EM with the
+/// 1/t schedule, the default before), "eb" (the same with the empirical-Bayes prior), "rm"
+/// (Robbins–Monro, alpha 0.75, with the empirical-Bayes prior), "rm_averaged" (the same
+/// with Polyak–Ruppert averaging from the 30th observed step).
 std::vector<LearnerVariant> defaultLearnerVariants();
+/// The kinds learner with one choice changed (docs/online_learning.md, "Kinds of cells"):
+/// counting by posterior instead of the most probable kind, the mean or the most probable
+/// kind's rates as the published summary, and the exact mixture prediction scored instead
+/// of the summary.
+std::vector<LearnerVariant> kindsAblationVariants();
 
 struct LearningExperimentConfig {
   int repetitions = 4;
@@ -50,6 +63,8 @@ struct LearningExperimentConfig {
   /// "The robot has left": cells not observed in this many steps before the end.
   std::int64_t left_for_steps = 60;
   std::vector<LearnerVariant> variants = defaultLearnerVariants();
+  /// Also the methods node_static and node_default (see above).
+  bool node_defaults = true;
   /// Every online method (static, textbook, learning_off, the variants, the oracle) learns
   /// the sensor model online, as the node does by default (~learn_sensor_model), and
   /// offline EM learns it with the transitions; false keeps the scenario's configured model.
@@ -76,6 +91,9 @@ struct MethodScore {
   /// over the cells that change (the world's dynamic cells).
   std::vector<double> accuracy_all;
   std::vector<double> accuracy_changing;
+  /// Accuracy in the converged window per kind of cell (KindScore::kind), pooled over
+  /// repetitions.
+  std::map<std::string, double> accuracy_by_kind;
   /// Transition methods only: per kind of cell, at the end of the run.
   std::vector<KindScore> kinds;
   /// Dynamic cells, at the end of the run: mean absolute error of both parameters
@@ -99,7 +117,8 @@ struct MethodScore {
 
 struct LearningExperimentResult {
   std::string scenario;
-  std::vector<MethodScore> methods;  ///< static, textbook, learning_off, variants..., offline, oracle
+  /// static, [node_static, node_default,] textbook, learning_off, variants..., offline, oracle
+  std::vector<MethodScore> methods;
   /// The simulated laser's hit rates on occupied and free cells, measured on the runs.
   double laser_hit_rate_occ = 0.0;
   double laser_hit_rate_free = 0.0;

@@ -203,6 +203,12 @@ enum class ScenarioKind {
   kPatrol,         ///< a robot patrolling a loop: each place seen seconds every two minutes
 };
 
+/// kPatrol's floor plan (PatrolLayout).
+enum class PatrolFloor {
+  kTwoRooms,  ///< "patrol": slow carts that change about once in five loops
+  kOffice,    ///< "patrol_office": every moving part changes within about one loop
+};
+
 /// A named configuration of a simulated world (scenarioConfig(name)).
 struct ScenarioConfig {
   std::string name;
@@ -255,7 +261,9 @@ struct ScenarioConfig {
   double divider_toggle_probability = 0.2;
   int people = 3;  ///< people walking at one cell per step
 
-  // kPatrol (see PatrolLayout): the true per-step rates of its three kinds of moving parts.
+  // kPatrol (see PatrolLayout): the floor and the true per-step rates of its three kinds of
+  // moving parts.
+  PatrolFloor patrol_floor = PatrolFloor::kTwoRooms;
   TransitionParams patrol_door{0.025, 0.05};      ///< doors in the rooms' walls
   TransitionParams patrol_cart{0.004, 0.012};     ///< carts parked in bays along the outer walls
   TransitionParams patrol_person{0.12, 0.25};     ///< spots where people stand and leave
@@ -336,14 +344,21 @@ struct DividersLayout {
   int dividerAt(std::int32_t x, std::int32_t y) const;
 };
 
-/// The patrol scenario's places (scenarioConfig("patrol")): a 24 m x 14 m floor, a block of
-/// two rooms in the middle, a corridor around it that the robot drives as a 56 m loop
-/// (112 steps at 0.5 m per step), a 360° laser of 3 m: every place is in view for about ten
-/// steps per loop. Each moving part is a group of cells that changes as one, a two-state
-/// Markov chain with its kind's rates (ScenarioConfig::patrol_*), started from its
-/// stationary distribution: doors (1 m gaps in the rooms' walls, through which the robot
-/// sees the rooms), carts (0.6 m x 1.2 m in bays along the outer walls), people (0.3 m
-/// spots beside the corridor). The groups draw from the run seed's dynamics stream.
+/// The patrol scenarios' places. Each moving part is a group of cells that changes as one, a
+/// two-state Markov chain with its kind's rates (ScenarioConfig::patrol_*), started from its
+/// stationary distribution; the groups draw from the run seed's dynamics stream.
+///
+/// PatrolFloor::kTwoRooms (scenarioConfig("patrol")): a 24 m x 14 m floor, a block of two
+/// rooms in the middle, a corridor around it that the robot drives as a 56 m loop (112 steps
+/// at 0.5 m per step), a 360° laser of 3 m: every place is in view for about ten steps per
+/// loop. Doors (1 m gaps in the rooms' walls, through which the robot sees the rooms), carts
+/// (0.6 m x 1.2 m in bays along the outer walls), people (0.3 m spots beside the corridor).
+///
+/// PatrolFloor::kOffice (scenarioConfig("patrol_office")): a 20 m x 14 m office, a block of
+/// three rooms in the middle with five doors (1 m leaves one cell thick), a 50 m loop around
+/// it (100 steps), a 360° laser of 4 m; three 0.6 m x 0.6 m carts parked against the outer
+/// walls and eight 0.3 m spots where people stand. Doors, carts and people all forget their state within about
+/// one loop, so what the map should show of a place the robot left is its long-run state.
 struct PatrolLayout {
   struct Part {
     std::string kind;           ///< "door", "cart" or "person"
@@ -407,6 +422,7 @@ class Simulation {
   void addBorderWalls();
   void buildDividers();
   void buildPatrol();
+  void startPatrolParts();
   void stepPatrolParts();
   void moveDividers(bool initial);
   void movePeople();
