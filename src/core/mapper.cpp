@@ -536,6 +536,22 @@ OfflineEmApplied Mapper::applyOfflineEm(const ObservationSequences& sequences, c
       tile->p_occ[i] = static_cast<float>(result.final_p_occ[c]);
       tile->last_step[i] = result.final_step[c];
     }
+    if (config_.learner == TransitionLearner::kKinds) {
+      // The cell keeps its kind posterior; its state becomes the offline filter's, and it
+      // shows the offline transitions until its next observed step, when its kinds take over.
+      if (use_final_beliefs) {
+        for (int k = 0; k < kKindCount; ++k) {
+          const double mass = double{tile->em_stats[2 * k][i]} + tile->em_stats[2 * k + 1][i];
+          tile->em_stats[2 * k][i] = static_cast<float>(mass * tile->p_occ[i]);
+          tile->em_stats[2 * k + 1][i] = static_cast<float>(mass * (1.0 - tile->p_occ[i]));
+        }
+      }
+      tile->p_occ_given_free[i] = static_cast<float>(params.p_occ_given_free);
+      tile->p_free_given_occ[i] = static_cast<float>(params.p_free_given_occ);
+      changed_cells_.include(xy.x, xy.y);
+      ++applied.cells_applied;
+      continue;
+    }
     // The steps the result saw, split over the two from-states (kHarmonic); kRobbinsMonro's
     // normalised statistics weigh 1 per from-state, and its step size goes on as if the
     // cell had been observed in as many steps as the result.

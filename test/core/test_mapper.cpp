@@ -1828,3 +1828,242 @@ TEST(MapperTileVersions, ACacheFollowingThemStaysExactThroughEveryWrite) {
   mapper.applyOfflineEm(sequences, dog::runOfflineEm(sequences, mapper.sensor(), em), true);
   EXPECT_EQ(layers.expectExact(mapper, "applyOfflineEm"), layers.caches.size() * mapper.grid().allocatedTiles());
 }
+
+// =====================================================================================
+// The kinds of cells (TransitionLearner::kKinds, the default): the grid's plumbing. The
+// filter's math against a step-by-step reference is test_cell_kinds.cpp's.
+// =====================================================================================
+
+namespace {
+
+dog::MapperConfig kindsConfig() {
+  dog::MapperConfig config = testConfig();
+  config.learn_transitions = true;
+  config.learner = dog::TransitionLearner::kKinds;
+  return config;
+}
+
+// A kinds cell as the grid stores it: its joint rounded to float.
+dog::KindJoint roundedToFloat(dog::KindJoint joint) {
+  for (double& p : joint.p) p = static_cast<double>(static_cast<float>(p));
+  return joint;
+}
+
+}  // namespace
+
+TEST(MapperKinds, CellsAndKindsFollowAReferenceStepForStep) {
+  // Random beams along +x with gaps between steps, the sensor model learned too. A second
+  // CellKinds fed each touched cell's step as Mapper documents it (the joint rounded to
+  // float between steps, transitions counted between consecutive observed steps, the
+  // M-step after each applied step) must agree with the grid and the mapper's kinds.
+  dog::MapperConfig config = kindsConfig();
+  config.learn_sensor_model = true;
+  config.sensor_model_prior_weight = 20.0;
+  config.online_em.min_observed_steps = 2;
+  dog::Mapper mapper(config);
+  dog::CellKinds reference(config.kinds, config.online_em.p_min, config.online_em.p_max);
+  LD trials[2] = {0.0L, 0.0L};
+  LD hits[2] = {0.0L, 0.0L};
+  std::mt19937_64 rng(99);
+  std::uniform_int_distribution<int> scans_per_step(0, 3);
+  std::uniform_int_distribution<int> cells(1, 8);
+  std::uniform_int_distribution<int> skip(0, 3);
+  std::map<std::int32_t, dog::KindJoint> joints;
+  std::map<std::int32_t, dog::TransitionParams> summaries;  // with the kinds of their step
+  std::map<std::int32_t, std::int64_t> last_step;
+  std::map<std::int32_t, Evidence> last_evidence;
+  std::map<std::int32_t, int> observed;
+  std::int64_t step = 0;
+  for (int round = 0; round < 150; ++round) {
+    const int n = round == 0 ? 1 : scans_per_step(rng);
+    std::map<std::int32_t, Evidence> counts;
+    for (int k = 0; k < n; ++k) {
+      const int end = cells(rng);
+      ASSERT_EQ(mapper.integrate(makeScan(step + 0.2 * k, {0.25f * static_cast<float>(end)})).status,
+                dog::ScanStatus::kIntegrated);
+      for (std::int32_t x = 0; x < end; ++x) counts[x].misses++;
+      counts[end].hits++;
+    }
+    const dog::ObservationModel sensor = mapper.sensor();  // the model this step is weighed with
+    mapper.finishStep();
+    for (const auto& [x, ev] : counts) {
+      const double evidence = sensor.logLikelihoodRatio(ev.hits, ev.misses);
+      const bool first = joints.count(x) == 0;
+      const std::int64_t gap = first ? 0 : step - 1 - last_step[x];
+      if (!first && observed[x] >= static_cast<int>(config.online_em.min_observed_steps)) {
+        // The sensor model's sums: the cell's last step, weighed by p(state then | this step).
+        const Evidence& previous = last_evidence[x];
+        const LD like_occ = std::exp(static_cast<LD>(std::min(evidence, 0.0)));
+        const LD like_free = std::exp(static_cast<LD>(-std::max(evidence, 0.0)));
+        LD counted[2] = {0.0L, 0.0L};
+        LD all = 0.0L;
+        for (int k = 0; k < dog::kKindCount; ++k) {
+          const dog::TransitionParams t = reference.transitions(k);
+          const LD lambda_n = reference.lambdaPower(k, gap + 1);
+          const LD pi = t.p_occ_given_free / (t.p_occ_given_free + t.p_free_given_occ);
+          const LD occ_to_occ = pi + lambda_n * (1.0L - pi);
+          const LD free_to_occ = pi - lambda_n * pi;
+          const LD w_occ = joints[x].p[2 * k] * (occ_to_occ * like_occ + (1.0L - occ_to_occ) * like_free);
+          const LD w_free = joints[x].p[2 * k + 1] * (free_to_occ * like_occ + (1.0L - free_to_occ) * like_free);
+          all += w_occ + w_free;
+          if (lambda_n >= 0.95L) {
+            counted[0] += w_occ;
+            counted[1] += w_free;
+          }
+        }
+        for (int s = 0; s < 2; ++s) {
+          trials[s] += counted[s] / all * (previous.hits + previous.misses);
+          hits[s] += counted[s] / all * previous.hits;
+        }
+      }
+      std::array<double, dog::kKindCount> before{};
+      if (first) {
+        joints[x] = reference.newCell(config.initial_p_occ);
+      } else {
+        for (int k = 0; k < dog::kKindCount; ++k) before[k] = joints[x].kind(k);
+      }
+      reference.skip(joints[x], gap);
+      dog::KindTransitions transitions;
+      const bool count = !first && gap == 0;
+      reference.observe(joints[x], gap, evidence, count ? &transitions : nullptr);
+      if (count) reference.addTransitions(transitions);
+      std::array<double, dog::kKindCount> delta{};
+      for (int k = 0; k < dog::kKindCount; ++k) delta[k] = joints[x].kind(k) - before[k];
+      reference.addMembership(delta, first);
+      summaries[x] = reference.summary(joints[x]);
+      joints[x] = roundedToFloat(joints[x]);
+      last_step[x] = step;
+      last_evidence[x] = ev;
+      ++observed[x];
+    }
+    if (n > 0) reference.update();  // an empty round applies no step
+    for (const auto& [x, joint] : joints) {
+      SCOPED_TRACE("round " + std::to_string(round) + " cell " + std::to_string(x));
+      const auto c = mapper.grid().cell(x, 0);
+      ASSERT_TRUE(c.has_value());
+      ASSERT_EQ(c->last_step, last_step[x]);
+      ASSERT_EQ(c->observed_steps, observed[x]);
+      for (int k = 0; k < 2 * dog::kKindCount; ++k) ASSERT_NEAR(c->em_stats[k], joint.p[k], 1e-6) << k;
+      ASSERT_NEAR(c->p_occ, joint.occupancy(), 1e-6);
+      const dog::TransitionParams& summary = summaries[x];
+      ASSERT_NEAR(c->p_occ_given_free, summary.p_occ_given_free, 1e-5 * summary.p_occ_given_free);
+      ASSERT_NEAR(c->p_free_given_occ, summary.p_free_given_occ, 1e-5 * summary.p_free_given_occ);
+    }
+    for (int k = 0; k < dog::kKindCount; ++k) {
+      ASSERT_NEAR(mapper.kinds().transitions(k).p_occ_given_free, reference.transitions(k).p_occ_given_free, 1e-9);
+      ASSERT_NEAR(mapper.kinds().transitions(k).p_free_given_occ, reference.transitions(k).p_free_given_occ, 1e-9);
+      ASSERT_NEAR(mapper.kinds().weight(k), reference.weight(k), 1e-9);
+    }
+    step += 1 + skip(rng);
+  }
+  for (int s = 0; s < 2; ++s) {
+    EXPECT_NEAR(mapper.sensorModelStats().trials[s], static_cast<double>(trials[s]), 1e-5 * static_cast<double>(trials[0] + trials[1]));
+    EXPECT_NEAR(mapper.sensorModelStats().hits[s], static_cast<double>(hits[s]), 1e-5 * static_cast<double>(trials[0] + trials[1]));
+  }
+  EXPECT_GT(mapper.sensorModelStats().trials[1], 50.0);
+  // The cells that flip between hit and miss moved the kinds off their start.
+  bool moved = false;
+  for (int k = 0; k < dog::kKindCount; ++k) {
+    moved = moved || mapper.kinds().transitions(k).p_occ_given_free != config.kinds.initial_transitions[k].p_occ_given_free;
+  }
+  EXPECT_TRUE(moved);
+}
+
+TEST(MapperKinds, AFreeCellStaysFreeWhenLeftAndAFlickeringOneIsLearnedToChange) {
+  // Cells (0..3, 0) are seen free and (4, 0) flickers (the beam ends in it or beyond it) for
+  // 150 steps; then nothing is seen for 600 steps. The free cells stay free in the belief
+  // (map_server's free threshold 0.196), the flickering one is learned as a fast-changing
+  // cell whose belief goes to its long-run occupancy.
+  dog::Mapper mapper(kindsConfig());
+  for (int step = 0; step < 150; ++step) {
+    const bool in_cell = step % 4 < 2;
+    ASSERT_EQ(mapper.integrate(makeScan(step + 0.5, {in_cell ? 1.1f : 2.1f})).status, dog::ScanStatus::kIntegrated);
+  }
+  mapper.finishStep();
+  const std::int64_t later = *mapper.lastAppliedStep() + 600;
+  for (std::int32_t x = 0; x < 4; ++x) EXPECT_LT(mapper.beliefAt(x, 0, later), 0.196) << x;
+  const dog::CellState flicker = *mapper.grid().cell(4, 0);
+  EXPECT_GT(flicker.p_occ_given_free, 0.1);
+  EXPECT_GT(flicker.p_free_given_occ, 0.1);
+  const double pi = flicker.p_occ_given_free / (flicker.p_occ_given_free + flicker.p_free_given_occ);
+  EXPECT_NEAR(mapper.beliefAt(4, 0, later), pi, 1e-6);
+  // The wall behind it (8, 0) was seen occupied whenever the beam passed: it stays a wall.
+  EXPECT_GT(mapper.beliefAt(8, 0, later), 0.65);
+}
+
+TEST(MapperKinds, LearningOffKeepsTheKindsAndOnAgainGoesOnFromTheBelief) {
+  dog::Mapper mapper(kindsConfig());
+  const auto scan_of = [](int step) { return makeScan(step + 0.5, {step % 3 == 0 ? 0.3f : 0.8f}); };
+  for (int step = 0; step < 40; ++step) ASSERT_EQ(mapper.integrate(scan_of(step)).status, dog::ScanStatus::kIntegrated);
+  mapper.finishStep();
+  const dog::CellState learned = *mapper.grid().cell(1, 0);
+  std::array<double, dog::kKindCount> kind_before{};
+  for (int k = 0; k < dog::kKindCount; ++k) kind_before[k] = double{learned.em_stats[2 * k]} + learned.em_stats[2 * k + 1];
+  std::array<dog::TransitionParams, dog::kKindCount> table_before;
+  for (int k = 0; k < dog::kKindCount; ++k) table_before[k] = mapper.kinds().transitions(k);
+  const dog::CellKinds::Sums sums_before = mapper.kinds().sums();
+  mapper.setLearnTransitions(false);
+  for (int step = 40; step < 60; ++step) ASSERT_EQ(mapper.integrate(scan_of(step)).status, dog::ScanStatus::kIntegrated);
+  mapper.finishStep();
+  const dog::CellState off = *mapper.grid().cell(1, 0);
+  // Fixed transitions, the kind posterior kept, its state the filter's belief.
+  EXPECT_EQ(off.p_occ_given_free, learned.p_occ_given_free);
+  EXPECT_EQ(off.p_free_given_occ, learned.p_free_given_occ);
+  for (int k = 0; k < dog::kKindCount; ++k) {
+    EXPECT_EQ(mapper.kinds().transitions(k).p_occ_given_free, table_before[k].p_occ_given_free) << k;
+  }
+  double occupancy = 0.0;
+  for (int k = 0; k < dog::kKindCount; ++k) {
+    const double mass = double{off.em_stats[2 * k]} + off.em_stats[2 * k + 1];
+    EXPECT_NEAR(mass, kind_before[k], 1e-6) << k;
+    EXPECT_NEAR(off.em_stats[2 * k], mass * off.p_occ, 1e-6) << k;
+    occupancy += off.em_stats[2 * k];
+  }
+  EXPECT_NEAR(occupancy, off.p_occ, 1e-6);
+  // On again: the next step starts from that belief, and the cell learns again.
+  mapper.setLearnTransitions(true);
+  for (int step = 60; step < 80; ++step) ASSERT_EQ(mapper.integrate(scan_of(step)).status, dog::ScanStatus::kIntegrated);
+  mapper.finishStep();
+  const dog::CellState on = *mapper.grid().cell(1, 0);
+  EXPECT_EQ(on.observed_steps, off.observed_steps + 20);
+  EXPECT_NE(mapper.kinds().sums().cells, 0.0);
+  bool moved = false;
+  for (int k = 0; k < dog::kKindCount; ++k) {
+    for (int i = 0; i < 2; ++i) {
+      for (int j = 0; j < 2; ++j) {
+        moved = moved || mapper.kinds().sums().transitions.n[k][i][j] != sums_before.transitions.n[k][i][j];
+      }
+    }
+  }
+  EXPECT_TRUE(moved);
+}
+
+TEST(MapperKinds, OfflineEmKeepsTheKindPosteriorAndShowsItsTransitionsUntilTheNextStep) {
+  dog::Mapper mapper(kindsConfig());
+  const RecordedRun run = recordAndLearn(mapper, 200);
+  std::vector<dog::CellState> before;
+  for (std::size_t c = 0; c < run.sequences.cellCount(); ++c) {
+    before.push_back(*mapper.grid().cell(run.sequences.cell(c).x, run.sequences.cell(c).y));
+  }
+  const dog::OfflineEmApplied applied = mapper.applyOfflineEm(run.sequences, run.result, true);
+  EXPECT_EQ(applied.cells_applied, run.sequences.cellCount());
+  for (std::size_t c = 0; c < run.sequences.cellCount(); ++c) {
+    const dog::CellXY xy = run.sequences.cell(c);
+    const dog::CellState state = *mapper.grid().cell(xy.x, xy.y);
+    EXPECT_EQ(state.p_occ_given_free, static_cast<float>(run.result.params[c].p_occ_given_free));
+    EXPECT_EQ(state.p_free_given_occ, static_cast<float>(run.result.params[c].p_free_given_occ));
+    EXPECT_EQ(state.p_occ, static_cast<float>(run.result.final_p_occ[c]));
+    for (int k = 0; k < dog::kKindCount; ++k) {
+      const double mass = double{state.em_stats[2 * k]} + state.em_stats[2 * k + 1];
+      EXPECT_NEAR(mass, double{before[c].em_stats[2 * k]} + before[c].em_stats[2 * k + 1], 1e-6);
+      EXPECT_NEAR(state.em_stats[2 * k], mass * state.p_occ, 1e-6);
+    }
+  }
+  // The next observed step publishes the kinds' summary again.
+  ASSERT_EQ(mapper.integrate(makeScan(300.5, {0.75f})).status, dog::ScanStatus::kIntegrated);
+  mapper.finishStep();
+  const dog::CellState after = *mapper.grid().cell(3, 0);
+  dog::KindJoint joint;
+  for (int k = 0; k < 2 * dog::kKindCount; ++k) joint.p[k] = after.em_stats[k];
+  EXPECT_NEAR(after.p_occ_given_free, mapper.kinds().summary(joint).p_occ_given_free, 1e-6);
+}

@@ -168,7 +168,9 @@ class Mapper {
   /// process_bag) each cell's belief also becomes the offline filter's at its last step. A
   /// sensor model the result learned (OfflineEmConfig::learn_sensor_model) becomes the
   /// mapper's: its sums replace the online ones (sensorModelStats), the configured start and
-  /// the static baseline stay.
+  /// the static baseline stay. With learner kKinds a cell keeps its kind posterior (its
+  /// state follows the final belief) and shows the offline transitions until its next
+  /// observed step, when its kinds' summary takes over again.
   OfflineEmApplied applyOfflineEm(const ObservationSequences& sequences, const OfflineEmResult& result,
                                   bool use_final_beliefs);
 
