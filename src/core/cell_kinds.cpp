@@ -49,6 +49,7 @@ double KindJoint::occupancy() const {
 CellKinds::CellKinds(const KindsConfig& config, double p_min, double p_max) : config_(config), p_min_(p_min), p_max_(p_max) {
   config_.validate();
   require(p_min > 0.0 && p_min <= p_max && p_max <= 0.5, "kinds need 0 < p_min <= p_max <= 0.5");
+  log_keep_ = std::log1p(-config_.switch_probability);
   recompute();
 }
 
@@ -82,7 +83,7 @@ void CellKinds::skip(KindJoint& joint, std::int64_t steps) const {
 double CellKinds::observe(KindJoint& joint, std::int64_t gap, double log_likelihood_ratio,
                           KindTransitions* transitions) const {
   // The kind switch over the gap and this step: mass (1 - keep) redrawn from w, state kept.
-  const double keep = std::pow(1.0 - config_.switch_probability, static_cast<double>(gap + 1));
+  const double keep = std::exp(log_keep_ * static_cast<double>(gap + 1));
   const double occ = joint.occupancy();
   double total = 0.0;
   for (const double value : joint.p) total += value;

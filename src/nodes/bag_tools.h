@@ -56,6 +56,13 @@ inline core::Pose2D toLaserPose(const std::string& text) {
 }
 
 /// Adds the options of the bag source and the mapper to `line`, read into `options`.
+/// The name of a transition learner, as the node's ~learner.
+inline core::TransitionLearner toLearner(const std::string& text) {
+  if (text == "kinds") return core::TransitionLearner::kKinds;
+  if (text == "cell_em") return core::TransitionLearner::kCellEm;
+  throw std::invalid_argument("needs kinds or cell_em, got '" + text + "'");
+}
+
 inline void addMappingOptions(command_line::CommandLine& line, SharedOptions* options) {
   namespace cl = command_line;
   ros_layer::BagScanSourceOptions& source = options->source;
@@ -90,7 +97,11 @@ inline void addMappingOptions(command_line::CommandLine& line, SharedOptions* op
        "transition prior per step, free -> occupied (default 0.01)")
       ("prior-p-free-given-occ",
        cl::number(&mapper.prior_transitions.p_free_given_occ, cl::between(0.0, 1.0))->value_name("P"),
-       "transition prior per step, occupied -> free (default 0.01)");
+       "transition prior per step, occupied -> free (default 0.01)")
+      ("learner", cl::converted(toLearner, [&mapper](core::TransitionLearner learner) { mapper.learner = learner; })
+           ->value_name("NAME"),
+       "how cells learn their transitions: kinds (kinds of cells learned from the whole map, the default) or "
+       "cell_em (each cell's own online EM), as the node's ~learner");
 }
 
 /// The names of the options addEmOptions adds.

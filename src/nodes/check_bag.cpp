@@ -10,6 +10,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <array>
 #include <cerrno>
 #include <chrono>
 #include <cmath>
@@ -146,6 +147,13 @@ Options parseArguments(int argc, char** argv) {
     }
     mapper.learn_transitions = false;
   }
+  if (mapper.learner != dog::core::TransitionLearner::kCellEm) {
+    for (const char* name : {"learn-prior", "schedule", "step-size-exponent", "step-size-offset", "averaging-start"}) {
+      if (values.count(name) > 0 && !values[name].defaulted()) {
+        line.fail(std::string("--") + name + " tunes each cell's online EM: it needs --learner cell_em");
+      }
+    }
+  }
   if (mapper.online_em.schedule != dog::core::StepSchedule::kRobbinsMonro) {
     for (const char* name : {"step-size-exponent", "step-size-offset"}) {
       if (values.count(name) > 0) line.fail(std::string("--") + name + " applies to --schedule robbins_monro only");
@@ -203,6 +211,9 @@ struct EndOfRun {
   double p_hit_given_free = 0.0;
   dog::core::SensorModelStats sensor_stats;
   dog::core::TransitionParams prior;   ///< the prior a new cell would start from now
+  /// learner kinds: the kinds learned (transitions and shares).
+  std::array<dog::core::TransitionParams, dog::core::kKindCount> kinds{};
+  std::array<double, dog::core::kKindCount> kind_shares{};
   std::size_t observed_cells = 0;
   // The static map's classes (clamped log-odds; occupied > 0.65, free < 0.196), and of each
   // the cells the belief at the last step puts in the same class.
@@ -247,6 +258,10 @@ EndOfRun summarizeEnd(const dog::core::Mapper& mapper, std::int64_t retention_af
   end.p_hit_given_free = mapper.sensor().pHitGivenFree();
   end.sensor_stats = mapper.sensorModelStats();
   end.prior = mapper.currentPrior();
+  for (int k = 0; k < core::kKindCount; ++k) {
+    end.kinds[k] = mapper.kinds().transitions(k);
+    end.kind_shares[k] = mapper.kinds().weight(k);
+  }
   const std::optional<std::int64_t> last = mapper.lastAppliedStep();
   if (!last) return end;
   end.step = *last;
@@ -315,7 +330,14 @@ void printEnd(const EndOfRun& end, const Options& options) {
     std::printf("  sensor model: p_hit_given_occ %.4f, p_hit_given_free %.4f (fixed)\n", end.p_hit_given_occ,
                 end.p_hit_given_free);
   }
-  if (mapper.learn_transitions && mapper.learn_prior) {
+  if (mapper.learn_transitions && mapper.learner == dog::core::TransitionLearner::kKinds) {
+    std::printf("  kinds of cells (p_occ_given_free / p_free_given_occ per step, share of the cells):");
+    for (int k = 0; k < dog::core::kKindCount; ++k) {
+      std::printf("%s %.5f / %.5f, %.4f", k == 0 ? "" : ";", end.kinds[k].p_occ_given_free,
+                  end.kinds[k].p_free_given_occ, end.kind_shares[k]);
+    }
+    std::printf("\n");
+  } else if (mapper.learn_transitions && mapper.learn_prior) {
     std::printf("  learned prior: p_occ_given_free %.5f, p_free_given_occ %.5f per step\n",
                 end.prior.p_occ_given_free, end.prior.p_free_given_occ);
   }
@@ -403,9 +425,12 @@ void checkAndReport(dog::ros_layer::BagScanSource& source, const Options& option
               mapper.resolution_m, mapper.time_step_s, mapper.p_hit_given_occ, mapper.p_hit_given_free,
               mapper.prior_transitions.p_occ_given_free, mapper.prior_transitions.p_free_given_occ,
               mapper.learn_transitions ? "on" : "off", mapper.learn_sensor_model ? "on" : "off");
-  if (mapper.learn_transitions) {
+  if (mapper.learn_transitions && mapper.learner == dog::core::TransitionLearner::kKinds) {
+    std::printf("online learning: kinds of cells (%d), switch probability %g, forgetting %g per step\n",
+                dog::core::kKindCount, mapper.kinds.switch_probability, mapper.kinds.forgetting);
+  } else if (mapper.learn_transitions) {
     const dog::core::OnlineEmConfig& em = mapper.online_em;
-    std::printf("online learning: schedule %s", scheduleName(em.schedule));
+    std::printf("online learning: each cell's online EM, schedule %s", scheduleName(em.schedule));
     if (em.schedule == dog::core::StepSchedule::kRobbinsMonro) {
       std::printf(" (step size exponent %g, offset %g)", em.step_size_exponent, em.step_size_offset);
     }

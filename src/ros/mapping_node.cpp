@@ -60,7 +60,11 @@ std::int64_t horizonSteps(double horizon_s, double time_step_s) {
 // The start-up lines on the learners in use (a loaded model's configuration, if any).
 void logLearners(const core::MapperConfig& config) {
   const core::OnlineEmConfig& em = config.online_em;
-  if (config.learn_transitions) {
+  if (config.learn_transitions && config.learner == core::TransitionLearner::kKinds) {
+    ROS_INFO("online learning of the transitions: %d kinds of cells learned from the whole map (kind switch "
+             "probability %g per step, forgetting %g per step)",
+             core::kKindCount, config.kinds.switch_probability, config.kinds.forgetting);
+  } else if (config.learn_transitions) {
     std::ostringstream line;
     line << "online EM of the transitions: schedule ";
     if (em.schedule == core::StepSchedule::kRobbinsMonro) {
@@ -517,6 +521,16 @@ void MappingNode::diagnoseMap(diagnostic_updater::DiagnosticStatusWrapper& statu
     status.addf("cell memory (MiB)", "%.1f", cells * core::CellGrid::bytesPerCell() / (1024.0 * 1024.0));
     status.add("time step (s)", mapper_->config().time_step_s);
     status.add("learn transitions", mapper_->config().learn_transitions);
+    const bool kinds = mapper_->config().learner == core::TransitionLearner::kKinds;
+    status.add("learner", kinds ? "kinds" : "cell_em");
+    if (kinds) {
+      // What the map has learned its places to be: each kind's transitions and share.
+      for (int k = 0; k < core::kKindCount; ++k) {
+        const core::TransitionParams& t = mapper_->kinds().transitions(k);
+        status.addf("kind " + std::to_string(k), "p_occ_given_free %.5f, p_free_given_occ %.5f, share %.4f",
+                    t.p_occ_given_free, t.p_free_given_occ, mapper_->kinds().weight(k));
+      }
+    }
     // The sensor model in use: the configured one, or the one learned so far.
     status.add("learn sensor model", mapper_->config().learn_sensor_model);
     status.add("sensor model p_hit_given_occ", mapper_->sensor().pHitGivenOcc());
@@ -1201,10 +1215,20 @@ bool MappingNode::getCell(GetCell::Request& request, GetCell::Response& response
   response.last_observed_step = state->last_step;
   response.steps_since_observed = now - state->last_step;
   response.observed_steps = state->observed_steps;
-  core::TransitionStats stats;
-  for (std::size_t k = 0; k < stats.s.size(); ++k) stats.s[k] = state->em_stats[k];
-  response.expected_transitions = {stats.transitions(0, 0), stats.transitions(0, 1), stats.transitions(1, 0),
-                                   stats.transitions(1, 1)};
+  if (mapper_->config().learner == core::TransitionLearner::kKinds) {
+    response.learner = "kinds";
+    core::KindJoint joint;
+    for (int k = 0; k < 2 * core::kKindCount; ++k) joint.p[k] = state->em_stats[k];
+    double total = 0.0;
+    for (int k = 0; k < core::kKindCount; ++k) total += joint.kind(k);
+    for (int k = 0; k < core::kKindCount; ++k) response.kind_posterior.push_back(joint.kind(k) / total);
+  } else {
+    response.learner = "cell_em";
+    core::TransitionStats stats;
+    for (std::size_t k = 0; k < stats.s.size(); ++k) stats.s[k] = state->em_stats[k];
+    response.expected_transitions = {stats.transitions(0, 0), stats.transitions(0, 1), stats.transitions(1, 0),
+                                     stats.transitions(1, 1)};
+  }
   response.message = "ok";
   return true;
 }

@@ -148,6 +148,7 @@ std::string mapperParameterMessage(const std::string& message) {
     const std::string prefix = "sensor_model_" + field + " ";
     if (starts_with(prefix)) return "sensor_model/" + message.substr(std::string("sensor_model_").size());
   }
+  if (starts_with("kinds ")) return "kinds/" + message.substr(std::string("kinds ").size());
   return message;
 }
 
@@ -224,6 +225,19 @@ bool readParameters(const ros::NodeHandle& private_nh, NodeParameters* parameter
   read.boolean("learn_sensor_model", &m.learn_sensor_model);
   read.number("sensor_model/prior_weight", &m.sensor_model_prior_weight);
   read.number("sensor_model/p_min", &m.sensor_model_p_min);
+  std::string learner = "kinds";
+  read.text("learner", &learner);
+  if (learner == "kinds") {
+    m.learner = core::TransitionLearner::kKinds;
+  } else if (learner == "cell_em") {
+    m.learner = core::TransitionLearner::kCellEm;
+  } else {
+    read.fail("learner", "must be \"kinds\" or \"cell_em\", got \"" + learner + "\"");
+  }
+  read.number("kinds/switch_probability", &m.kinds.switch_probability);
+  read.number("kinds/forgetting", &m.kinds.forgetting);
+  read.number("kinds/transition_prior_weight", &m.kinds.transition_prior_weight);
+  read.number("kinds/weight_prior_cells", &m.kinds.weight_prior_cells);
   read.boolean("learn_prior", &m.learn_prior);
   read.number("prior_population_weight", &m.prior_population_weight);
   std::string schedule = "harmonic";

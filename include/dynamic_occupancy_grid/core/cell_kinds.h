@@ -162,6 +162,7 @@ class CellKinds {
   std::array<double, kKindCount> log_lambda_;  ///< log lambda_k (lambda_k > 0: rates <= 0.5)
   std::array<double, kKindCount> log_p_of_;
   std::array<double, kKindCount> log_p_fo_;
+  double log_keep_;  ///< log(1 - switch_probability)
   Sums sums_;
 };
 
