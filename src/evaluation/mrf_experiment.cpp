@@ -111,7 +111,9 @@ MrfOnlineOutcome scoreOnline(const OnlineLearner& learner, const ObservationSequ
     constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
     outcome.prior_at_end = TransitionParams{kNaN, kNaN};
     const CellKinds& kinds = learner.mapper->kinds();
-    for (int k = 0; k < kKindCount; ++k) outcome.kinds.push_back(MrfLearnedKind{kinds.transitions(k), kinds.weight(k)});
+    for (int k = 0; k < kKindCount; ++k) {
+      outcome.kinds.push_back(MrfLearnedKind{kinds.transitions(k), kinds.weight(k)});
+    }
   } else {
     outcome.prior_at_end = learner.mapper->currentPrior();
   }

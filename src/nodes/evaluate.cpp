@@ -629,7 +629,8 @@ std::string mrfSummary(const core::ScenarioConfig& scenario, const core::MrfExpe
       meanStd(values([](const core::MrfRepetition& run) { return static_cast<double>(run.mrf.em_iterations); }));
   const MeanStd online_seconds = meanStd(values([](const core::MrfRepetition& run) { return run.online.seconds; }));
   const MeanStd eb_seconds = meanStd(values([](const core::MrfRepetition& run) { return run.online_eb.seconds; }));
-  const MeanStd kinds_seconds = meanStd(values([](const core::MrfRepetition& run) { return run.online_kinds.seconds; }));
+  const MeanStd kinds_seconds =
+      meanStd(values([](const core::MrfRepetition& run) { return run.online_kinds.seconds; }));
   // Newton iterations per M-step and map (p(occ -> occ), p(free -> free)).
   std::array<MeanStd, 2> newton{};
   for (std::size_t map = 0; map < 2; ++map) {

@@ -2,8 +2,8 @@
 // worked by hand (per kind only on the parameters a cell's data carry), the squares seen in
 // both states, reproducibility, independence of the number of threads, that the MRF run is
 // the smoothed one, and that the online learners (each cell's own online EM without and with
-// the empirical-Bayes prior, and kinds of cells) are there and scored. Which method wins where is what `evaluate` measures and
-// reports (docs/results.md); it is not asserted here.
+// the empirical-Bayes prior, and kinds of cells) are there and scored. Which method wins
+// where is what `evaluate` measures and reports (docs/results.md); it is not asserted here.
 #include "dynamic_occupancy_grid/evaluation/mrf_experiment.h"
 
 #include <gtest/gtest.h>

@@ -172,8 +172,9 @@ struct MrfExperimentResult {
 /// config.temperature. The same scans are mapped by three online learners, Mappers of
 /// evaluationMapperConfig(scenario) with the package's online-learning defaults (same
 /// sensor model, prior_transitions as the guess) but the learner: kCellEm with learn_prior
-/// false and true, and kKinds. All five are scored against the truth. Results do not depend on the number of threads (the timings
-/// aside). `progress` (optional) is called after each repetition.
+/// false and true, and kKinds. All five are scored against the truth. Results do not
+/// depend on the number of threads (the timings aside). `progress` (optional) is called
+/// after each repetition.
 MrfExperimentResult runMrfExperiment(const ScenarioConfig& scenario, const MrfExperimentConfig& config,
                                      const std::function<void(int done)>& progress = {});
 
