@@ -36,6 +36,21 @@ struct OnlineLearner {
   double seconds = 0.0;
 };
 
+// The online learners of the experiment, and where each one's outcome and map go: each
+// cell's own online EM without and with the empirical-Bayes prior (what they were before
+// kinds became the default), and kinds of cells.
+struct OnlineLearnerSetup {
+  TransitionLearner learner;
+  bool learn_prior;
+  MrfOnlineOutcome MrfRepetition::*outcome;
+  std::vector<TransitionParams> MrfMaps::*map;
+};
+const std::array<OnlineLearnerSetup, 3> kOnlineLearners{{
+    {TransitionLearner::kCellEm, false, &MrfRepetition::online, &MrfMaps::online},
+    {TransitionLearner::kCellEm, true, &MrfRepetition::online_eb, &MrfMaps::online_eb},
+    {TransitionLearner::kKinds, false, &MrfRepetition::online_kinds, &MrfMaps::online_kinds},
+}};
+
 // The observations of a whole run, recorded as offline EM reads them (as trainOffline does),
 // and the same scans into each online learner.
 ObservationSequences recordRun(Simulation& simulation, const MapperConfig& mapper_config,
@@ -91,7 +106,17 @@ MrfOnlineOutcome scoreOnline(const OnlineLearner& learner, const ObservationSequ
   outcome.rmse = transitionRmse(sequences, *params, world, sparse_below);
   outcome.rmse_by_kind = transitionRmseByKind(sequences, *params, world, sparse_below);
   outcome.rmse_changing_by_data = changingRmseBySeenStates(sequences, *params, world, sparse_below);
-  outcome.prior_at_end = learner.mapper->currentPrior();
+  if (learner.mapper->config().learner == TransitionLearner::kKinds) {
+    // Its prior is the kinds, not one pair of transitions.
+    constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+    outcome.prior_at_end = TransitionParams{kNaN, kNaN};
+    const CellKinds& kinds = learner.mapper->kinds();
+    for (int k = 0; k < kKindCount; ++k) {
+      outcome.kinds.push_back(MrfLearnedKind{kinds.transitions(k), kinds.weight(k)});
+    }
+  } else {
+    outcome.prior_at_end = learner.mapper->currentPrior();
+  }
   outcome.seconds = learner.seconds;
   return outcome;
 }
@@ -127,12 +152,13 @@ Run runRepetition(const ScenarioConfig& scenario, const MrfExperimentConfig& con
   Simulation simulation(scenario, run.repetition.world_seed, run.repetition.run_seed);
   const MapperConfig mapper_config = evaluationMapperConfig(scenario);
   // The online learners: the package's defaults on the scenario's geometry and sensor
-  // model, without and with the empirical-Bayes prior.
-  std::vector<OnlineLearner> learners(2);
+  // model, but the learner and the empirical-Bayes prior (kOnlineLearners).
+  std::vector<OnlineLearner> learners(kOnlineLearners.size());
   for (std::size_t l = 0; l < learners.size(); ++l) {
     MapperConfig learner_config = mapper_config;
     learner_config.learn_transitions = true;
-    learner_config.learn_prior = l == 1;
+    learner_config.learner = kOnlineLearners[l].learner;
+    learner_config.learn_prior = kOnlineLearners[l].learn_prior;
     learners[l].mapper = std::make_unique<Mapper>(learner_config);
   }
   const ObservationSequences sequences = recordRun(simulation, mapper_config, learners);
@@ -148,10 +174,11 @@ Run runRepetition(const ScenarioConfig& scenario, const MrfExperimentConfig& con
   em_config.mrf_temperature = config.temperature;
   std::vector<TransitionParams> mrf;
   run.repetition.mrf = runEm(sequences, sensor, em_config, simulation.world(), config.sparse_below, &mrf);
-  std::vector<TransitionParams> online;
-  run.repetition.online = scoreOnline(learners[0], sequences, simulation.world(), config.sparse_below, &online);
-  std::vector<TransitionParams> online_eb;
-  run.repetition.online_eb = scoreOnline(learners[1], sequences, simulation.world(), config.sparse_below, &online_eb);
+  std::vector<std::vector<TransitionParams>> online(learners.size());
+  for (std::size_t l = 0; l < learners.size(); ++l) {
+    run.repetition.*kOnlineLearners[l].outcome =
+        scoreOnline(learners[l], sequences, simulation.world(), config.sparse_below, &online[l]);
+  }
 
   if (repetition == 0) {
     const World& world = simulation.world();
@@ -163,8 +190,9 @@ Run runRepetition(const ScenarioConfig& scenario, const MrfExperimentConfig& con
     maps.observed_steps.assign(size, 0);
     maps.plain.assign(size, TransitionParams{kNaN, kNaN});
     maps.mrf.assign(size, TransitionParams{kNaN, kNaN});
-    maps.online.assign(size, TransitionParams{kNaN, kNaN});
-    maps.online_eb.assign(size, TransitionParams{kNaN, kNaN});
+    for (const OnlineLearnerSetup& setup : kOnlineLearners) {
+      (maps.*setup.map).assign(size, TransitionParams{kNaN, kNaN});
+    }
     maps.truth.resize(size);
     for (std::size_t i = 0; i < size; ++i) {
       const CellXY c = world.cellOf(i);
@@ -176,8 +204,7 @@ Run runRepetition(const ScenarioConfig& scenario, const MrfExperimentConfig& con
       maps.observed_steps[i] = static_cast<std::uint32_t>(sequences.end(c) - sequences.begin(c));
       maps.plain[i] = plain[c];
       maps.mrf[i] = mrf[c];
-      maps.online[i] = online[c];
-      maps.online_eb[i] = online_eb[c];
+      for (std::size_t l = 0; l < kOnlineLearners.size(); ++l) (maps.*kOnlineLearners[l].map)[i] = online[l][c];
     }
   }
   return run;

@@ -24,6 +24,7 @@
 
 #include "command_line.h"
 #include "dynamic_occupancy_grid/evaluation/evaluation.h"
+#include "dynamic_occupancy_grid/core/cell_kinds.h"
 #include "dynamic_occupancy_grid/core/map_export.h"
 #include "dynamic_occupancy_grid/evaluation/learning_experiment.h"
 #include "dynamic_occupancy_grid/evaluation/memory_experiment.h"
@@ -98,7 +99,7 @@ Options parseOptions(int argc, char** argv) {
        "runs from A to B or back per repetition (default 20)")
       ("mrf-repetitions", cl::number(&options.mrf_repetitions, repetitions)->value_name("N"),
        "seeds of the MRF experiment (Li, Barão & Rato's simulation, scenario mrf_squares: offline EM with and "
-       "without the MRF; default 10; 0 skips it)")
+       "without the MRF, three online learners; default 10; 0 skips it)")
       ("mrf-temperature", cl::number(&options.mrf_temperature, cl::atLeast(core::kMinMrfTemperature))->value_name("T"),
        "the MRF's temperature T in that experiment (default 50, the paper's value; >= 1e-9, the lower the "
        "smoother)")
@@ -266,8 +267,9 @@ std::string signedPercent(double before, double after) {
   return (change > 0.0 ? "+" : "") + fixed(change, 1) + " %";
 }
 
-// The four learners of the MRF experiment: offline EM plain and with the MRF, online
-// learning without and with the empirical-Bayes prior (core::MrfRepetition).
+// The five learners of the MRF experiment: offline EM plain and with the MRF, each cell's
+// online EM without and with the empirical-Bayes prior, and kinds of cells
+// (core::MrfRepetition).
 struct MrfMethod {
   const char* name;   ///< in the CSV files
   const char* label;  ///< in the summary
@@ -284,11 +286,13 @@ constexpr MrfMethod mrfMethod(const char* name, const char* label) {
                      return (r.*member).rmse_changing_by_data;
                    }};
 }
-const std::array<MrfMethod, 4> kMrfMethods{{
+constexpr std::size_t kMrfMethodCount = 5;
+const std::array<MrfMethod, kMrfMethodCount> kMrfMethods{{
     mrfMethod<core::MrfEmOutcome, &core::MrfRepetition::plain>("plain", "plain EM"),
     mrfMethod<core::MrfEmOutcome, &core::MrfRepetition::mrf>("mrf", "MRF EM"),
     mrfMethod<core::MrfOnlineOutcome, &core::MrfRepetition::online>("online", "online"),
     mrfMethod<core::MrfOnlineOutcome, &core::MrfRepetition::online_eb>("online_eb", "online EB"),
+    mrfMethod<core::MrfOnlineOutcome, &core::MrfRepetition::online_kinds>("online_kinds", "online kinds"),
 }};
 
 // Offline EM's RMSE over all cells, sparse and well observed, both parameters (the RMSE of
@@ -319,7 +323,7 @@ std::string mrfRmseCsv(const core::MrfExperimentResult& result) {
 }
 
 // The RMSE per kind of cell (core::CellKind) on the parameters its data carry (the other
-// one empty), one row per seed, method (the four of kMrfMethods), kind and observation class.
+// one empty), one row per seed, method (kMrfMethods), kind and observation class.
 std::string mrfRmseByKindCsv(const core::MrfExperimentResult& result) {
   std::ostringstream csv;
   csv << "repetition,method,kind,observed,cells,p_occ_given_free_rmse,p_free_given_occ_rmse\n";
@@ -363,17 +367,34 @@ std::string mrfRmseChangingCsv(const core::MrfExperimentResult& result) {
 }
 
 // The online learners per seed: the prior a new cell got at the end (with the
-// empirical-Bayes prior the population's; without it prior_transitions) and the mapping time.
+// empirical-Bayes prior the population's; without it prior_transitions; empty for the kinds
+// learner), the mapping time, and the kinds learner's kinds at the end (transitions and
+// share of the cells per kind; empty for the others).
 std::string mrfOnlineCsv(const core::MrfExperimentResult& result) {
   std::ostringstream csv;
-  csv << "repetition,world_seed,run_seed,method,prior_p_occ_given_free,prior_p_free_given_occ,mapping_seconds\n";
+  csv << "repetition,world_seed,run_seed,method,prior_p_occ_given_free,prior_p_free_given_occ,mapping_seconds";
+  for (int k = 0; k < core::kKindCount; ++k) {
+    csv << ",kind_" << k << "_p_occ_given_free,kind_" << k << "_p_free_given_occ,kind_" << k << "_weight";
+  }
+  csv << '\n';
   for (std::size_t r = 0; r < result.repetitions.size(); ++r) {
     const core::MrfRepetition& run = result.repetitions[r];
     for (const auto& [method, outcome] :
-         {std::make_pair("online", &run.online), std::make_pair("online_eb", &run.online_eb)}) {
+         {std::make_pair("online", &run.online), std::make_pair("online_eb", &run.online_eb),
+          std::make_pair("online_kinds", &run.online_kinds)}) {
       csv << r << ',' << run.world_seed << ',' << run.run_seed << ',' << method << ','
           << probability(outcome->prior_at_end.p_occ_given_free) << ','
-          << probability(outcome->prior_at_end.p_free_given_occ) << ',' << fixed(outcome->seconds, 6) << '\n';
+          << probability(outcome->prior_at_end.p_free_given_occ) << ',' << fixed(outcome->seconds, 6);
+      for (std::size_t k = 0; k < static_cast<std::size_t>(core::kKindCount); ++k) {
+        if (k < outcome->kinds.size()) {
+          const core::MrfLearnedKind& kind = outcome->kinds[k];
+          csv << ',' << probability(kind.transitions.p_occ_given_free) << ','
+              << probability(kind.transitions.p_free_given_occ) << ',' << probability(kind.weight);
+        } else {
+          csv << ",,,";
+        }
+      }
+      csv << '\n';
     }
   }
   return csv.str();
@@ -405,13 +426,14 @@ std::string mrfMapsCsv(const core::MrfMaps& maps) {
   std::ostringstream csv;
   csv << "x,y,observed_steps,truth_p_occ_given_free,truth_p_free_given_occ,plain_p_occ_given_free,"
          "plain_p_free_given_occ,mrf_p_occ_given_free,mrf_p_free_given_occ,online_p_occ_given_free,"
-         "online_p_free_given_occ,online_eb_p_occ_given_free,online_eb_p_free_given_occ\n";
+         "online_p_free_given_occ,online_eb_p_occ_given_free,online_eb_p_free_given_occ,"
+         "online_kinds_p_occ_given_free,online_kinds_p_free_given_occ\n";
   for (std::int32_t y = 0; y < maps.height; ++y) {
     for (std::int32_t x = 0; x < maps.width; ++x) {
       const std::size_t i = static_cast<std::size_t>(y) * static_cast<std::size_t>(maps.width) + static_cast<std::size_t>(x);
       csv << x << ',' << y << ',' << maps.observed_steps[i];
       for (const core::TransitionParams* p : {&maps.truth[i], &maps.plain[i], &maps.mrf[i], &maps.online[i],
-                                              &maps.online_eb[i]}) {
+                                              &maps.online_eb[i], &maps.online_kinds[i]}) {
         csv << ',' << probability(p->p_occ_given_free) << ',' << probability(p->p_free_given_occ);
       }
       csv << '\n';
@@ -430,15 +452,26 @@ std::string mrfSummary(const core::ScenarioConfig& scenario, const core::MrfExpe
   };
   const auto plus_minus = [](const MeanStd& v, int digits) { return fixed(v.mean, digits) + " ± " + fixed(v.std, digits); };
   const auto seeds = static_cast<double>(result.repetitions.size());
+  // The per-kind tables' header: the RMSE of every method, and each borrowing against the
+  // learner it adds to (MRF EM against plain EM, online EB and online kinds against online).
+  const auto table_header = [](const std::string& first) {
+    return "| " + first + " | cells | parameter | cells per run | plain EM | MRF EM | MRF vs plain | online | "
+           "online EB | EB vs online | online kinds | kinds vs online | best |\n"
+           "|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
+  };
   std::ostringstream text;
   text << "\n## MRF-smoothed transition maps (Li, Barão & Rato, Sec. IV)\n\n"
        << "Scenario " << scenario.name << ": " << scenario.description << ". Offline EM of every observed cell from "
        << "p = 0.5 (the paper's start), the tools' prior (2 pseudo-transitions), at most " << config.max_iterations
        << " iterations, without and with the MRF prior at T = " << config.temperature
-       << ". The same scans also go into the online learner of the Mapper (the package's defaults: prior 0.01 / 0.01 "
-          "worth 10 pseudo-transitions, 1/t schedule, a cell's filter on the prior until its 10th observed step), "
-          "without (online) and with the empirical-Bayes prior (online EB, learn_prior). The MRF borrows strength "
-          "from a cell's neighbours, the empirical-Bayes prior from the whole map's population.\n\n"
+       << ". The same scans also go into three online learners of the Mapper (the package's defaults but the "
+          "learner): each cell's own online EM (learner kCellEm: prior 0.01 / 0.01 worth 10 pseudo-transitions, 1/t "
+          "schedule, a cell's filter on the prior until its 10th observed step) without (online) and with the "
+          "empirical-Bayes prior (online EB, learn_prior), and the package's default learner, kinds of cells (online "
+          "kinds, learner kKinds: five kinds learned from the whole map, each cell's kind a hidden variable of its "
+          "filter; a cell's transitions are the summary of its kind posterior). The MRF borrows strength from a "
+          "cell's neighbours, the empirical-Bayes prior from one prior pooled over the whole map, the kinds from the "
+          "cells of the same kind.\n\n"
        << "RMSE of the learned probabilities per step against the truth (1 / hold time for the squares, 0 for "
           "static cells), per kind of cell and only on the parameters the cell's data carry: a static free cell is "
           "never occupied, so its p_free_given_occ is the prior's and the chain start's whatever the learner, and "
@@ -446,8 +479,7 @@ std::string mrfSummary(const core::ScenarioConfig& scenario, const core::MrfExpe
        << result.repetitions.size() << " seeds (seed " << config.seed << "; per seed in mrf_rmse_by_kind.csv); sparse: "
        << "fewer than " << config.sparse_below << " observed steps. In brackets: the seeds (with cells of the row) "
        << "where the method beats the one it is compared with.\n\n"
-       << "| kind | cells | parameter | cells per run | plain EM | MRF EM | MRF vs plain | online | online EB | "
-          "EB vs online | best |\n|---|---|---|---|---|---|---|---|---|---|---|\n";
+       << table_header("kind");
   // One row: the RMSE of `parameter` over the cells `part` picks, pooled over the seeds
   // (sqrt(sum of cells * rmse^2 / all cells)); per seed for the comparisons. Returns the
   // pooled RMSE per method and the cells.
@@ -458,7 +490,7 @@ std::string mrfSummary(const core::ScenarioConfig& scenario, const core::MrfExpe
   const auto row = [&](const std::string& label, bool occ_given_free,
                        const std::function<const core::TransitionRmse&(const MrfMethod&, const core::MrfRepetition&)>& part) {
     double cells = 0.0;
-    std::array<Pooled, 4> pooled;
+    std::array<Pooled, kMrfMethodCount> pooled;
     for (std::size_t m = 0; m < kMrfMethods.size(); ++m) {
       double squares = 0.0;
       double method_cells = 0.0;
@@ -491,7 +523,8 @@ std::string mrfSummary(const core::ScenarioConfig& scenario, const core::MrfExpe
     text << "| " << label << " | " << (occ_given_free ? "p_occ_given_free" : "p_free_given_occ") << " | "
          << fixed(cells / seeds, 1) << " | " << fixed(pooled[0].rmse, 4) << " | " << fixed(pooled[1].rmse, 4) << " | "
          << compare(pooled[0], pooled[1]) << " | " << fixed(pooled[2].rmse, 4) << " | " << fixed(pooled[3].rmse, 4)
-         << " | " << compare(pooled[2], pooled[3]) << " | " << (cells > 0.0 ? kMrfMethods[best].label : "-") << " |\n";
+         << " | " << compare(pooled[2], pooled[3]) << " | " << fixed(pooled[4].rmse, 4) << " | "
+         << compare(pooled[2], pooled[4]) << " | " << (cells > 0.0 ? kMrfMethods[best].label : "-") << " |\n";
     return std::make_pair(pooled, cells);
   };
   std::vector<std::string> well_observed_measured;
@@ -520,8 +553,7 @@ std::string mrfSummary(const core::ScenarioConfig& scenario, const core::MrfExpe
           "one with more misses than hits: the squares' faces) or in one only (the cells behind a face, observed only "
           "while the square is free: their data say \"static free\" whatever the square does). Per seed in "
           "mrf_rmse_changing.csv.\n\n"
-       << "| changing cells | cells | parameter | cells per run | plain EM | MRF EM | MRF vs plain | online | online EB | "
-          "EB vs online | best |\n|---|---|---|---|---|---|---|---|---|---|---|\n";
+       << table_header("changing cells");
   for (const std::size_t d : {std::size_t{0}, std::size_t{1}}) {
     for (const bool sparse : {true, false}) {
       for (const bool occ_given_free : {true, false}) {
@@ -550,7 +582,19 @@ std::string mrfSummary(const core::ScenarioConfig& scenario, const core::MrfExpe
        << scenario.square_hold_steps[2] << ", " << scenario.square_hold_steps[3]
        << " steps); the others are behind the front face while the square is occupied, seen only free. "
        << "The empirical-Bayes prior at the end of a run: p_occ_given_free " << plus_minus(eb_of, 4)
-       << ", p_free_given_occ " << plus_minus(eb_fo, 4) << " (per seed in mrf_online.csv).\n";
+       << ", p_free_given_occ " << plus_minus(eb_fo, 4) << " (per seed in mrf_online.csv). The kinds at the end "
+       << "of a run (online kinds; p_occ_given_free / p_free_given_occ, share of the cells; mean over the seeds):";
+  for (std::size_t k = 0; k < static_cast<std::size_t>(core::kKindCount); ++k) {
+    const auto kind_mean = [&](const auto& get) {
+      return meanStd(values([&](const core::MrfRepetition& run) { return get(run.online_kinds.kinds.at(k)); })).mean;
+    };
+    text << (k == 0 ? " " : "; ")
+         << fixed(kind_mean([](const core::MrfLearnedKind& kind) { return kind.transitions.p_occ_given_free; }), 4)
+         << " / "
+         << fixed(kind_mean([](const core::MrfLearnedKind& kind) { return kind.transitions.p_free_given_occ; }), 4)
+         << ", " << fixed(kind_mean([](const core::MrfLearnedKind& kind) { return kind.weight; }), 3);
+  }
+  text << ".\n";
 
   // Kept for comparison: the RMSE over all cells and both parameters, the data-less ones
   // included (mrf_rmse.csv), offline EM only.
@@ -585,6 +629,8 @@ std::string mrfSummary(const core::ScenarioConfig& scenario, const core::MrfExpe
       meanStd(values([](const core::MrfRepetition& run) { return static_cast<double>(run.mrf.em_iterations); }));
   const MeanStd online_seconds = meanStd(values([](const core::MrfRepetition& run) { return run.online.seconds; }));
   const MeanStd eb_seconds = meanStd(values([](const core::MrfRepetition& run) { return run.online_eb.seconds; }));
+  const MeanStd kinds_seconds =
+      meanStd(values([](const core::MrfRepetition& run) { return run.online_kinds.seconds; }));
   // Newton iterations per M-step and map (p(occ -> occ), p(free -> free)).
   std::array<MeanStd, 2> newton{};
   for (std::size_t map = 0; map < 2; ++map) {
@@ -600,8 +646,9 @@ std::string mrfSummary(const core::ScenarioConfig& scenario, const core::MrfExpe
        << ". Newton iterations per MRF M-step: " << plus_minus(newton[0], 2) << " on p(occ → occ), "
        << plus_minus(newton[1], 2) << " on p(free → free). Online learners, mapping and learning the whole run: "
        << plus_minus(online_seconds, 3) << " s, with the empirical-Bayes prior " << plus_minus(eb_seconds, 3)
+       << " s, kinds " << plus_minus(kinds_seconds, 3)
        << " s. Per EM iteration (objective, Newton iterations) in mrf_iterations.csv, the first seed's maps of all "
-          "four in mrf_maps.csv.\n";
+          "five in mrf_maps.csv.\n";
 
   std::string measured;
   for (const std::string& part : well_observed_measured) measured += (measured.empty() ? "" : ", ") + part;

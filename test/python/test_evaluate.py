@@ -17,6 +17,10 @@ SMALL = ["--scenarios", "dynamic_5_5,redraw_100", "--repetitions", "2", "--path-
          "--path-runs", "4", "--mrf-repetitions", "2", "--memory-repetitions", "2", "--threads", "2",
          "--learning-scenarios", "dynamic_25_25", "--learning-repetitions", "1", "--murphy-repetitions", "3"]
 MRF_WORLD = (46, 32)  # the mrf_squares scenario's cells (evaluation/simulator.cpp)
+# The MRF experiment's learners: the online ones (cell EM without and with the empirical-Bayes
+# prior, kinds of cells), and with the two offline EMs.
+ONLINE = ("online", "online_eb", "online_kinds")
+ONLINE_AND_OFFLINE = ("plain", "mrf") + ONLINE
 
 
 def evaluate(args):
@@ -53,9 +57,9 @@ class EvaluateTool(unittest.TestCase):
         for cells in ("sparse", "well observed"):
             for parameter in ("p_occ_given_free", "p_free_given_occ"):
                 self.assertIn(f"| {cells} | {parameter} |", summary)
-        # The headline: per kind of cell, only the parameters its data carry, four methods.
+        # The headline: per kind of cell, only the parameters its data carry, five methods.
         self.assertIn("| kind | cells | parameter | cells per run | plain EM | MRF EM | MRF vs plain | online | "
-                      "online EB | EB vs online | best |", summary)
+                      "online EB | EB vs online | online kinds | kinds vs online | best |", summary)
         for kind, parameters in (("changing", ("p_occ_given_free", "p_free_given_occ")),
                                  ("static_free", ("p_occ_given_free",)), ("static_occupied", ("p_free_given_occ",))):
             for cells in ("sparse", "well observed"):
@@ -113,15 +117,15 @@ class EvaluateTool(unittest.TestCase):
                         self.assertLess(value, 0.5)  # the EM's bound on the learned probabilities
         self.assertNotEqual(rows[0]["run_seed"], rows[2]["run_seed"])
 
-        # Per kind of cell, four methods: the kinds partition each run's cells; each kind is
+        # Per kind of cell, five methods: the kinds partition each run's cells; each kind is
         # scored on the parameters its data carry (the other field empty), and their squared
         # errors are part of the whole set's.
         scored = {"changing": ("p_occ_given_free", "p_free_given_occ"), "static_free": ("p_occ_given_free",),
                   "static_occupied": ("p_free_given_occ",)}
         with open(os.path.join(self.out, "mrf_rmse_by_kind.csv")) as file:
             by_kind = list(csv.DictReader(file))
-        self.assertEqual(len(by_kind), 2 * 4 * 3 * 2)
-        self.assertEqual({k["method"] for k in by_kind}, {"plain", "mrf", "online", "online_eb"})
+        self.assertEqual(len(by_kind), 2 * 5 * 3 * 2)
+        self.assertEqual({k["method"] for k in by_kind}, {"plain", "mrf", "online", "online_eb", "online_kinds"})
         for k in by_kind:
             for parameter in ("p_occ_given_free", "p_free_given_occ"):
                 value = k[f"{parameter}_rmse"]
@@ -132,12 +136,12 @@ class EvaluateTool(unittest.TestCase):
                     self.assertLess(float(value), 0.5)
         for row in rows:
             for cells in ("sparse", "well_observed"):
-                for method in ("plain", "mrf", "online", "online_eb") if row["method"] == "plain" else ("mrf",):
+                for method in ONLINE_AND_OFFLINE if row["method"] == "plain" else ("mrf",):
                     mine = [k for k in by_kind if (k["repetition"], k["method"], k["observed"]) ==
                             (row["repetition"], method, cells)]
                     self.assertEqual(sorted(k["kind"] for k in mine), ["changing", "static_free", "static_occupied"])
                     total = int(row[f"{cells}_cells"])
-                    self.assertEqual(sum(int(k["cells"]) for k in mine), total)  # the same cells for all four
+                    self.assertEqual(sum(int(k["cells"]) for k in mine), total)  # the same cells for all five
                 mine = [k for k in by_kind if (k["repetition"], k["method"], k["observed"]) ==
                         (row["repetition"], row["method"], cells)]
                 for parameter in ("p_occ_given_free", "p_free_given_occ"):
@@ -153,7 +157,7 @@ class EvaluateTool(unittest.TestCase):
         # The changing cells by what their data show: both states and one state partition them.
         with open(os.path.join(self.out, "mrf_rmse_changing.csv")) as file:
             changing = list(csv.DictReader(file))
-        self.assertEqual(len(changing), 2 * 4 * 2 * 2)
+        self.assertEqual(len(changing), 2 * 5 * 2 * 2)
         for k in by_kind:
             if k["kind"] != "changing":
                 continue
@@ -167,20 +171,31 @@ class EvaluateTool(unittest.TestCase):
         with open(os.path.join(self.out, "summary.md")) as file:
             self.assertIn("| seen in both states | well observed | p_occ_given_free |", file.read())
 
-        # The online learners: prior_transitions kept without the empirical-Bayes prior, the
-        # population's with it.
+        # The online learners: cell EM keeps prior_transitions without the empirical-Bayes
+        # prior and has the population's with it; the kinds learner has no single prior but
+        # its five kinds (transitions and shares of the cells).
         with open(os.path.join(self.out, "mrf_online.csv")) as file:
             online = list(csv.DictReader(file))
         self.assertEqual([(o["repetition"], o["method"]) for o in online],
-                         [("0", "online"), ("0", "online_eb"), ("1", "online"), ("1", "online_eb")])
+                         [(r, m) for r in ("0", "1") for m in ONLINE])
+        kind_columns = [f"kind_{k}_{c}" for k in range(5) for c in ("p_occ_given_free", "p_free_given_occ", "weight")]
         for o in online:
             self.assertGreater(float(o["mapping_seconds"]), 0.0)
             if o["method"] == "online":
                 self.assertAlmostEqual(float(o["prior_p_occ_given_free"]), 0.01, places=8)
                 self.assertAlmostEqual(float(o["prior_p_free_given_occ"]), 0.01, places=8)
-            else:
+            elif o["method"] == "online_eb":
                 self.assertLess(float(o["prior_p_occ_given_free"]), 0.005)
-        self.assertEqual([o["world_seed"] for o in online[::2]], [r["world_seed"] for r in rows[::2]])
+            if o["method"] == "online_kinds":
+                self.assertEqual((o["prior_p_occ_given_free"], o["prior_p_free_given_occ"]), ("", ""))
+                self.assertAlmostEqual(sum(float(o[f"kind_{k}_weight"]) for k in range(5)), 1.0, places=6)
+                for k in range(5):
+                    for parameter in ("p_occ_given_free", "p_free_given_occ"):
+                        self.assertGreater(float(o[f"kind_{k}_{parameter}"]), 0.0)
+                        self.assertLessEqual(float(o[f"kind_{k}_{parameter}"]), 0.5)
+            else:
+                self.assertEqual({o[c] for c in kind_columns}, {""})
+        self.assertEqual([o["world_seed"] for o in online[::3]], [r["world_seed"] for r in rows[::2]])
 
         with open(os.path.join(self.out, "mrf_iterations.csv")) as file:
             iterations = list(csv.DictReader(file))
@@ -201,8 +216,7 @@ class EvaluateTool(unittest.TestCase):
         self.assertEqual(len(observed), int(rows[0]["sparse_cells"]) + int(rows[0]["well_observed_cells"]))
         self.assertEqual(sum(int(c["observed_steps"]) < 10 for c in observed), int(rows[0]["sparse_cells"]))
         for c in cells:
-            learned = [c[f"{m}_{p}"] for m in ("plain", "mrf", "online", "online_eb")
-                       for p in ("p_occ_given_free", "p_free_given_occ")]
+            learned = [c[f"{m}_{p}"] for m in ONLINE_AND_OFFLINE for p in ("p_occ_given_free", "p_free_given_occ")]
             self.assertEqual({bool(value) for value in learned}, {int(c["observed_steps"]) > 0})
             self.assertTrue(c["truth_p_occ_given_free"] and c["truth_p_free_given_occ"])
         # The four squares' truths: 1 / hold time for holds of 7, 42, 63 and 147 steps.
@@ -372,7 +386,7 @@ class EvaluateTool(unittest.TestCase):
         for directory in (self.out, again):
             with open(os.path.join(directory, "mrf_rmse_by_kind.csv")) as file:
                 tables.append(list(csv.DictReader(file)))
-        for method in ("plain", "online", "online_eb"):
+        for method in ("plain",) + ONLINE:
             self.assertEqual([r for r in tables[0] if r["method"] == method], [r for r in tables[1] if r["method"] == method])
         self.assertNotEqual([r for r in tables[0] if r["method"] == "mrf"], [r for r in tables[1] if r["method"] == "mrf"])
 

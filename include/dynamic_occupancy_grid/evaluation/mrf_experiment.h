@@ -1,12 +1,14 @@
 #pragma once
 // The simulation of Li, Barão & Rato (Sec. IV; THEORY.md §7) as a measurement: on the
 // scenario "mrf_squares" (simulator.h), offline EM of the transition maps without and with
-// the MRF prior, and the online learner of core::Mapper on the same scans without and with
-// its empirical-Bayes prior (MapperConfig::learn_prior), each scored against the world's
-// true transitions by RMSE per kind of cell on the parameters the cell's data carry,
-// separately on sparsely and on well observed cells, with the EM's wall time and the MRF's
-// work per EM iteration. The MRF borrows strength from a cell's neighbours, the
-// empirical-Bayes prior from the whole map's population of cells.
+// the MRF prior, and three online learners of core::Mapper on the same scans, each scored
+// against the world's true transitions by RMSE per kind of cell on the parameters the
+// cell's data carry, separately on sparsely and on well observed cells, with the EM's wall
+// time and the MRF's work per EM iteration. The online learners: each cell's own online EM without and with
+// its empirical-Bayes prior (MapperConfig::learn_prior), and the package's default learner,
+// kinds of cells (TransitionLearner::kKinds). Three ways to borrow strength from other
+// cells: the MRF from a cell's neighbours, the empirical-Bayes prior from one prior pooled
+// over the whole map, the kinds from the cells of the same (learned, hidden) kind.
 //
 // ROS-free: standard library only.
 
@@ -104,15 +106,26 @@ struct MrfEmOutcome {
   std::vector<std::array<int, 2>> newton_iterations;
 };
 
+/// One kind of cells as the kinds learner ended a run with (CellKinds::transitions, weight).
+struct MrfLearnedKind {
+  TransitionParams transitions;
+  double weight = 0.0;  ///< the kind's share of the cells
+};
+
 /// One online learner (core::Mapper learning while it maps the run's scans) on one run:
-/// each cell's transitions at the end, as its filter uses them (until a cell has
-/// OnlineEmConfig::min_observed_steps observed steps, the prior: sparse cells are scored
-/// on the prior they were given).
+/// each cell's transitions at the end, the two its cell publishes (learner kCellEm: its
+/// filter's, the prior until OnlineEmConfig::min_observed_steps observed steps, so sparse
+/// cells are scored on the prior they were given; learner kKinds: the summary of its kind
+/// posterior after its last observed step).
 struct MrfOnlineOutcome {
   SplitRmse rmse;
   std::array<SplitRmse, kCellKinds> rmse_by_kind;
   std::array<SplitRmse, 2> rmse_changing_by_data;  ///< changingRmseBySeenStates
-  TransitionParams prior_at_end;  ///< Mapper::currentPrior() after the last step
+  /// Mapper::currentPrior() after the last step; NaN for learner kKinds (its prior is the kinds).
+  TransitionParams prior_at_end;
+  /// learner kKinds: the kinds after the last step (Mapper::kinds(), in its order); empty
+  /// for kCellEm.
+  std::vector<MrfLearnedKind> kinds;
   double seconds = 0.0;           ///< wall time of the mapper's integrate and finishStep calls
 };
 
@@ -124,8 +137,12 @@ struct MrfRepetition {
   std::array<std::size_t, 4> square_cells_both_states{};
   MrfEmOutcome plain;
   MrfEmOutcome mrf;
-  MrfOnlineOutcome online;     ///< learn_prior = false: every cell starts from prior_transitions
-  MrfOnlineOutcome online_eb;  ///< learn_prior = true: the empirical-Bayes prior
+  /// learner kCellEm, learn_prior = false: every cell starts from prior_transitions.
+  MrfOnlineOutcome online;
+  /// learner kCellEm, learn_prior = true: the empirical-Bayes prior.
+  MrfOnlineOutcome online_eb;
+  /// learner kKinds (the package's default): kinds of cells, a hierarchical prior.
+  MrfOnlineOutcome online_kinds;
 };
 
 /// Maps of one run for plotting, row-major over the world (World::index); NaN where a map
@@ -139,6 +156,7 @@ struct MrfMaps {
   std::vector<TransitionParams> mrf;
   std::vector<TransitionParams> online;
   std::vector<TransitionParams> online_eb;
+  std::vector<TransitionParams> online_kinds;
 };
 
 struct MrfExperimentResult {
@@ -151,11 +169,12 @@ struct MrfExperimentResult {
 /// each records its observations with a Mapper of evaluationMapperConfig(scenario), then
 /// runs offline EM with evaluationOfflineEmConfig (the tools' prior), initial parameters 0.5
 /// (the paper's) and config.max_iterations, once plain and once with mrf_temperature =
-/// config.temperature. The same scans are mapped by two online learners, Mappers of
+/// config.temperature. The same scans are mapped by three online learners, Mappers of
 /// evaluationMapperConfig(scenario) with the package's online-learning defaults (same
-/// sensor model, prior_transitions as the guess), learn_prior false and true. All four are
-/// scored against the truth. Results do not depend on the number of threads (the timings
-/// aside). `progress` (optional) is called after each repetition.
+/// sensor model, prior_transitions as the guess) but the learner: kCellEm with learn_prior
+/// false and true, and kKinds. All five are scored against the truth. Results do not
+/// depend on the number of threads (the timings aside). `progress` (optional) is called
+/// after each repetition.
 MrfExperimentResult runMrfExperiment(const ScenarioConfig& scenario, const MrfExperimentConfig& config,
                                      const std::function<void(int done)>& progress = {});
 
