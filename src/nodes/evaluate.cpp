@@ -45,7 +45,7 @@ struct Options {
   int mrf_repetitions = 10;
   double mrf_temperature = 50.0;
   int memory_repetitions = 10;
-  std::vector<std::string> learning_scenarios{"patrol", "dynamic_25_25"};
+  std::vector<std::string> learning_scenarios{"patrol", "patrol_office", "dynamic_25_25"};
   int learning_repetitions = 4;
   bool learning_ablations = false;
   int murphy_repetitions = 100;
@@ -109,7 +109,7 @@ Options parseOptions(int argc, char** argv) {
       ("learning-scenarios",
        (new cl::Checked<std::vector<std::string>>(&options.learning_scenarios, splitScenarios))
            ->value_name("A,B,..."),
-       "scenarios of the learning experiment (docs/online_learning.md; default patrol,dynamic_25_25); 'none' "
+       "scenarios of the learning experiment (docs/online_learning.md; default patrol,patrol_office,dynamic_25_25); 'none' "
        "skips it")
       ("learning-repetitions", cl::number(&options.learning_repetitions, repetitions)->value_name("N"),
        "repetitions of each learning scenario (default 4; 0 skips it)")

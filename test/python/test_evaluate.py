@@ -264,8 +264,8 @@ class EvaluateTool(unittest.TestCase):
         with open(os.path.join(self.out, "learning_dynamic_25_25.csv")) as file:
             rows = list(csv.DictReader(file))
         methods = [row["method"] for row in rows]
-        self.assertEqual(methods, ["static", "textbook", "learning_off", "default", "eb", "rm", "rm_averaged",
-                                   "offline", "oracle"])
+        self.assertEqual(methods, ["static", "node_static", "node_default", "textbook", "learning_off", "default",
+                                   "cell_em", "eb", "rm", "rm_averaged", "offline", "oracle"])
         by_method = {row["method"]: row for row in rows}
         self.assertLess(float(by_method["oracle"]["dynamic_mae"]), 1e-6)  # the truth, rounded to float
         self.assertEqual(float(by_method["static"]["retention"]), 1.0)  # static_map keeps itself
@@ -279,6 +279,7 @@ class EvaluateTool(unittest.TestCase):
         with open(os.path.join(self.out, "summary.md")) as file:
             summary = file.read()
         self.assertIn("## Learning that pays off: dynamic_25_25", summary)
+        self.assertIn("Accuracy per kind of cell in the same window", summary)
         self.assertIn("dynamic_25_25: online parameter MAE ≤ 0.05 at the end", summary)
 
     def test_murphy_corridor_tables_and_summary(self):
@@ -325,6 +326,20 @@ class EvaluateTool(unittest.TestCase):
         self.assertIn("## Murphy's 1D corridor", summary)
         self.assertLess(summary.index("## Murphy's 1D corridor"), summary.index("## Targets"))
         self.assertIn("| Murphy: online EM lost on the way back", summary)
+
+    def test_learning_ablations_add_the_kinds_variants(self):
+        ablations = os.path.join(self.tmp.name, "ablations")
+        rc, _, stderr = evaluate(["--out", ablations, "--scenarios", "none", "--path-repetitions", "0",
+                                  "--mrf-repetitions", "0", "--memory-repetitions", "0", "--murphy-repetitions", "0",
+                                  "--learning-scenarios", "dynamic_5_5", "--learning-repetitions", "1",
+                                  "--learning-ablations", "--threads", "1"])
+        self.assertEqual(rc, 0, stderr)
+        with open(os.path.join(ablations, "learning_dynamic_5_5.csv")) as file:
+            methods = [row["method"] for row in csv.DictReader(file)]
+        for name in ("kinds_posterior_counting", "kinds_mean_summary", "kinds_most_probable_summary",
+                     "kinds_exact_prediction"):
+            self.assertIn(name, methods)
+        self.assertLess(methods.index("rm_averaged"), methods.index("kinds_posterior_counting"))
 
     def test_murphy_same_seed_same_numbers_on_any_threads(self):
         again = os.path.join(self.tmp.name, "murphy_again")
