@@ -6,7 +6,11 @@ As a library:
     from read_model import load_model, dense_field
     model = load_model("map.dogm")
     model.config["resolution_m"], model.clock_origin_s, model.last_applied_step
-    model.x, model.y, model.p_occ, model.em_stats        # one entry per observed cell
+    model.learner                                         # "kinds" or "cell_em"
+    model.config["kinds"], model.kind_sums                # the kinds of cells
+    model.x, model.y, model.p_occ, model.learner_state    # one entry per observed cell
+    model.kind_posterior    # learner "kinds": p(kind, state) per cell, N x 5 x 2 (else None)
+    model.em_stats          # learner "cell_em": online EM statistics, N x 8 (else None)
     grid, window = dense_field(model, "p_occ")            # 2D, row = y, NaN = unobserved
 
 As a command:
@@ -26,7 +30,12 @@ import zlib
 import numpy as np
 
 MAGIC = b"DOGMODEL"
-FORMAT_VERSION = 2  # the version the C++ writes; version 1 is read too
+FORMAT_VERSION = 3  # the version the C++ writes; versions 1 and 2 are read too
+KIND_COUNT = 5  # core/cell_kinds.h kKindCount
+LEARNER_STATE_SIZE = 10  # core/cell_grid.h kLearnerStateSize: floats of a cell's learner state
+LEARNERS = ("cell_em", "kinds")  # the learner byte's values (TransitionLearner)
+KIND_SUMMARIES = ("geometric_mean", "mean", "most_probable")  # KindSummary
+KIND_COUNTINGS = ("posterior", "most_probable")  # KindCounting
 
 # Version 1 header: magic, version, MapperConfig in its order, time, cell count (197 bytes).
 _HEADER_V1 = struct.Struct(
@@ -52,11 +61,24 @@ _LEARNERS_V2 = struct.Struct(
     "Bdd"           # learn_sensor_model, sensor_model_prior_weight, sensor_model_p_min
     "dddd"          # sensor model sums: trials occ, trials free, hits occ, hits free
 )
+# Version 3 inserts the transition learner and the kinds of cells before the cell count.
+_KINDS_V3 = struct.Struct(
+    "<BB"           # learner (0 cell_em, 1 kinds), kind count
+    + "dd" * KIND_COUNT  # per kind: initial p_occ_given_free, p_free_given_occ
+    + "d" * KIND_COUNT   # initial weights
+    + "dddd"        # transition_prior_weight, weight_prior_cells, switch_probability, forgetting
+    "BB"            # summary, counting
+    + "d" * (KIND_COUNT * 4)  # expected transitions [kind][from][to] (0 = occ, 1 = free)
+    + "d" * KIND_COUNT   # membership
+    + "d"           # cells
+)
 CHECKSUM_SIZE = 4
-HEADER_SIZES = {1: _HEADER_V1.size, 2: _HEADER_V1.size + _LEARNERS_V2.size}
+HEADER_SIZES = {1: _HEADER_V1.size, 2: _HEADER_V1.size + _LEARNERS_V2.size,
+                3: _HEADER_V1.size + _LEARNERS_V2.size + _KINDS_V3.size}
 
-# One observed cell (version 1: 62 bytes, packed; version 2 adds last_hits, last_misses).
-CELL_DTYPE_V1 = np.dtype([
+# One observed cell (version 1: 62 bytes, packed, 8 learner floats; version 2 adds last_hits,
+# last_misses; version 3 holds LEARNER_STATE_SIZE learner floats).
+_CELL_BEFORE_LEARNER = [
     ("x", "<i4"),
     ("y", "<i4"),
     ("p_occ", "<f4"),
@@ -64,46 +86,93 @@ CELL_DTYPE_V1 = np.dtype([
     ("log_odds", "<f4"),
     ("p_occ_given_free", "<f4"),
     ("p_free_given_occ", "<f4"),
-    ("em_stats", "<f4", (8,)),
-    ("observed_steps", "<u2"),
-])
+]
+CELL_DTYPE_V1 = np.dtype(_CELL_BEFORE_LEARNER + [("learner_state", "<f4", (8,)), ("observed_steps", "<u2")])
 CELL_DTYPE_V2 = np.dtype(CELL_DTYPE_V1.descr + [("last_hits", "u1"), ("last_misses", "u1")])
-CELL_DTYPES = {1: CELL_DTYPE_V1, 2: CELL_DTYPE_V2}
-CELL_FIELDS = CELL_DTYPE_V2.names
+CELL_DTYPE_V3 = np.dtype(_CELL_BEFORE_LEARNER + [("learner_state", "<f4", (LEARNER_STATE_SIZE,)),
+                                                 ("observed_steps", "<u2"), ("last_hits", "u1"),
+                                                 ("last_misses", "u1")])
+CELL_DTYPES = {1: CELL_DTYPE_V1, 2: CELL_DTYPE_V2, 3: CELL_DTYPE_V3}
+CELL_FIELDS = CELL_DTYPE_V3.names
+# The learner's state read as what it is: arrays of each cell (None when the model's learner
+# is the other one), with the shape per cell.
+LEARNER_VIEWS = {"em_stats": (8,), "kind_posterior": (KIND_COUNT, 2)}
 
-assert HEADER_SIZES == {1: 197, 2: 276} and CELL_DTYPE_V1.itemsize == 62 and CELL_DTYPE_V2.itemsize == 64, \
-    "the layout of docs/model_format.md"
+assert (HEADER_SIZES == {1: 197, 2: 276, 3: 640} and _KINDS_V3.size == 364 and CELL_DTYPE_V1.itemsize == 62
+        and CELL_DTYPE_V2.itemsize == 64 and CELL_DTYPE_V3.itemsize == 72), "the layout of docs/model_format.md"
 
 
 class ModelFormatError(ValueError):
-    """The bytes are not an intact model file of version 1 or FORMAT_VERSION."""
+    """The bytes are not an intact model file of a version from 1 to FORMAT_VERSION."""
+
+
+def default_kinds():
+    """KindsConfig's defaults (core/cell_kinds.h), which version 1 and 2 files get."""
+    return {
+        "initial_transitions": [{"p_occ_given_free": rate, "p_free_given_occ": rate}
+                                for rate in (1e-4, 2e-3, 0.01, 0.05, 0.25)],
+        "initial_weights": [0.8, 0.05, 0.05, 0.05, 0.05],
+        "transition_prior_weight": 100.0,
+        "weight_prior_cells": 100.0,
+        "switch_probability": 1e-4,
+        "forgetting": 1e-3,
+        "summary": "geometric_mean",
+        "counting": "most_probable",
+    }
 
 
 class Model:
     """A model file's contents.
 
-    config: dict with MapperConfig's fields and names (prior_transitions, online_em and
-        static_clamp are nested dicts).
+    format_version: the file's format version (1 to FORMAT_VERSION).
+    config: dict with MapperConfig's fields and names (prior_transitions, online_em,
+        static_clamp and kinds are nested dicts; kinds' initial_transitions and
+        initial_weights are lists, one entry per kind); config["learner"] is learner.
+    learner: how the cells learn their transitions, "kinds" (kinds of cells, the default)
+        or "cell_em" (each cell's own online EM; every version 1 and 2 file).
+    kind_sums: what the kinds are learned from (CellKinds::Sums): "transitions" (float64,
+        KIND_COUNT x 2 x 2, expected transitions [kind][from][to], 0 = occ, 1 = free),
+        "membership" (float64, KIND_COUNT, sum over cells of p(kind)), "cells" (float);
+        zeros in version 1 and 2 files.
     clock_origin_s: sensor time of the start of step 0, or None (no scan seen).
     last_applied_step: the last step applied to the cells, or None.
+    One entry per observed cell, by row (y) then column (x):
     x, y (int32), p_occ, log_odds, p_occ_given_free, p_free_given_occ (float32),
-    last_step (int32), em_stats (float32, N x 8, S(i, j, m) at (i * 2 + j) * 2 + m, 0 = occ),
-    observed_steps (uint16), last_hits, last_misses (uint8, the evidence of the cell's last
-    step; 0 in version 1 files): one entry per observed cell, by row (y) then column (x).
+    last_step (int32), observed_steps (uint16), last_hits, last_misses (uint8, the evidence
+    of the cell's last step; 0 in version 1 files), and the learner's state:
+    learner_state (float32, N x LEARNER_STATE_SIZE, as stored; the last two 0 in version 1
+        and 2 files), read as what it is by the learner:
+    em_stats (learner "cell_em"; else None): float32, N x 8, online EM statistics S(i, j, m)
+        at (i * 2 + j) * 2 + m, 0 = occ, 1 = free;
+    kind_posterior (learner "kinds"; else None): float32, N x KIND_COUNT x 2, the cell's
+        posterior p(kind = k, state = s), s 0 = occ, 1 = free (kind_posterior.sum(axis=2) is
+        p(kind)).
     sensor_model_stats: dict of the online sensor model's sums (trials_occ, trials_free,
         hits_occ, hits_free; zeros in version 1 files).
     """
 
-    def __init__(self, config, clock_origin_s, last_applied_step, cells, sensor_model_stats):
+    def __init__(self, format_version, config, clock_origin_s, last_applied_step, cells, sensor_model_stats,
+                 kind_sums):
+        self.format_version = format_version
         self.config = config
+        self.learner = config["learner"]
+        self.kind_sums = kind_sums
         self.sensor_model_stats = sensor_model_stats
         self.clock_origin_s = clock_origin_s
         self.last_applied_step = last_applied_step
         for name in CELL_FIELDS:
-            if name in cells.dtype.names:
+            if name == "learner_state":
+                stored = cells[name]
+                state = np.zeros((len(cells), LEARNER_STATE_SIZE), dtype=np.float32)
+                state[:, :stored.shape[1]] = stored
+                self.learner_state = state
+            elif name in cells.dtype.names:
                 setattr(self, name, np.ascontiguousarray(cells[name]))
             else:
-                setattr(self, name, np.zeros(len(cells), dtype=CELL_DTYPE_V2[name]))
+                setattr(self, name, np.zeros(len(cells), dtype=CELL_DTYPE_V3[name]))
+        self.em_stats = np.ascontiguousarray(self.learner_state[:, :8]) if self.learner == "cell_em" else None
+        self.kind_posterior = (self.learner_state.reshape(len(cells), KIND_COUNT, 2) if self.learner == "kinds"
+                               else None)
 
     @property
     def cell_count(self):
@@ -212,6 +281,45 @@ def parse_model(data):
                                     "averaging_start": averaging_start})
         sensor_model_stats = {"trials_occ": trials_occ, "trials_free": trials_free, "hits_occ": hits_occ,
                               "hits_free": hits_free}
+    # Versions 1 and 2 were written by each cell's online EM; their cells hold its statistics.
+    config["learner"] = "cell_em"
+    config["kinds"] = default_kinds()
+    kind_sums = {"transitions": np.zeros((KIND_COUNT, 2, 2)), "membership": np.zeros(KIND_COUNT), "cells": 0.0}
+    if version >= 3:
+        kinds = _KINDS_V3.unpack_from(data, HEADER_SIZES[2] - 8)
+        learner, kind_count = kinds[:2]
+        if learner >= len(LEARNERS):
+            raise ModelFormatError(f"invalid model file: learner is {learner}, must be 0 (cell_em) or 1 (kinds)")
+        if kind_count != KIND_COUNT:
+            raise ModelFormatError(f"model file with {kind_count} kinds of cells, this reader has {KIND_COUNT}")
+        rest = list(kinds[2:])
+        starts, rest = rest[:2 * KIND_COUNT], rest[2 * KIND_COUNT:]
+        weights, rest = rest[:KIND_COUNT], rest[KIND_COUNT:]
+        (transition_prior_weight, weight_prior_cells, switch_probability, forgetting, summary_index,
+         counting_index), rest = rest[:6], rest[6:]
+        if summary_index >= len(KIND_SUMMARIES):
+            raise ModelFormatError(f"invalid model file: kinds.summary is {summary_index}, must be 0 (geometric_mean), "
+                                   "1 (mean) or 2 (most_probable)")
+        if counting_index >= len(KIND_COUNTINGS):
+            raise ModelFormatError(f"invalid model file: kinds.counting is {counting_index}, must be 0 (posterior) or "
+                                   "1 (most_probable)")
+        sums = np.array(rest, dtype=np.float64)
+        if not (np.all(np.isfinite(sums)) and np.all(sums >= 0.0)):
+            raise ModelFormatError("invalid kinds of cells in model file: kinds: saved sums must be finite and >= 0")
+        config["learner"] = LEARNERS[learner]
+        config["kinds"] = {
+            "initial_transitions": [{"p_occ_given_free": starts[2 * k], "p_free_given_occ": starts[2 * k + 1]}
+                                    for k in range(KIND_COUNT)],
+            "initial_weights": weights,
+            "transition_prior_weight": transition_prior_weight,
+            "weight_prior_cells": weight_prior_cells,
+            "switch_probability": switch_probability,
+            "forgetting": forgetting,
+            "summary": KIND_SUMMARIES[summary_index],
+            "counting": KIND_COUNTINGS[counting_index],
+        }
+        kind_sums = {"transitions": sums[:4 * KIND_COUNT].reshape(KIND_COUNT, 2, 2),
+                     "membership": sums[4 * KIND_COUNT:5 * KIND_COUNT], "cells": float(sums[-1])}
     has_origin = _flag(has_origin, "clock origin present")
     has_last = _flag(has_last, "last applied step present")
     if not (resolution_m > 0.0 and time_step_s > 0.0):
@@ -221,7 +329,8 @@ def parse_model(data):
     if has_last and not has_origin:
         raise ModelFormatError("invalid time in model file: a last applied step needs a clock origin")
     cells = np.frombuffer(data, dtype=cell_dtype, count=count, offset=header_size)
-    return Model(config, origin_s if has_origin else None, last_step if has_last else None, cells, sensor_model_stats)
+    return Model(version, config, origin_s if has_origin else None, last_step if has_last else None, cells,
+                 sensor_model_stats, kind_sums)
 
 
 def load_model(path):
@@ -238,18 +347,26 @@ def load_model(path):
 def dense_field(model, field, component=None):
     """A field over the bounding box of the observed cells as a 2D float64 array, row = y -
     min_y, column = x - min_x (row 0 is the bottom row, as in nav_msgs/OccupancyGrid), NaN
-    where no cell was observed. `field` is a cell field name; for "em_stats" give
-    `component` (0..7). Returns (array, window) with window = dict(min_x, min_y, width,
-    height, resolution_m, origin_x_m, origin_y_m) (world position of the array's
-    lower-left corner); (empty 0 x 0 array, window with width = height = 0) for a model
-    without cells."""
-    if field not in CELL_FIELDS or field in ("x", "y"):
-        raise KeyError(f"no cell field {field!r}; fields: {', '.join(CELL_FIELDS[2:])}")
+    where no cell was observed. `field` is a cell field name or a view of the learner's
+    state; give `component` for those with several values per cell: "learner_state"
+    0..9, "em_stats" 0..7, "kind_posterior" (kind, state). Returns (array, window) with
+    window = dict(min_x, min_y, width, height, resolution_m, origin_x_m, origin_y_m) (world
+    position of the array's lower-left corner); (empty 0 x 0 array, window with width =
+    height = 0) for a model without cells."""
+    fields = [name for name in CELL_FIELDS if name not in ("x", "y")] + list(LEARNER_VIEWS)
+    if field not in fields:
+        raise KeyError(f"no cell field {field!r}; fields: {', '.join(fields)}")
     values = getattr(model, field)
-    if field == "em_stats":
-        if component is None or not 0 <= component < 8:
-            raise ValueError("em_stats needs component 0..7")
-        values = values[:, component]
+    if values is None:
+        raise ValueError(f"a model of learner {model.learner} has no {field}")
+    shape = values.shape[1:]
+    if shape:
+        index = component if isinstance(component, tuple) else (component,)
+        valid = all(isinstance(i, (int, np.integer)) and 0 <= i < n for i, n in zip(index, shape))
+        if len(index) != len(shape) or not valid:
+            wanted = " x ".join(f"0..{n - 1}" for n in shape)
+            raise ValueError(f"{field} needs component {wanted}")
+        values = values[(slice(None),) + index]
     resolution = model.config["resolution_m"]
     bounds = model.bounds()
     if bounds is None:
@@ -298,6 +415,11 @@ def summary(model):
     lines.append(f"learn transitions:  {'yes' if config['learn_transitions'] else 'no'} "
                  f"(prior p_occ_given_free {prior['p_occ_given_free']}, "
                  f"p_free_given_occ {prior['p_free_given_occ']})")
+    lines.append(f"learner:            {model.learner}")
+    if model.learner == "kinds":
+        cells = model.kind_sums["cells"]
+        shares = model.kind_sums["membership"] / cells if cells > 0 else np.zeros(KIND_COUNT)
+        lines.append("kinds' shares:      " + " ".join(f"{share:.3g}" for share in shares) + f" (of {cells:.0f} cells)")
     if model.cell_count > 0:
         p_of = model.p_occ_given_free.astype(np.float64)
         p_fo = model.p_free_given_occ.astype(np.float64)
@@ -317,7 +439,7 @@ def main(argv=None):
     except (OSError, ModelFormatError) as error:
         print(f"read_model.py: {error}", file=sys.stderr)
         return 1
-    print(f"model file:         {args.model} (format version {FORMAT_VERSION})")
+    print(f"model file:         {args.model} (format version {model.format_version})")
     print(summary(model))
     return 0
 

@@ -376,10 +376,14 @@ std::unique_ptr<Mapper> deserializeChecked(const std::string& bytes) {
     config.kinds.switch_probability = reader.f64();
     config.kinds.forgetting = reader.f64();
     const std::uint8_t summary = reader.u8();
+    if (summary > 2) {
+      throw std::runtime_error("invalid model file: kinds.summary is " + std::to_string(summary) +
+                               ", must be 0 (geometric_mean), 1 (mean) or 2 (most_probable)");
+    }
     const std::uint8_t counting = reader.u8();
-    if (summary > 2 || counting > 1) {
-      throw std::runtime_error("invalid model file: kinds summary " + std::to_string(summary) + " or counting " +
-                               std::to_string(counting) + " out of range");
+    if (counting > 1) {
+      throw std::runtime_error("invalid model file: kinds.counting is " + std::to_string(counting) +
+                               ", must be 0 (posterior) or 1 (most_probable)");
     }
     config.kinds.summary = static_cast<KindSummary>(summary);
     config.kinds.counting = static_cast<KindCounting>(counting);

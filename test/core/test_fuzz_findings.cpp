@@ -26,13 +26,13 @@ namespace dog = dynamic_occupancy_grid::core;
 
 namespace {
 
-// docs/model_format.md: offsets in the version 2 header, and of the cell records.
+// docs/model_format.md: offsets in the version 3 header, its size, and the cell records' size.
 constexpr std::size_t kFixedBoundsOffset = 146;
 constexpr std::size_t kWidthOffset = 147;
 constexpr std::size_t kHeightOffset = 155;
 constexpr std::size_t kMaxMapSizeOffset = 163;
-constexpr std::size_t kHeaderSize = 276;
-constexpr std::size_t kCellSize = 64;
+constexpr std::size_t kHeaderSize = 640;
+constexpr std::size_t kCellSize = 72;
 
 void putDouble(std::string& bytes, std::size_t offset, double value) {
   std::uint64_t bits;

@@ -1,8 +1,10 @@
 // Tests of the model file (core/model_io.h, docs/model_format.md): a saved and loaded
 // Mapper is the same Mapper (every cell bit for bit, the configuration field by field, the
-// time), and it goes on mapping exactly as the original does; the file's bytes are the ones
-// documented; every damaged file (any truncation, any single flipped byte, other versions,
-// bad values, trailing bytes, absurd counts) is refused with a clear std::runtime_error; the
+// time, the kinds of cells' sums), and it goes on mapping exactly as the original does, with
+// either transition learner; the file's bytes are the ones documented; files of versions 1
+// and 2 (built here from version 3 bytes) read as maps of each cell's online EM; every
+// damaged file (any truncation, any single flipped byte, other versions, bad values, bad
+// kinds, trailing bytes, absurd counts) is refused with a clear std::runtime_error; the
 // file is replaced atomically and errors name it; what is not a regular file (a FIFO, a
 // device, a directory) is refused before anything is read or replaced, and a file is read
 // no further than its header promises.
@@ -64,16 +66,38 @@ constexpr std::size_t kHasOriginOffset = 171;
 constexpr std::size_t kOriginOffset = 172;
 constexpr std::size_t kHasLastStepOffset = 180;
 constexpr std::size_t kLastStepOffset = 181;
-// Version 2's learners' block follows the time, then the cell count.
+// Version 2's learners' block follows the time.
 constexpr std::size_t kLearnPriorOffset = 189;
 constexpr std::size_t kScheduleOffset = 198;
 constexpr std::size_t kLearnSensorOffset = 219;
 constexpr std::size_t kSensorStatsOffset = 236;
-constexpr std::size_t kCountOffset = 268;
-constexpr std::size_t kCellsOffset = 276;
-constexpr std::size_t kCellSize = 64;
+// Version 3's block follows: the transition learner and the kinds of cells; then the cell count.
+constexpr std::size_t kLearnerOffset = 268;
+constexpr std::size_t kKindCountOffset = 269;
+constexpr std::size_t kKindInitialTransitionsOffset = 270;  // per kind p_occ_given_free, p_free_given_occ
+constexpr std::size_t kKindInitialWeightsOffset = 350;
+constexpr std::size_t kKindTransitionPriorWeightOffset = 390;
+constexpr std::size_t kKindWeightPriorCellsOffset = 398;
+constexpr std::size_t kKindSwitchProbabilityOffset = 406;
+constexpr std::size_t kKindForgettingOffset = 414;
+constexpr std::size_t kKindSummaryOffset = 422;
+constexpr std::size_t kKindCountingOffset = 423;
+constexpr std::size_t kKindTransitionSumsOffset = 424;  // [kind][from][to]
+constexpr std::size_t kKindMembershipOffset = 584;
+constexpr std::size_t kKindCellsOffset = 624;
+constexpr std::size_t kCountOffset = 632;
+constexpr std::size_t kCellsOffset = 640;
+constexpr std::size_t kCellSize = 72;
+// In a cell record: the learner's 10 floats, then observed_steps, last_hits, last_misses.
+constexpr std::size_t kCellLearnerOffset = 28;
+constexpr std::size_t kCellObservedStepsOffset = 68;
+// Version 2: the cell count right after the learners' block, 64-byte cells (8 learner floats).
+constexpr std::size_t kCountOffsetV2 = 268;
+constexpr std::size_t kCellsOffsetV2 = 276;
+constexpr std::size_t kCellSizeV2 = 64;
+constexpr std::size_t kLearnerFloatsV2 = 8;
 // Version 1: no learners' block, 62-byte cells.
-constexpr std::size_t kLearnersSizeV2 = kCountOffset - kLearnPriorOffset;
+constexpr std::size_t kLearnersSizeV2 = kCountOffsetV2 - kLearnPriorOffset;
 constexpr std::size_t kCellSizeV1 = 62;
 
 // ---- bytes ------------------------------------------------------------------------------
@@ -244,6 +268,28 @@ dog::MapperConfig fixedStaticConfig() {
   return config;
 }
 
+// A map of each cell's own online EM, as versions 1 and 2 were written.
+dog::MapperConfig cellEmConfig() {
+  dog::MapperConfig config = growingLearningConfig();
+  config.learner = dog::TransitionLearner::kCellEm;
+  return config;
+}
+
+// Kinds of cells configured with a value of its own in every field, none the default: a
+// field read into another's place, or not read at all, shows.
+dog::KindsConfig distinctKinds() {
+  dog::KindsConfig kinds;
+  kinds.initial_transitions = {{{2e-4, 3e-4}, {3e-3, 1e-3}, {0.02, 0.015}, {0.06, 0.04}, {0.2, 0.3}}};
+  kinds.initial_weights = {{0.7, 0.1, 0.08, 0.07, 0.05}};
+  kinds.transition_prior_weight = 20.0;
+  kinds.weight_prior_cells = 50.0;
+  kinds.switch_probability = 2e-3;
+  kinds.forgetting = 5e-3;
+  kinds.summary = dog::KindSummary::kMean;
+  kinds.counting = dog::KindCounting::kPosterior;
+  return kinds;
+}
+
 // ---- comparing mappers ------------------------------------------------------------------
 
 std::map<XY, dog::CellState> cellsOf(const dog::Mapper& mapper) {
@@ -318,6 +364,50 @@ void expectSameConfig(const dog::MapperConfig& a, const dog::MapperConfig& b) {
   EXPECT_TRUE(sameBits(a.width_m, b.width_m));
   EXPECT_TRUE(sameBits(a.height_m, b.height_m));
   EXPECT_TRUE(sameBits(a.max_map_size_m, b.max_map_size_m));
+  EXPECT_EQ(a.learn_prior, b.learn_prior);
+  EXPECT_TRUE(sameBits(a.prior_population_weight, b.prior_population_weight));
+  EXPECT_EQ(a.online_em.schedule, b.online_em.schedule);
+  EXPECT_TRUE(sameBits(a.online_em.step_size_exponent, b.online_em.step_size_exponent));
+  EXPECT_TRUE(sameBits(a.online_em.step_size_offset, b.online_em.step_size_offset));
+  EXPECT_EQ(a.online_em.averaging_start, b.online_em.averaging_start);
+  EXPECT_EQ(a.learn_sensor_model, b.learn_sensor_model);
+  EXPECT_TRUE(sameBits(a.sensor_model_prior_weight, b.sensor_model_prior_weight));
+  EXPECT_TRUE(sameBits(a.sensor_model_p_min, b.sensor_model_p_min));
+  EXPECT_EQ(a.learner, b.learner);
+  for (int k = 0; k < dog::kKindCount; ++k) {
+    const dog::TransitionParams& start_a = a.kinds.initial_transitions[k];
+    const dog::TransitionParams& start_b = b.kinds.initial_transitions[k];
+    EXPECT_TRUE(sameBits(start_a.p_occ_given_free, start_b.p_occ_given_free)) << "kind " << k;
+    EXPECT_TRUE(sameBits(start_a.p_free_given_occ, start_b.p_free_given_occ)) << "kind " << k;
+    EXPECT_TRUE(sameBits(a.kinds.initial_weights[k], b.kinds.initial_weights[k])) << "kind " << k;
+  }
+  EXPECT_TRUE(sameBits(a.kinds.transition_prior_weight, b.kinds.transition_prior_weight));
+  EXPECT_TRUE(sameBits(a.kinds.weight_prior_cells, b.kinds.weight_prior_cells));
+  EXPECT_TRUE(sameBits(a.kinds.switch_probability, b.kinds.switch_probability));
+  EXPECT_TRUE(sameBits(a.kinds.forgetting, b.kinds.forgetting));
+  EXPECT_EQ(a.kinds.summary, b.kinds.summary);
+  EXPECT_EQ(a.kinds.counting, b.kinds.counting);
+}
+
+// The kinds' sums bit for bit, and the transitions and shares they give.
+void expectSameKinds(const dog::Mapper& a, const dog::Mapper& b) {
+  const dog::CellKinds::Sums& sums_a = a.kinds().sums();
+  const dog::CellKinds::Sums& sums_b = b.kinds().sums();
+  for (int k = 0; k < dog::kKindCount; ++k) {
+    for (int from = 0; from < 2; ++from) {
+      for (int to = 0; to < 2; ++to) {
+        EXPECT_TRUE(sameBits(sums_a.transitions.n[k][from][to], sums_b.transitions.n[k][from][to]))
+            << "kind " << k << " transitions " << from << " -> " << to;
+      }
+    }
+    EXPECT_TRUE(sameBits(sums_a.membership[k], sums_b.membership[k])) << "kind " << k;
+    EXPECT_TRUE(sameBits(a.kinds().transitions(k).p_occ_given_free, b.kinds().transitions(k).p_occ_given_free))
+        << "kind " << k;
+    EXPECT_TRUE(sameBits(a.kinds().transitions(k).p_free_given_occ, b.kinds().transitions(k).p_free_given_occ))
+        << "kind " << k;
+    EXPECT_TRUE(sameBits(a.kinds().weight(k), b.kinds().weight(k))) << "kind " << k;
+  }
+  EXPECT_TRUE(sameBits(sums_a.cells, sums_b.cells));
 }
 
 void expectSameTime(const dog::Mapper& a, const dog::Mapper& b) {
@@ -339,6 +429,7 @@ std::unique_ptr<dog::Mapper> roundTrip(const dog::Mapper& original) {
   expectSameConfig(original.config(), loaded->config());
   expectSameTime(original, *loaded);
   expectSameCells(original, *loaded);
+  expectSameKinds(original, *loaded);
   EXPECT_FALSE(loaded->gatheringStep().has_value());
   EXPECT_TRUE(dog::serializeModel(*loaded) == bytes) << "save -> load -> save is not byte-identical";
   return loaded;
@@ -353,6 +444,7 @@ void expectSameFuture(dog::Mapper& original, dog::Mapper& loaded, int first_step
   loaded.finishStep();
   expectSameTime(original, loaded);
   expectSameCells(original, loaded);
+  expectSameKinds(original, loaded);
   EXPECT_TRUE(dog::serializeModel(original) == dog::serializeModel(loaded)) << "the continued maps differ";
 }
 
@@ -577,15 +669,22 @@ TEST(ModelIoRoundTrip, LargeMapWithNegativeCoordinatesAcrossManyTiles) {
 // ---- the bytes are the documented ones -----------------------------------------------------
 
 TEST(ModelIoFormat, BytesAreAsDocumented) {
-  const dog::MapperConfig config = growingLearningConfig();
+  dog::MapperConfig config = growingLearningConfig();
+  config.kinds = distinctKinds();
   dog::Mapper mapper(config);
-  runSteps(mapper, 0, 4, 20.0);
+  runSteps(mapper, 0, 6, 20.0);
   mapper.finishStep();
+  // Sums that are not zero, so that each one is found at its own offset.
+  const dog::CellKinds::Sums& sums = mapper.kinds().sums();
+  ASSERT_GT(sums.cells, 0.0);
+  ASSERT_GT(sums.transitions.n[0][1][1], 0.0);
   const std::string bytes = dog::serializeModel(mapper);
   const auto cells = cellsOf(mapper);
   ASSERT_EQ(bytes.size(), kCellsOffset + cells.size() * kCellSize + 4);
+  ASSERT_EQ(bytes.size(), 644 + 72 * cells.size());
   EXPECT_EQ(bytes.substr(0, 8), "DOGMODEL");
-  EXPECT_EQ(getLE<std::uint32_t>(bytes, kVersionOffset), dog::kModelFormatVersion);
+  EXPECT_EQ(getLE<std::uint32_t>(bytes, kVersionOffset), 3U);
+  EXPECT_EQ(dog::kModelFormatVersion, 3U);
   EXPECT_EQ(getLE<double>(bytes, kResolutionOffset), config.resolution_m);
   EXPECT_EQ(getLE<double>(bytes, kPHitGivenOccOffset), config.p_hit_given_occ);
   EXPECT_EQ(getLE<std::uint8_t>(bytes, kLearnOffset), 1);
@@ -598,26 +697,8 @@ TEST(ModelIoFormat, BytesAreAsDocumented) {
   EXPECT_EQ(getLE<std::uint8_t>(bytes, kHasOriginOffset), 1);
   EXPECT_EQ(getLE<double>(bytes, kOriginOffset), 20.0 + 0.1 * config.time_step_s);  // the first stamp
   EXPECT_EQ(getLE<std::uint8_t>(bytes, kHasLastStepOffset), 1);
-  EXPECT_EQ(getLE<std::int64_t>(bytes, kLastStepOffset), 3);
+  EXPECT_EQ(getLE<std::int64_t>(bytes, kLastStepOffset), 4);  // step 5 had no scans
   EXPECT_EQ(getLE<std::uint64_t>(bytes, kCountOffset), cells.size());
-  // The first record is the cell with the smallest (y, x).
-  XY first = cells.begin()->first;
-  for (const auto& kv : cells) {
-    if (std::make_pair(kv.first.second, kv.first.first) < std::make_pair(first.second, first.first)) first = kv.first;
-  }
-  const dog::CellState& c = cells.at(first);
-  const std::size_t r = kCellsOffset;
-  EXPECT_EQ(getLE<std::int32_t>(bytes, r + 0), first.first);
-  EXPECT_EQ(getLE<std::int32_t>(bytes, r + 4), first.second);
-  EXPECT_TRUE(sameBits(getLE<float>(bytes, r + 8), c.p_occ));
-  EXPECT_EQ(getLE<std::int32_t>(bytes, r + 12), c.last_step);
-  EXPECT_TRUE(sameBits(getLE<float>(bytes, r + 16), c.log_odds));
-  EXPECT_TRUE(sameBits(getLE<float>(bytes, r + 20), c.p_occ_given_free));
-  EXPECT_TRUE(sameBits(getLE<float>(bytes, r + 24), c.p_free_given_occ));
-  for (std::size_t k = 0; k < 8; ++k) EXPECT_TRUE(sameBits(getLE<float>(bytes, r + 28 + 4 * k), c.em_stats[k]));
-  EXPECT_EQ(getLE<std::uint16_t>(bytes, r + 60), c.observed_steps);
-  EXPECT_EQ(getLE<std::uint8_t>(bytes, r + 62), c.last_hits);
-  EXPECT_EQ(getLE<std::uint8_t>(bytes, r + 63), c.last_misses);
   // Version 2's learners' block.
   EXPECT_EQ(getLE<std::uint8_t>(bytes, kLearnPriorOffset), 1);
   EXPECT_EQ(getLE<double>(bytes, kLearnPriorOffset + 1), config.prior_population_weight);
@@ -633,20 +714,113 @@ TEST(ModelIoFormat, BytesAreAsDocumented) {
   EXPECT_EQ(getLE<double>(bytes, kSensorStatsOffset + 8), stats.trials[1]);
   EXPECT_EQ(getLE<double>(bytes, kSensorStatsOffset + 16), stats.hits[0]);
   EXPECT_EQ(getLE<double>(bytes, kSensorStatsOffset + 24), stats.hits[1]);
+  // Version 3's block: the learner, the kinds' configuration, their sums.
+  EXPECT_EQ(getLE<std::uint8_t>(bytes, kLearnerOffset), 1);  // kinds
+  EXPECT_EQ(getLE<std::uint8_t>(bytes, kKindCountOffset), 5);
+  for (int k = 0; k < dog::kKindCount; ++k) {
+    const std::size_t kind = static_cast<std::size_t>(k);
+    EXPECT_EQ(getLE<double>(bytes, kKindInitialTransitionsOffset + 16 * kind),
+              config.kinds.initial_transitions[kind].p_occ_given_free);
+    EXPECT_EQ(getLE<double>(bytes, kKindInitialTransitionsOffset + 16 * kind + 8),
+              config.kinds.initial_transitions[kind].p_free_given_occ);
+    EXPECT_EQ(getLE<double>(bytes, kKindInitialWeightsOffset + 8 * kind), config.kinds.initial_weights[kind]);
+    for (std::size_t from = 0; from < 2; ++from) {
+      for (std::size_t to = 0; to < 2; ++to) {
+        EXPECT_EQ(getLE<double>(bytes, kKindTransitionSumsOffset + 32 * kind + 16 * from + 8 * to),
+                  sums.transitions.n[k][from][to])
+            << "kind " << k << " " << from << " -> " << to;
+      }
+    }
+    EXPECT_EQ(getLE<double>(bytes, kKindMembershipOffset + 8 * kind), sums.membership[kind]);
+  }
+  EXPECT_EQ(getLE<double>(bytes, kKindTransitionPriorWeightOffset), config.kinds.transition_prior_weight);
+  EXPECT_EQ(getLE<double>(bytes, kKindWeightPriorCellsOffset), config.kinds.weight_prior_cells);
+  EXPECT_EQ(getLE<double>(bytes, kKindSwitchProbabilityOffset), config.kinds.switch_probability);
+  EXPECT_EQ(getLE<double>(bytes, kKindForgettingOffset), config.kinds.forgetting);
+  EXPECT_EQ(getLE<std::uint8_t>(bytes, kKindSummaryOffset), 1);   // mean
+  EXPECT_EQ(getLE<std::uint8_t>(bytes, kKindCountingOffset), 0);  // posterior
+  EXPECT_EQ(getLE<double>(bytes, kKindCellsOffset), sums.cells);
+  // The first record is the cell with the smallest (y, x).
+  XY first = cells.begin()->first;
+  for (const auto& kv : cells) {
+    if (std::make_pair(kv.first.second, kv.first.first) < std::make_pair(first.second, first.first)) first = kv.first;
+  }
+  const dog::CellState& c = cells.at(first);
+  const std::size_t r = kCellsOffset;
+  EXPECT_EQ(getLE<std::int32_t>(bytes, r + 0), first.first);
+  EXPECT_EQ(getLE<std::int32_t>(bytes, r + 4), first.second);
+  EXPECT_TRUE(sameBits(getLE<float>(bytes, r + 8), c.p_occ));
+  EXPECT_EQ(getLE<std::int32_t>(bytes, r + 12), c.last_step);
+  EXPECT_TRUE(sameBits(getLE<float>(bytes, r + 16), c.log_odds));
+  EXPECT_TRUE(sameBits(getLE<float>(bytes, r + 20), c.p_occ_given_free));
+  EXPECT_TRUE(sameBits(getLE<float>(bytes, r + 24), c.p_free_given_occ));
+  // The kind posteriors p(kind, state) at 2 * kind + state: a distribution.
+  ASSERT_EQ(c.em_stats.size(), 10U);
+  double total = 0.0;
+  for (std::size_t k = 0; k < 10; ++k) {
+    EXPECT_TRUE(sameBits(getLE<float>(bytes, r + 28 + 4 * k), c.em_stats[k])) << k;
+    total += c.em_stats[k];
+  }
+  EXPECT_NEAR(total, 1.0, 1e-5);
+  EXPECT_EQ(getLE<std::uint16_t>(bytes, r + 68), c.observed_steps);
+  EXPECT_EQ(getLE<std::uint8_t>(bytes, r + 70), c.last_hits);
+  EXPECT_EQ(getLE<std::uint8_t>(bytes, r + 71), c.last_misses);
   // The checksum is zlib's CRC-32 of everything before it.
   EXPECT_EQ(referenceCrc32("123456789", 9), 0xCBF43926U);  // the reference's check value
   EXPECT_EQ(getLE<std::uint32_t>(bytes, bytes.size() - 4), referenceCrc32(bytes, bytes.size() - 4));
 }
 
+TEST(ModelIoFormat, LearnerAndKindChoicesAreTheDocumentedNumbers) {
+  using Learner = dog::TransitionLearner;
+  for (const auto& [learner, learner_byte] : {std::pair{Learner::kCellEm, 0}, std::pair{Learner::kKinds, 1}}) {
+    for (const auto& [summary, summary_byte] :
+         {std::pair{dog::KindSummary::kGeometricMean, 0}, std::pair{dog::KindSummary::kMean, 1},
+          std::pair{dog::KindSummary::kMostProbable, 2}}) {
+      for (const auto& [counting, counting_byte] :
+           {std::pair{dog::KindCounting::kPosterior, 0}, std::pair{dog::KindCounting::kMostProbable, 1}}) {
+        dog::MapperConfig config = fixedStaticConfig();
+        config.learner = learner;
+        config.kinds.summary = summary;
+        config.kinds.counting = counting;
+        const dog::Mapper mapper(config);
+        const std::string bytes = dog::serializeModel(mapper);
+        EXPECT_EQ(getLE<std::uint8_t>(bytes, kLearnerOffset), learner_byte);
+        EXPECT_EQ(getLE<std::uint8_t>(bytes, kKindSummaryOffset), summary_byte);
+        EXPECT_EQ(getLE<std::uint8_t>(bytes, kKindCountingOffset), counting_byte);
+        const std::unique_ptr<dog::Mapper> loaded = roundTrip(mapper);
+        ASSERT_NE(loaded, nullptr);
+        EXPECT_EQ(loaded->config().learner, learner);
+        EXPECT_EQ(loaded->config().kinds.summary, summary);
+        EXPECT_EQ(loaded->config().kinds.counting, counting);
+      }
+    }
+  }
+}
+
 namespace {
+
+// A version 3 model as version 2 wrote it: without the learner and kinds block, and 8
+// learner floats per cell (only a model of learner cell_em is one version 2 could write).
+std::string asVersion2(const std::string& v3) {
+  std::string v2 = v3.substr(0, kLearnerOffset) + v3.substr(kCountOffset, 8);
+  putLE<std::uint32_t>(v2, kVersionOffset, 2);
+  const std::uint64_t count = getLE<std::uint64_t>(v3, kCountOffset);
+  for (std::uint64_t i = 0; i < count; ++i) {
+    const std::string cell = v3.substr(kCellsOffset + i * kCellSize, kCellSize);
+    v2 += cell.substr(0, kCellLearnerOffset + 4 * kLearnerFloatsV2) + cell.substr(kCellObservedStepsOffset);
+  }
+  v2 += std::string(4, '\0');
+  fixChecksum(v2);
+  return v2;
+}
 
 // A version 2 model as version 1 wrote it: without the learners' block and the cells' last
 // evidence.
 std::string asVersion1(const std::string& v2) {
-  std::string v1 = v2.substr(0, kLearnPriorOffset) + v2.substr(kCountOffset, 8);
+  std::string v1 = v2.substr(0, kLearnPriorOffset) + v2.substr(kCountOffsetV2, 8);
   putLE<std::uint32_t>(v1, kVersionOffset, 1);
-  const std::uint64_t count = getLE<std::uint64_t>(v2, kCountOffset);
-  for (std::uint64_t i = 0; i < count; ++i) v1 += v2.substr(kCellsOffset + i * kCellSize, kCellSizeV1);
+  const std::uint64_t count = getLE<std::uint64_t>(v2, kCountOffsetV2);
+  for (std::uint64_t i = 0; i < count; ++i) v1 += v2.substr(kCellsOffsetV2 + i * kCellSizeV2, kCellSizeV1);
   v1 += std::string(4, '\0');
   fixChecksum(v1);
   return v1;
@@ -654,23 +828,80 @@ std::string asVersion1(const std::string& v2) {
 
 }  // namespace
 
+TEST(ModelIoFormat, Version2FilesAreReadAsEachCellsOnlineEm) {
+  dog::Mapper original(cellEmConfig());
+  const double origin_s = 20.0;
+  runSteps(original, 0, 12, origin_s);
+  original.finishStep();
+  const std::string v3 = dog::serializeModel(original);
+  const std::uint64_t count = getLE<std::uint64_t>(v3, kCountOffset);
+  const std::string v2 = asVersion2(v3);
+  ASSERT_EQ(v2.size(), kCellsOffsetV2 + count * kCellSizeV2 + 4);
+  std::unique_ptr<dog::Mapper> loaded = dog::deserializeModel(v2);
+  ASSERT_NE(loaded, nullptr);
+  EXPECT_EQ(loaded->config().learner, dog::TransitionLearner::kCellEm);
+  // Everything else version 2 has comes back; the kinds take KindsConfig's defaults and no sums.
+  expectSameConfig(original.config(), loaded->config());
+  expectSameTime(original, *loaded);
+  EXPECT_EQ(loaded->kinds().sums().cells, 0.0);
+  for (int state = 0; state < 2; ++state) {
+    EXPECT_EQ(loaded->sensorModelStats().trials[state], original.sensorModelStats().trials[state]);
+    EXPECT_EQ(loaded->sensorModelStats().hits[state], original.sensorModelStats().hits[state]);
+  }
+  // Each cell's 8 EM statistics come back, the learner's two further floats are 0.
+  const auto original_cells = cellsOf(original);
+  const auto loaded_cells = cellsOf(*loaded);
+  ASSERT_EQ(original_cells.size(), loaded_cells.size());
+  bool learned = false;
+  for (const auto& [xy, cell] : original_cells) {
+    const dog::CellState& back = loaded_cells.at(xy);
+    for (std::size_t k = 0; k < kLearnerFloatsV2; ++k) {
+      ASSERT_TRUE(sameBits(back.em_stats[k], cell.em_stats[k])) << k;
+      learned = learned || cell.em_stats[k] != 0.0f;
+    }
+    ASSERT_EQ(back.em_stats[8], 0.0f);
+    ASSERT_EQ(back.em_stats[9], 0.0f);
+    ASSERT_TRUE(sameBits(back.p_occ, cell.p_occ));
+    ASSERT_EQ(back.observed_steps, cell.observed_steps);
+    ASSERT_EQ(back.last_hits, cell.last_hits);
+    ASSERT_EQ(back.last_misses, cell.last_misses);
+  }
+  EXPECT_TRUE(learned);
+  // Each cell's online EM keeps none of its state in the two further floats: the map read
+  // from version 2 is the map, saved again it is the version 3 file, and it maps on the same.
+  expectSameCells(original, *loaded);
+  EXPECT_TRUE(dog::serializeModel(*loaded) == v3);
+  expectSameFuture(original, *loaded, 12, 10, origin_s);
+  // Damaged version 2 files are refused like version 3 ones.
+  EXPECT_TRUE(contains(errorOf(v2.substr(0, v2.size() - 1)), "truncated")) << errorOf(v2.substr(0, v2.size() - 1));
+  std::string flipped = v2;
+  flipped[kCellsOffsetV2 + 9] ^= 0x10;
+  EXPECT_TRUE(contains(errorOf(flipped), "checksum")) << errorOf(flipped);
+}
+
 TEST(ModelIoFormat, Version1FilesAreReadWithTheDefaultsOfWhatTheyLack) {
-  dog::MapperConfig config = growingLearningConfig();
+  const dog::MapperConfig config = cellEmConfig();
   dog::Mapper mapper(config);
   runSteps(mapper, 0, 6, 20.0);
   mapper.finishStep();
-  const std::string v2 = dog::serializeModel(mapper);
+  const std::string v3 = dog::serializeModel(mapper);
+  const std::uint64_t count = getLE<std::uint64_t>(v3, kCountOffset);
+  const std::string v2 = asVersion2(v3);
   const std::string v1 = asVersion1(v2);
-  ASSERT_EQ(v1.size(), v2.size() - kLearnersSizeV2 - 2 * getLE<std::uint64_t>(v2, kCountOffset));
+  ASSERT_EQ(v1.size(), v2.size() - kLearnersSizeV2 - (kCellSizeV2 - kCellSizeV1) * count);
   const std::unique_ptr<dog::Mapper> loaded = dog::deserializeModel(v1);
   ASSERT_NE(loaded, nullptr);
-  // What version 1 has comes back; what it lacks takes MapperConfig's defaults.
+  // What version 1 has comes back; what it lacks takes MapperConfig's defaults, but the
+  // learner: its cells hold each cell's online EM statistics.
   const dog::MapperConfig defaults;
   EXPECT_EQ(loaded->config().p_hit_given_occ, config.p_hit_given_occ);
   EXPECT_EQ(loaded->config().online_em.prior_weight, config.online_em.prior_weight);
   EXPECT_EQ(loaded->config().learn_prior, defaults.learn_prior);
   EXPECT_EQ(loaded->config().learn_sensor_model, defaults.learn_sensor_model);
   EXPECT_EQ(loaded->config().online_em.schedule, defaults.online_em.schedule);
+  EXPECT_NE(defaults.learner, dog::TransitionLearner::kCellEm);
+  EXPECT_EQ(loaded->config().learner, dog::TransitionLearner::kCellEm);
+  EXPECT_EQ(loaded->kinds().sums().cells, 0.0);
   EXPECT_EQ(loaded->sensorModelStats().trials[0], 0.0);
   EXPECT_EQ(loaded->sensor().pHitGivenOcc(), config.p_hit_given_occ);
   const auto original_cells = cellsOf(mapper);
@@ -681,12 +912,17 @@ TEST(ModelIoFormat, Version1FilesAreReadWithTheDefaultsOfWhatTheyLack) {
     EXPECT_TRUE(sameBits(back.p_occ, cell.p_occ));
     EXPECT_EQ(back.last_step, cell.last_step);
     EXPECT_EQ(back.observed_steps, cell.observed_steps);
+    for (std::size_t k = 0; k < kLearnerFloatsV2; ++k) EXPECT_TRUE(sameBits(back.em_stats[k], cell.em_stats[k])) << k;
+    EXPECT_EQ(back.em_stats[8], 0.0f);
+    EXPECT_EQ(back.em_stats[9], 0.0f);
     EXPECT_EQ(back.last_hits, 0);
     EXPECT_EQ(back.last_misses, 0);
   }
-  // Saved again, it is a version 2 file.
-  EXPECT_EQ(getLE<std::uint32_t>(dog::serializeModel(*loaded), kVersionOffset), 2U);
-  // Damaged version 1 files are refused like version 2 ones.
+  // Saved again, it is a version 3 file of learner cell_em.
+  const std::string saved = dog::serializeModel(*loaded);
+  EXPECT_EQ(getLE<std::uint32_t>(saved, kVersionOffset), 3U);
+  EXPECT_EQ(getLE<std::uint8_t>(saved, kLearnerOffset), 0);
+  // Damaged version 1 files are refused like version 3 ones.
   EXPECT_TRUE(contains(errorOf(v1.substr(0, v1.size() - 1)), "truncated")) << errorOf(v1.substr(0, v1.size() - 1));
 }
 
@@ -706,6 +942,49 @@ TEST(ModelIoRoundTrip, LearnedSensorModelComesBack) {
   }
 }
 
+TEST(ModelIoRoundTrip, LearnedKindsComeBackAndGoOnTheSame) {
+  dog::MapperConfig config = growingLearningConfig();
+  config.kinds = distinctKinds();
+  ASSERT_EQ(config.learner, dog::TransitionLearner::kKinds);  // the default
+  dog::Mapper original(config);
+  const double origin_s = 4321.125;
+  runSteps(original, 0, 300, origin_s);
+  original.finishStep();
+  // The kinds learned something: sums in every kind, and transitions away from where they began.
+  const dog::CellKinds::Sums& sums = original.kinds().sums();
+  ASSERT_GT(sums.cells, 1000.0);
+  bool moved = false;
+  for (int k = 0; k < dog::kKindCount; ++k) {
+    ASSERT_GT(sums.membership[k], 0.0) << k;
+    ASSERT_GT(sums.transitions.n[k][0][1] + sums.transitions.n[k][1][0], 0.0) << k;
+    const dog::TransitionParams& start = config.kinds.initial_transitions[k];
+    moved = moved || original.kinds().transitions(k).p_occ_given_free != start.p_occ_given_free ||
+            original.kinds().transitions(k).p_free_given_occ != start.p_free_given_occ;
+  }
+  ASSERT_TRUE(moved);
+
+  std::unique_ptr<dog::Mapper> loaded = roundTrip(original);  // also the kinds and every cell's 10 floats
+  ASSERT_NE(loaded, nullptr);
+  expectSameFuture(original, *loaded, 300, 40, origin_s, 0.4, -0.3);
+}
+
+TEST(ModelIoRoundTrip, CellEmLearnerMapIsTheSameMapAndGoesOnTheSame) {
+  // Each cell's own online EM: its statistics in the first 8 floats; the kinds' configuration
+  // is kept though unused.
+  dog::MapperConfig config = cellEmConfig();
+  config.kinds = distinctKinds();
+  dog::Mapper original(config);
+  const double origin_s = 77.0;
+  runSteps(original, 0, 40, origin_s);
+  original.finishStep();
+  const std::string bytes = dog::serializeModel(original);
+  EXPECT_EQ(getLE<std::uint8_t>(bytes, kLearnerOffset), 0);
+  std::unique_ptr<dog::Mapper> loaded = roundTrip(original);
+  ASSERT_NE(loaded, nullptr);
+  EXPECT_EQ(loaded->config().learner, dog::TransitionLearner::kCellEm);
+  expectSameFuture(original, *loaded, 40, 20, origin_s, -0.5, 0.5);
+}
+
 // ---- damaged files ---------------------------------------------------------------------------
 
 TEST(ModelIoDamage, EveryTruncationIsRefused) {
@@ -717,7 +996,7 @@ TEST(ModelIoDamage, EveryTruncationIsRefused) {
     ASSERT_TRUE(contains(message, "truncated")) << "length " << length << ": " << message;
     ASSERT_TRUE(contains(message, std::to_string(length) + " available")) << message;
   }
-  EXPECT_EQ(errorOf(bytes.substr(0, 100)), "truncated model file: expected at least 280 bytes, 100 available");
+  EXPECT_EQ(errorOf(bytes.substr(0, 100)), "truncated model file: expected at least 644 bytes, 100 available");
   const std::uint64_t count = getLE<std::uint64_t>(bytes, kCountOffset);
   EXPECT_EQ(errorOf(bytes.substr(0, bytes.size() - 1)),
             "truncated model file: expected " + std::to_string(bytes.size()) + " bytes for " + std::to_string(count) +
@@ -749,11 +1028,11 @@ TEST(ModelIoDamage, MessagesSayWhatIsWrong) {
   }
   {
     std::string newer = bytes;
-    putLE<std::uint32_t>(newer, kVersionOffset, 3);
+    putLE<std::uint32_t>(newer, kVersionOffset, 4);
     fixChecksum(newer);
-    EXPECT_EQ(errorOf(newer), "model format version 3, this build reads versions 1 to 2");
+    EXPECT_EQ(errorOf(newer), "model format version 4, this build reads versions 1 to 3");
     putLE<std::uint32_t>(newer, kVersionOffset, 0);
-    EXPECT_EQ(errorOf(newer), "model format version 0, this build reads versions 1 to 2");
+    EXPECT_EQ(errorOf(newer), "model format version 0, this build reads versions 1 to 3");
   }
   {
     std::string corrupt = bytes;
@@ -773,8 +1052,9 @@ TEST(ModelIoDamage, AbsurdCellCountsAreRefusedBeforeAllocating) {
   const std::string bytes = smallModel();
   const std::uint64_t count = getLE<std::uint64_t>(bytes, kCountOffset);
   for (const std::uint64_t absurd :
-       {count + 1, std::uint64_t{1} << 40, std::uint64_t{1} << 58, std::numeric_limits<std::uint64_t>::max() / 64,
-        std::numeric_limits<std::uint64_t>::max() / 64 + 1, std::numeric_limits<std::uint64_t>::max()}) {
+       {count + 1, std::uint64_t{1} << 40, std::uint64_t{1} << 58,
+        std::numeric_limits<std::uint64_t>::max() / kCellSize, std::numeric_limits<std::uint64_t>::max() / kCellSize + 1,
+        std::numeric_limits<std::uint64_t>::max()}) {
     std::string damaged = bytes;
     putLE<std::uint64_t>(damaged, kCountOffset, absurd);
     fixChecksum(damaged);
@@ -784,7 +1064,7 @@ TEST(ModelIoDamage, AbsurdCellCountsAreRefusedBeforeAllocating) {
   std::string fewer = bytes;
   putLE<std::uint64_t>(fewer, kCountOffset, count - 1);
   fixChecksum(fewer);
-  EXPECT_TRUE(contains(errorOf(fewer), "64 trailing bytes")) << errorOf(fewer);
+  EXPECT_TRUE(contains(errorOf(fewer), "72 trailing bytes")) << errorOf(fewer);
 }
 
 TEST(ModelIoDamage, InvalidConfigurationIsRefusedWithValidatesMessage) {
@@ -836,6 +1116,54 @@ TEST(ModelIoDamage, InvalidTimeIsRefused) {
   EXPECT_TRUE(contains(errorOf(damaged), "absent")) << errorOf(damaged);
 }
 
+TEST(ModelIoDamage, InvalidKindsAreRefused) {
+  // The kinds' block of a map whose kinds learned (smallModel's learner is kinds).
+  const std::string bytes = smallModel();
+  ASSERT_EQ(getLE<std::uint8_t>(bytes, kLearnerOffset), 1);
+  ASSERT_GT(getLE<double>(bytes, kKindCellsOffset), 0.0);
+  const auto edited = [&bytes](auto edit) {
+    std::string copy = bytes;
+    edit(copy);
+    fixChecksum(copy);
+    return errorOf(copy);
+  };
+  EXPECT_EQ(edited([](std::string& b) { b[kLearnerOffset] = 2; }),
+            "invalid model file: learner is 2, must be 0 (cell_em) or 1 (kinds)");
+  for (const int kinds : {0, 4, 6, 255}) {
+    EXPECT_EQ(edited([kinds](std::string& b) { b[kKindCountOffset] = static_cast<char>(kinds); }),
+              "model file with " + std::to_string(kinds) + " kinds of cells, this build has 5");
+  }
+  EXPECT_EQ(edited([](std::string& b) { b[kKindSummaryOffset] = 3; }),
+            "invalid model file: kinds.summary is 3, must be 0 (geometric_mean), 1 (mean) or 2 (most_probable)");
+  EXPECT_EQ(edited([](std::string& b) { b[kKindCountingOffset] = 2; }),
+            "invalid model file: kinds.counting is 2, must be 0 (posterior) or 1 (most_probable)");
+  // Sums: every one negative, NaN or infinite.
+  std::vector<std::size_t> sums;
+  for (std::size_t k = 0; k < 20; ++k) sums.push_back(kKindTransitionSumsOffset + 8 * k);
+  for (std::size_t k = 0; k < 5; ++k) sums.push_back(kKindMembershipOffset + 8 * k);
+  sums.push_back(kKindCellsOffset);
+  for (const std::size_t offset : sums) {
+    for (const double bad : {-1.0, -1e-300, std::nan(""), kInf}) {
+      EXPECT_EQ(edited([offset, bad](std::string& b) { putLE<double>(b, offset, bad); }),
+                "invalid kinds of cells in model file: kinds: saved sums must be finite and >= 0")
+          << offset << " " << bad;
+    }
+  }
+  // The kinds' configuration passes KindsConfig::validate().
+  std::string message = edited([](std::string& b) { putLE<double>(b, kKindInitialTransitionsOffset + 8, 0.75); });
+  EXPECT_TRUE(contains(message, "invalid configuration in model file: kinds initial_transitions")) << message;
+  message = edited([](std::string& b) { putLE<double>(b, kKindInitialWeightsOffset + 16, 0.5); });
+  EXPECT_TRUE(contains(message, "invalid configuration in model file: kinds initial_weights must sum to 1")) << message;
+  message = edited([](std::string& b) { putLE<double>(b, kKindTransitionPriorWeightOffset, 0.0); });
+  EXPECT_TRUE(contains(message, "kinds transition_prior_weight")) << message;
+  message = edited([](std::string& b) { putLE<double>(b, kKindWeightPriorCellsOffset, std::nan("")); });
+  EXPECT_TRUE(contains(message, "kinds weight_prior_cells")) << message;
+  message = edited([](std::string& b) { putLE<double>(b, kKindSwitchProbabilityOffset, 1.0); });
+  EXPECT_TRUE(contains(message, "kinds switch_probability")) << message;
+  message = edited([](std::string& b) { putLE<double>(b, kKindForgettingOffset, -0.5); });
+  EXPECT_TRUE(contains(message, "kinds forgetting")) << message;
+}
+
 TEST(ModelIoDamage, InvalidCellsAreRefusedNamingTheCell) {
   const std::string bytes = smallModel();
   const std::int32_t x = getLE<std::int32_t>(bytes, kCellsOffset);
@@ -849,7 +1177,8 @@ TEST(ModelIoDamage, InvalidCellsAreRefusedNamingTheCell) {
   };
   for (const std::string& message :
        {edited(8, 1.5f), edited(8, std::nanf("")), edited(16, std::numeric_limits<float>::infinity()),
-        edited(20, -0.25f), edited(24, 2.0f), edited(28, -1.0f), edited(56, std::nanf("")),
+        edited(20, -0.25f), edited(24, 2.0f), edited(28, -1.0f), edited(56, std::nanf("")), edited(60, -1.0f),
+        edited(64, std::numeric_limits<float>::infinity()),
         edited(12, std::int32_t{1000}) /* after the last applied step */,
         edited(12, dog::kNeverObserved)}) {
     EXPECT_TRUE(contains(message, "invalid model file: " + first)) << message;
@@ -1187,7 +1516,7 @@ TEST(ModelIoSpecialFiles, AHugeFileIsNotRead) {
                          std::to_string(bytes.size()) + " bytes expected for " + std::to_string(count) + " cells)");
   // A header that promises a terabyte of cells in a small file: refused from the size too.
   std::string promising = bytes;
-  putLE<std::uint64_t>(promising, kCountOffset, huge / 64);
+  putLE<std::uint64_t>(promising, kCountOffset, huge / kCellSize);
   fixChecksum(promising);
   writeFile(path, promising);
   EXPECT_EQ(loadErrorOf(path), "cannot load model file " + path + ": " + errorOf(promising));
@@ -1223,6 +1552,10 @@ TEST(ModelIoSpecialFiles, FileErrorsAreTheSerialisationsOwn) {
   putLE<std::uint32_t>(version1, kVersionOffset, 1);
   fixChecksum(version1);
   expect_same(version1, "version 1 layout of other bytes");
+  std::string version2 = bytes;
+  putLE<std::uint32_t>(version2, kVersionOffset, 2);
+  fixChecksum(version2);
+  expect_same(version2, "version 2 layout of other bytes");
   writeFile(path, bytes);
   EXPECT_NO_THROW(dog::loadModel(path));
 }

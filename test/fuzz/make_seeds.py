@@ -1,7 +1,9 @@
 #!/usr/bin/env python3
 """Writes the hand-made seeds of the fuzz corpus (test/fuzz/corpus/, docs/reliability.md):
 for model_reader the model process_bag maps from a tiny bag (three scans of 16 beams, /tf
-and /tf_static), and command lines for command_line. The rest of each corpus is what a
+and /tf_static), named by its format version (three_scans_v<N>.dogm: the seeds of older
+versions stay, as files of those versions are still read), and command lines for
+command_line. The rest of each corpus is what a
 fuzzing run kept (libFuzzer -merge=1); scan_integrate and bag_scan_source read structured
 inputs (FuzzedDataProvider) that only such runs make.
 
@@ -9,6 +11,7 @@ usage: make_seeds.py PROCESS_BAG   (the built tool, e.g. ~/dog_ws/devel/lib/dyna
 """
 import math
 import os
+import struct
 import subprocess
 import sys
 import tempfile
@@ -59,9 +62,14 @@ def main():
     with tempfile.TemporaryDirectory() as out:
         bag_path = os.path.join(out, "three_scans.bag")
         write_bag(bag_path)
-        model_path = os.path.join(CORPUS, "model_reader", "three_scans.dogm")
+        model_path = os.path.join(out, "three_scans.dogm")
         subprocess.run([sys.argv[1], bag_path, "--out", out, "--model", model_path, "--resolution", "1.0"],
                        check=True, stdout=subprocess.DEVNULL)
+        with open(model_path, "rb") as model:
+            data = model.read()
+        (version,) = struct.unpack_from("<I", data, 8)  # docs/model_format.md
+        with open(os.path.join(CORPUS, "model_reader", f"three_scans_v{version}.dogm"), "wb") as seed:
+            seed.write(data)
     command_lines = {
         "process_bag": ["run.bag", "--resolution", "0.1", "--time-step", "0.5", "--laser-pose", "0,0,1.5",
                         "--em-iterations", "20", "--offline-em"],

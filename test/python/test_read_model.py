@@ -6,12 +6,13 @@ Usage:
 
 WRITE_MODEL_CLI is the test tool (or the environment variable DOG_WRITE_MODEL_CLI, e.g. under
 pytest; without either the tests are skipped there) test/tools/write_model_cli.cpp: it maps a scripted run,
-saves the model with core::saveModel and writes the mapper's configuration, time and
-cells as exact text (%a). The reader's config, time and arrays must equal those exactly (bit
-for bit for the floats), its dense grids must put every cell where it belongs, and damaged
-files (truncated, flipped bytes, other magic or version, trailing bytes, bad flags) must
-raise ModelFormatError. Runs with /usr/bin/python3 and numpy; registered as a ctest by
-test/core_standalone/CMakeLists.txt.
+saves the model with core::saveModel and writes the mapper's configuration, time, sums and
+cells as exact text (%a). The reader's config, time, kinds' sums and arrays must equal those
+exactly (bit for bit for the floats), for either learner, and version 1 and 2 files built from
+those bytes must read as the same map; its dense grids must put every cell where it belongs,
+and damaged files (truncated, flipped bytes, other magic or version, trailing bytes, bad
+flags and choices, bad kinds' sums) must raise ModelFormatError. Runs with /usr/bin/python3
+and numpy; registered as a ctest by test/core_standalone/CMakeLists.txt.
 """
 
 import os
@@ -34,7 +35,9 @@ FLOAT_FIELDS = ("p_occ", "log_odds", "p_occ_given_free", "p_free_given_occ")
 
 
 def parse_values(path):
-    """The CLI's text: (config dict with dotted names, origin, last step, cell columns)."""
+    """The CLI's text: (config dict with dotted names, origin, last step, cell columns); the
+    sensor model's and the kinds' sums are in the config as "sensor_model_stats" and
+    "kind_sums"."""
     config = {}
     origin = last = None
     count = None
@@ -55,6 +58,10 @@ def parse_values(path):
             elif line.startswith("# sensor_model_stats "):
                 values = [float.fromhex(v) for v in line.split(" ")[2:]]
                 config["sensor_model_stats"] = dict(zip(("trials_occ", "trials_free", "hits_occ", "hits_free"), values))
+            elif line.startswith("# kind_sums "):
+                values = [float.fromhex(v) for v in line.split(" ")[2:]]
+                assert len(values) == 4 * read_model.KIND_COUNT + read_model.KIND_COUNT + 1, len(values)
+                config["kind_sums"] = values
             elif line.startswith("# cells "):
                 count = int(line.split(" ")[2])
             elif header is None:
@@ -73,21 +80,45 @@ def parse_values(path):
     }
     for name in FLOAT_FIELDS:
         cells[name] = np.array([float.fromhex(v) for v in columns[name]], dtype=np.float32)
-    cells["em_stats"] = np.array(
-        [[float.fromhex(row[header.index(f"em_stats_{k}")]) for k in range(8)] for row in rows],
-        dtype=np.float32).reshape(len(rows), 8)
+    size = read_model.LEARNER_STATE_SIZE
+    cells["learner_state"] = np.array(
+        [[float.fromhex(row[header.index(f"learner_state_{k}")]) for k in range(size)] for row in rows],
+        dtype=np.float32).reshape(len(rows), size)
     return config, origin, last, cells
 
 
 def flat_config(config, prefix=""):
-    """The reader's nested config with dotted names."""
+    """The reader's nested config with dotted names (a list's entries named by their index)."""
     flat = {}
     for name, value in config.items():
+        if isinstance(value, list):
+            value = {str(index): entry for index, entry in enumerate(value)}
         if isinstance(value, dict):
             flat.update(flat_config(value, prefix + name + "."))
         else:
             flat[prefix + name] = value
     return flat
+
+
+def as_version_2(data):
+    """A version 3 file as version 2 wrote it: without the learner and kinds block, and 8
+    learner floats per cell (a file of learner cell_em is one version 2 could write)."""
+    count = struct.unpack_from("<Q", data, 632)[0]
+    cells = b"".join(data[640 + 72 * i:640 + 72 * i + 60] + data[640 + 72 * i + 68:640 + 72 * (i + 1)]
+                     for i in range(count))
+    v2 = bytearray(data[:268] + data[632:640] + cells + b"\0\0\0\0")
+    v2[8:12] = struct.pack("<I", 2)
+    return with_checksum(v2)
+
+
+def as_version_1(v2):
+    """A version 2 file as version 1 wrote it: without the learners' block and the cells'
+    last evidence."""
+    count = struct.unpack_from("<Q", v2, 268)[0]
+    cells = b"".join(v2[276 + 64 * i:276 + 64 * i + 62] for i in range(count))
+    v1 = bytearray(v2[:189] + v2[268:276] + cells + b"\0\0\0\0")
+    v1[8:12] = struct.pack("<I", 1)
+    return with_checksum(v1)
 
 
 def with_checksum(data):
@@ -103,7 +134,7 @@ class ReadModelTest(unittest.TestCase):
             raise unittest.SkipTest("no write_model_cli given (see the usage)")
         cls.directory = tempfile.TemporaryDirectory(prefix="dog_read_model_")
         cls.runs = {}
-        for mode in ("growing", "fixed", "empty"):
+        for mode in ("growing", "cell-em", "fixed", "empty"):
             model = os.path.join(cls.directory.name, mode + ".dogm")
             values = os.path.join(cls.directory.name, mode + ".txt")
             command = [CLI] + ([] if mode == "growing" else ["--" + mode]) + [model, values]
@@ -131,9 +162,17 @@ class ReadModelTest(unittest.TestCase):
         path, (config, origin, last, cells) = self.runs[mode]
         model = read_model.load_model(path)
         flat = flat_config(model.config)
+        config = dict(config)
         stats = config.pop("sensor_model_stats")
         for name, value in stats.items():
             self.assertEqual(struct.pack("<d", model.sensor_model_stats[name]), struct.pack("<d", value), name)
+        kind_sums = np.array(config.pop("kind_sums"), dtype=np.float64)
+        sums = model.kind_sums
+        self.assertEqual(sums["transitions"].shape, (read_model.KIND_COUNT, 2, 2))
+        self.assertEqual(sums["membership"].shape, (read_model.KIND_COUNT,))
+        mine = np.concatenate([sums["transitions"].ravel(), sums["membership"], [sums["cells"]]])
+        self.assertTrue(np.array_equal(mine.view(np.uint64), kind_sums.view(np.uint64)))
+        self.assertEqual(model.format_version, read_model.FORMAT_VERSION)
         self.assertEqual(sorted(flat), sorted(config))
         for name, text in config.items():
             value = flat[name]
@@ -166,8 +205,33 @@ class ReadModelTest(unittest.TestCase):
     def test_growing_learning_model_matches_cpp(self):
         model = self.check_matches_cpp("growing", 1000)
         self.assertTrue(model.config["learn_transitions"])
+        # Kinds of cells, configured apart from the defaults, learned from the map.
+        self.assertEqual(model.learner, "kinds")
+        self.assertEqual(model.config["learner"], "kinds")
+        self.assertEqual(model.config["kinds"]["summary"], "mean")
+        self.assertEqual(model.config["kinds"]["counting"], "posterior")
+        self.assertNotEqual(model.config["kinds"], read_model.default_kinds())
+        self.assertGreater(model.kind_sums["cells"], 1000.0)
+        self.assertGreater(float(model.kind_sums["transitions"].sum()), 0.0)
         # Learning moved transitions away from the prior: the values are not all the same.
         self.assertGreater(len(np.unique(model.p_occ_given_free)), 10)
+        # Each cell's learner state is its posterior p(kind, state): a distribution.
+        self.assertIsNone(model.em_stats)
+        self.assertEqual(model.kind_posterior.shape, (model.cell_count, read_model.KIND_COUNT, 2))
+        self.assertTrue(np.array_equal(model.kind_posterior.reshape(model.cell_count, -1), model.learner_state))
+        np.testing.assert_allclose(model.kind_posterior.sum(axis=(1, 2)), 1.0, atol=1e-5)
+        self.assertEqual(model.kind_posterior[3, 2, 1], model.learner_state[3, 5])  # index 2 * kind + state
+
+    def test_cell_em_model_matches_cpp(self):
+        model = self.check_matches_cpp("cell-em", 1000)
+        self.assertEqual(model.learner, "cell_em")
+        self.assertEqual(model.config["kinds"], read_model.default_kinds())  # the C++ defaults
+        self.assertEqual(model.kind_sums["cells"], 0.0)
+        # Each cell's own online EM: its statistics in the first 8 floats, the last two 0.
+        self.assertIsNone(model.kind_posterior)
+        self.assertEqual(model.em_stats.shape, (model.cell_count, 8))
+        self.assertTrue(np.array_equal(model.em_stats, model.learner_state[:, :8]))
+        self.assertFalse(np.any(model.learner_state[:, 8:]))
         self.assertGreater(float(model.em_stats.sum()), 0.0)
 
     def test_fixed_bounds_model_matches_cpp(self):
@@ -185,16 +249,41 @@ class ReadModelTest(unittest.TestCase):
         self.assertEqual(grid.shape, (0, 0))
         self.assertEqual(window["width"], 0)
 
-    def test_version_1_files_are_read_with_defaults_for_what_they_lack(self):
-        data = self.bytes_of("growing")
-        count = struct.unpack_from("<Q", data, 268)[0]
-        cells = b"".join(data[276 + 64 * i:276 + 64 * i + 62] for i in range(count))
-        v1 = bytearray(data[:189] + data[268:276] + cells + b"\0\0\0\0")
-        v1[8:12] = struct.pack("<I", 1)
-        model = read_model.parse_model(with_checksum(v1))
+    def test_version_2_files_are_read_as_each_cells_online_em(self):
+        # Built from the file of a map of learner cell_em with the kinds' defaults: everything
+        # version 2 holds and the defaults of what it lacks are that map's.
+        data = self.bytes_of("cell-em")
         newer = read_model.parse_model(data)
+        v2 = as_version_2(data)
+        self.assertEqual(len(v2), 280 + 64 * newer.cell_count)
+        model = read_model.parse_model(v2)
+        self.assertEqual(model.format_version, 2)
+        self.assertEqual(model.learner, "cell_em")
+        self.assertEqual(flat_config(model.config), flat_config(newer.config))
+        self.assertEqual(model.sensor_model_stats, newer.sensor_model_stats)
+        self.assertEqual(model.kind_sums["cells"], 0.0)
+        self.assertFalse(np.any(model.kind_sums["transitions"]) or np.any(model.kind_sums["membership"]))
+        self.assertEqual(model.clock_origin_s, newer.clock_origin_s)
+        self.assertEqual(model.last_applied_step, newer.last_applied_step)
+        for name in read_model.CELL_FIELDS + ("em_stats",):
+            self.assertTrue(np.array_equal(getattr(model, name).view(np.uint8), getattr(newer, name).view(np.uint8)),
+                            name)
+        self.assertIsNone(model.kind_posterior)
+        self.assertFalse(np.any(model.learner_state[:, 8:]))
+
+    def test_version_1_files_are_read_with_defaults_for_what_they_lack(self):
+        data = self.bytes_of("cell-em")
+        v1 = as_version_1(as_version_2(data))
+        model = read_model.parse_model(v1)
+        newer = read_model.parse_model(data)
+        self.assertEqual(model.format_version, 1)
         self.assertEqual(model.cell_count, newer.cell_count)
+        self.assertEqual(len(v1), 201 + 62 * newer.cell_count)
         self.assertTrue(np.array_equal(model.p_occ, newer.p_occ))
+        self.assertTrue(np.array_equal(model.em_stats, newer.em_stats))
+        self.assertFalse(np.any(model.learner_state[:, 8:]))
+        self.assertEqual(model.learner, "cell_em")
+        self.assertEqual(model.config["kinds"], read_model.default_kinds())
         self.assertFalse(model.config["learn_sensor_model"])
         self.assertEqual(model.config["online_em"]["schedule"], "harmonic")
         self.assertEqual(model.sensor_model_stats["trials_occ"], 0.0)
@@ -207,14 +296,14 @@ class ReadModelTest(unittest.TestCase):
         model = read_model.load_model(self.runs["growing"][0])
         min_x, min_y, max_x, max_y = model.bounds()
         for field, component in (("p_occ", None), ("last_step", None), ("observed_steps", None),
-                                 ("p_free_given_occ", None), ("em_stats", 5)):
+                                 ("p_free_given_occ", None), ("learner_state", 9), ("kind_posterior", (4, 1))):
             grid, window = read_model.dense_field(model, field, component)
             self.assertEqual(grid.shape, (max_y - min_y + 1, max_x - min_x + 1))
             self.assertEqual((window["min_x"], window["min_y"]), (min_x, min_y))
             self.assertEqual((window["height"], window["width"]), grid.shape)
             values = getattr(model, field)
             if component is not None:
-                values = values[:, component]
+                values = values[(slice(None),) + (component if isinstance(component, tuple) else (component,))]
             self.assertTrue(np.array_equal(grid[model.y - min_y, model.x - min_x],
                                            values.astype(np.float64)), field)
             self.assertEqual(int(np.isnan(grid).sum()), grid.size - model.cell_count, field)
@@ -227,8 +316,19 @@ class ReadModelTest(unittest.TestCase):
         self.assertEqual(window["origin_y_m"], model.config["origin_y_m"] + min_y * resolution)
         with self.assertRaises(KeyError):
             read_model.dense_field(model, "no_such_field")
-        with self.assertRaises(ValueError):
-            read_model.dense_field(model, "em_stats")
+        for field, component in (("learner_state", None), ("learner_state", 10), ("kind_posterior", 3),
+                                 ("kind_posterior", (5, 0)), ("kind_posterior", (0, 2))):
+            with self.assertRaises(ValueError):
+                read_model.dense_field(model, field, component)
+        # A map of kinds has no online EM statistics, and the other way round.
+        with self.assertRaisesRegex(ValueError, "learner kinds has no em_stats"):
+            read_model.dense_field(model, "em_stats", 0)
+        cell_em = read_model.load_model(self.runs["cell-em"][0])
+        grid, _ = read_model.dense_field(cell_em, "em_stats", 7)
+        self.assertTrue(np.array_equal(grid[cell_em.y - cell_em.bounds()[1], cell_em.x - cell_em.bounds()[0]],
+                                       cell_em.em_stats[:, 7].astype(np.float64)))
+        with self.assertRaisesRegex(ValueError, "learner cell_em has no kind_posterior"):
+            read_model.dense_field(cell_em, "kind_posterior", (0, 0))
 
     # ---- damaged files ----------------------------------------------------------------------------
 
@@ -236,14 +336,14 @@ class ReadModelTest(unittest.TestCase):
         for mode in ("empty", "fixed"):
             data = self.bytes_of(mode)
             read_model.parse_model(data)
-            lengths = range(len(data)) if mode == "empty" else list(range(0, 400)) + list(
+            lengths = range(len(data)) if mode == "empty" else list(range(0, 700)) + list(
                 range(len(data) - 200, len(data)))
             for length in lengths:
                 self.expect_error(data[:length], "truncated", f"{length} available")
 
     def test_flipped_bytes_raise(self):
         data = self.bytes_of("fixed")
-        for position in list(range(0, 260)) + list(range(len(data) - 70, len(data))) + [len(data) // 2]:
+        for position in list(range(0, 640)) + list(range(len(data) - 80, len(data))) + [len(data) // 2]:
             damaged = bytearray(data)
             damaged[position] ^= 0x40
             self.expect_error(bytes(damaged))
@@ -256,15 +356,40 @@ class ReadModelTest(unittest.TestCase):
         self.expect_error(b"P5\n# an image", "not a dynamic_occupancy_grid model file")
         self.expect_error(b"X" + data[1:], "not a dynamic_occupancy_grid model file")
         newer = bytearray(data)
-        newer[8:12] = struct.pack("<I", 3)
-        self.expect_error(with_checksum(newer), "model format version 3, this reader reads versions 1 to 2")
+        newer[8:12] = struct.pack("<I", 4)
+        self.expect_error(with_checksum(newer), "model format version 4, this reader reads versions 1 to 3")
         self.expect_error(data + b"\0", "1 trailing bytes")
         flag = bytearray(data)
         flag[146] = 2  # fixed_bounds
         self.expect_error(with_checksum(flag), "fixed_bounds is 2, must be 0 or 1")
         absurd = bytearray(data)
-        absurd[268:276] = struct.pack("<Q", 2 ** 64 - 1)  # the cell count of version 2
+        absurd[632:640] = struct.pack("<Q", 2 ** 64 - 1)  # the cell count of version 3
         self.expect_error(with_checksum(absurd), "truncated")
+
+    def test_bad_kinds_block_raises(self):
+        data = self.bytes_of("growing")
+
+        def edited(offset, value):
+            damaged = bytearray(data)
+            damaged[offset:offset + len(value)] = value
+            return with_checksum(damaged)
+
+        self.expect_error(edited(268, b"\2"), "learner is 2, must be 0 (cell_em) or 1 (kinds)")
+        for kinds in (0, 4, 6):
+            self.expect_error(edited(269, bytes([kinds])), f"model file with {kinds} kinds of cells, this reader has 5")
+        self.expect_error(edited(422, b"\3"), "kinds.summary is 3, must be 0 (geometric_mean), 1 (mean) or 2")
+        self.expect_error(edited(423, b"\2"), "kinds.counting is 2, must be 0 (posterior) or 1 (most_probable)")
+        for offset in (424, 424 + 8 * 19, 584, 584 + 8 * 4, 624):  # transitions, membership, cells
+            for bad in (-1.0, float("nan"), float("inf")):
+                self.expect_error(edited(offset, struct.pack("<d", bad)), "invalid kinds of cells in model file")
+        # The learner and the choices as documented.
+        model = read_model.parse_model(edited(268, b"\0"))
+        self.assertEqual(model.learner, "cell_em")
+        self.assertIsNone(model.kind_posterior)
+        model = read_model.parse_model(edited(422, b"\2"))
+        self.assertEqual(model.config["kinds"]["summary"], "most_probable")
+        model = read_model.parse_model(edited(423, b"\1"))
+        self.assertEqual(model.config["kinds"]["counting"], "most_probable")
 
     def test_load_model_names_the_file(self):
         data = bytearray(self.bytes_of("growing"))
@@ -290,6 +415,16 @@ class ReadModelTest(unittest.TestCase):
         self.assertIn(f"cells observed:     {model.cell_count}", done.stdout)
         self.assertIn("time step:          0.5 s", done.stdout)
         self.assertIn("mean p_occ_given_free:", done.stdout)
+        self.assertIn("(format version 3)", done.stdout)
+        self.assertIn("learner:            kinds", done.stdout)
+        # The file's own version and learner.
+        old = os.path.join(self.directory.name, "version_1.dogm")
+        with open(old, "wb") as file:
+            file.write(as_version_1(as_version_2(self.bytes_of("cell-em"))))
+        done = subprocess.run([sys.executable, script, old], capture_output=True, text=True)
+        self.assertEqual(done.returncode, 0, done.stderr)
+        self.assertIn("(format version 1)", done.stdout)
+        self.assertIn("learner:            cell_em", done.stdout)
         corrupt = os.path.join(self.directory.name, "corrupt_for_command.dogm")
         with open(corrupt, "wb") as file:
             file.write(self.bytes_of("growing")[:-1])

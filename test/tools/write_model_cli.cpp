@@ -4,18 +4,22 @@
 // (test/python/test_read_model.py for scripts/read_model.py) can be checked against the C++
 // values exactly. Not installed; built by test/core_standalone.
 //
-// Usage: write_model_cli [--fixed | --empty] MODEL_PATH VALUES_PATH
-//   (default)  a growing map that learns transitions, 30 steps with gaps
+// Usage: write_model_cli [--fixed | --empty | --cell-em] MODEL_PATH VALUES_PATH
+//   (default)  a growing map that learns transitions with kinds of cells (configured apart
+//              from the defaults), 30 steps with gaps
+//   --cell-em  the same map learning with each cell's own online EM (kinds' defaults)
 //   --fixed    a fixed-bounds map (partly outside the room) with fixed transitions
 //   --empty    a growing map that has seen nothing
 //
 // VALUES_PATH, read from the mapper (not from the file), every float and double written
 // with %a (hexadecimal, exact; Python's float.fromhex reads it):
-//   lines "# config NAME VALUE" for every MapperConfig field (nested names with dots,
-//   booleans 0/1), "# clock_origin_s VALUE|none", "# last_applied_step VALUE|none",
-//   "# sensor_model_stats TRIALS_OCC TRIALS_FREE HITS_OCC HITS_FREE", "# cells N", then the
-//   header line x,y,p_occ,last_step,log_odds,p_occ_given_free,p_free_given_occ,em_stats_0,...,
-//   em_stats_7,observed_steps,last_hits,last_misses
+//   lines "# config NAME VALUE" for every MapperConfig field (nested names with dots, a
+//   kind's index as a name, booleans 0/1, choices by name), "# clock_origin_s VALUE|none",
+//   "# last_applied_step VALUE|none", "# sensor_model_stats TRIALS_OCC TRIALS_FREE HITS_OCC
+//   HITS_FREE", "# kind_sums" with the kinds' 20 expected transitions ([kind][from][to]),
+//   5 memberships and cells, "# cells N", then the header line
+//   x,y,p_occ,last_step,log_odds,p_occ_given_free,p_free_given_occ,learner_state_0,...,
+//   learner_state_9,observed_steps,last_hits,last_misses
 //   and one line per observed cell, by row (y) then column (x).
 //
 // Exit status: 0 done, 2 usage, 3 a library error (message on stderr).
@@ -101,7 +105,34 @@ dog::MapperConfig growingConfig() {
   config.origin_x_m = -0.35;
   config.origin_y_m = 0.2;
   config.max_map_size_m = 40.0;
+  config.kinds.initial_transitions = {{{2e-4, 3e-4}, {3e-3, 1e-3}, {0.02, 0.015}, {0.06, 0.04}, {0.2, 0.3}}};
+  config.kinds.initial_weights = {{0.7, 0.1, 0.08, 0.07, 0.05}};
+  config.kinds.transition_prior_weight = 20.0;
+  config.kinds.weight_prior_cells = 50.0;
+  config.kinds.switch_probability = 2e-3;
+  config.kinds.forgetting = 5e-3;
+  config.kinds.summary = dog::KindSummary::kMean;
+  config.kinds.counting = dog::KindCounting::kPosterior;
   return config;
+}
+
+dog::MapperConfig cellEmConfig() {
+  dog::MapperConfig config = growingConfig();
+  config.learner = dog::TransitionLearner::kCellEm;
+  config.kinds = dog::KindsConfig{};
+  return config;
+}
+
+const char* summaryName(dog::KindSummary summary) {
+  switch (summary) {
+    case dog::KindSummary::kGeometricMean:
+      return "geometric_mean";
+    case dog::KindSummary::kMean:
+      return "mean";
+    case dog::KindSummary::kMostProbable:
+      return "most_probable";
+  }
+  return "?";
 }
 
 dog::MapperConfig fixedConfig() {
@@ -172,9 +203,34 @@ void writeValues(const dog::Mapper& mapper, std::FILE* out) {
   integer("learn_sensor_model", c.learn_sensor_model);
   real("sensor_model_prior_weight", c.sensor_model_prior_weight);
   real("sensor_model_p_min", c.sensor_model_p_min);
+  std::fprintf(out, "# config learner %s\n", c.learner == dog::TransitionLearner::kCellEm ? "cell_em" : "kinds");
+  for (int k = 0; k < dog::kKindCount; ++k) {
+    const std::string kind = std::to_string(k);
+    real(("kinds.initial_transitions." + kind + ".p_occ_given_free").c_str(),
+         c.kinds.initial_transitions[k].p_occ_given_free);
+    real(("kinds.initial_transitions." + kind + ".p_free_given_occ").c_str(),
+         c.kinds.initial_transitions[k].p_free_given_occ);
+    real(("kinds.initial_weights." + kind).c_str(), c.kinds.initial_weights[k]);
+  }
+  real("kinds.transition_prior_weight", c.kinds.transition_prior_weight);
+  real("kinds.weight_prior_cells", c.kinds.weight_prior_cells);
+  real("kinds.switch_probability", c.kinds.switch_probability);
+  real("kinds.forgetting", c.kinds.forgetting);
+  std::fprintf(out, "# config kinds.summary %s\n", summaryName(c.kinds.summary));
+  std::fprintf(out, "# config kinds.counting %s\n",
+               c.kinds.counting == dog::KindCounting::kPosterior ? "posterior" : "most_probable");
   const dog::SensorModelStats& stats = mapper.sensorModelStats();
   std::fprintf(out, "# sensor_model_stats %a %a %a %a\n", stats.trials[0], stats.trials[1], stats.hits[0],
                stats.hits[1]);
+  const dog::CellKinds::Sums& sums = mapper.kinds().sums();
+  std::fprintf(out, "# kind_sums");
+  for (const auto& kind : sums.transitions.n) {
+    for (const auto& row : kind) {
+      for (const double value : row) std::fprintf(out, " %a", value);
+    }
+  }
+  for (const double membership : sums.membership) std::fprintf(out, " %a", membership);
+  std::fprintf(out, " %a\n", sums.cells);
   if (mapper.clock().origin()) {
     std::fprintf(out, "# clock_origin_s %a\n", *mapper.clock().origin());
   } else {
@@ -208,9 +264,9 @@ void writeValues(const dog::Mapper& mapper, std::FILE* out) {
     }
   }
   std::fprintf(out, "# cells %zu\n", lines.size());
-  std::fprintf(out,
-               "x,y,p_occ,last_step,log_odds,p_occ_given_free,p_free_given_occ,em_stats_0,em_stats_1,em_stats_2,"
-               "em_stats_3,em_stats_4,em_stats_5,em_stats_6,em_stats_7,observed_steps,last_hits,last_misses\n");
+  std::fprintf(out, "x,y,p_occ,last_step,log_odds,p_occ_given_free,p_free_given_occ");
+  for (int k = 0; k < dog::kLearnerStateSize; ++k) std::fprintf(out, ",learner_state_%d", k);
+  std::fprintf(out, ",observed_steps,last_hits,last_misses\n");
   for (const std::string& line : lines) std::fprintf(out, "%s\n", line.c_str());
 }
 
@@ -219,16 +275,16 @@ void writeValues(const dog::Mapper& mapper, std::FILE* out) {
 int main(int argc, char** argv) {
   std::vector<std::string> args(argv + 1, argv + argc);
   std::string mode = "growing";
-  if (!args.empty() && (args[0] == "--fixed" || args[0] == "--empty")) {
+  if (!args.empty() && (args[0] == "--fixed" || args[0] == "--empty" || args[0] == "--cell-em")) {
     mode = args[0].substr(2);
     args.erase(args.begin());
   }
   if (args.size() != 2) {
-    std::fprintf(stderr, "usage: write_model_cli [--fixed | --empty] MODEL_PATH VALUES_PATH\n");
+    std::fprintf(stderr, "usage: write_model_cli [--fixed | --empty | --cell-em] MODEL_PATH VALUES_PATH\n");
     return 2;
   }
   try {
-    dog::Mapper mapper(mode == "fixed" ? fixedConfig() : growingConfig());
+    dog::Mapper mapper(mode == "fixed" ? fixedConfig() : mode == "cell-em" ? cellEmConfig() : growingConfig());
     if (mode != "empty") run(mapper);
     dog::saveModel(mapper, args[0]);
     std::FILE* out = std::fopen(args[1].c_str(), "w");

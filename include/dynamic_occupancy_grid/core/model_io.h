@@ -31,7 +31,7 @@ constexpr std::uint32_t kModelFormatVersion = 3;
 /// (72 bytes per observed cell) besides the map.
 std::string serializeModel(const Mapper& mapper);
 /// A Mapper holding the model in `bytes`. Throws std::runtime_error with a clear message for
-/// anything but a complete, intact file of version 1 or kModelFormatVersion (bad magic, other version,
+/// anything but a complete, intact file of versions 1 to kModelFormatVersion (bad magic, other version,
 /// truncated, checksum mismatch, invalid values, trailing bytes); nothing else is affected
 /// then. The returned mapper gathers no step yet: its next scan may be in any step after
 /// the last applied one.
