@@ -613,9 +613,18 @@ void Mapper::restoreCell(std::int32_t x, std::int32_t y, const CellState& state)
   bool valid = probability(state.p_occ) && probability(state.p_occ_given_free) &&
                probability(state.p_free_given_occ) && std::isfinite(state.log_odds);
   for (const float s : state.em_stats) valid = valid && std::isfinite(s) && s >= 0.0f;
+  const bool kinds = config_.learner == TransitionLearner::kKinds;
+  if (valid && kinds) {
+    // A kinds cell holds a probability distribution over (kind, state): a joint that does not
+    // sum to 1 would make its next step's belief NaN.
+    double total = 0.0;
+    for (int k = 0; k < 2 * kKindCount; ++k) total += state.em_stats[k];
+    valid = std::abs(total - 1.0) <= 1e-3;
+  }
   if (!valid) {
     throw std::invalid_argument("restoreCell: cell (" + std::to_string(x) + ", " + std::to_string(y) +
-                                ") has values out of range");
+                                ") has values out of range" +
+                                (kinds ? " (its kind posterior must be >= 0 and sum to 1)" : ""));
   }
   if (!grid_.insideLimits(x, y)) {
     throw std::invalid_argument("restoreCell: cell (" + std::to_string(x) + ", " + std::to_string(y) +
@@ -631,10 +640,14 @@ void Mapper::restoreCell(std::int32_t x, std::int32_t y, const CellState& state)
   tile->log_odds[i] = state.log_odds;
   tile->p_occ_given_free[i] = state.p_occ_given_free;
   tile->p_free_given_occ[i] = state.p_free_given_occ;
-  TransitionStats stats;
-  for (std::size_t k = 0; k < stats.s.size(); ++k) stats.s[k] = state.em_stats[k];
-  storeStats(*tile, i, stats);
-  for (std::size_t k = stats.s.size(); k < state.em_stats.size(); ++k) tile->em_stats[k][i] = state.em_stats[k];
+  if (kinds) {
+    for (std::size_t k = 0; k < state.em_stats.size(); ++k) tile->em_stats[k][i] = state.em_stats[k];
+  } else {
+    // Online EM's statistics, which the empirical-Bayes pool sums.
+    TransitionStats stats;
+    for (std::size_t k = 0; k < stats.s.size(); ++k) stats.s[k] = state.em_stats[k];
+    storeStats(*tile, i, stats);
+  }
   tile->observed_steps[i] = state.observed_steps;
   tile->last_hits[i] = state.last_hits;
   tile->last_misses[i] = state.last_misses;

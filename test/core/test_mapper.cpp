@@ -1480,7 +1480,10 @@ TEST(MapperRestore, RestoreChecksItsInputs) {
   ASSERT_EQ(used.integrate(makeScan(0.5, {0.75f})).status, dog::ScanStatus::kIntegrated);
   EXPECT_THROW(used.restoreTime(0.0, 0), std::logic_error);
 
-  dog::Mapper fresh(testConfig());
+  // Online EM's statistics (the kinds learner's posterior has a test of its own).
+  dog::MapperConfig cell_em = testConfig();
+  cell_em.learner = dog::TransitionLearner::kCellEm;
+  dog::Mapper fresh(cell_em);
   EXPECT_THROW(fresh.restoreTime(std::nullopt, 3), std::invalid_argument);
   EXPECT_THROW(fresh.restoreTime(kInf, 3), std::invalid_argument);
   fresh.restoreTime(100.0, 3);
@@ -1495,7 +1498,7 @@ TEST(MapperRestore, RestoreChecksItsInputs) {
   EXPECT_EQ(fresh.integrate(makeScan(102.5, {0.75f})).status, dog::ScanStatus::kRejectedTimeBackwards);
   EXPECT_EQ(fresh.integrate(makeScan(104.5, {0.75f})).status, dog::ScanStatus::kIntegrated);
 
-  dog::Mapper other(testConfig());
+  dog::Mapper other(cell_em);
   other.restoreTime(0.0, 3);
   dog::CellState late = state;
   late.last_step = 4;
@@ -2066,4 +2069,31 @@ TEST(MapperKinds, OfflineEmKeepsTheKindPosteriorAndShowsItsTransitionsUntilTheNe
   dog::KindJoint joint;
   for (int k = 0; k < 2 * dog::kKindCount; ++k) joint.p[k] = after.em_stats[k];
   EXPECT_NEAR(after.p_occ_given_free, mapper.kinds().summary(joint).p_occ_given_free, 1e-6);
+}
+
+TEST(MapperKinds, RestoredCellsMustHoldAKindPosteriorAndLeaveOnlineEmsPoolAlone) {
+  dog::MapperConfig config = kindsConfig();
+  config.learn_prior = true;  // online EM's pool must not count a kinds cell's floats
+  dog::Mapper mapper(config);
+  mapper.restoreTime(0.0, 5);
+  dog::CellState state{};
+  state.p_occ = 0.2f;
+  state.last_step = 3;
+  state.p_occ_given_free = 0.001f;
+  state.p_free_given_occ = 0.002f;
+  for (int k = 0; k < dog::kKindCount; ++k) {
+    state.em_stats[2 * k] = 0.2f * 0.2f;
+    state.em_stats[2 * k + 1] = 0.2f * 0.8f;
+  }
+  mapper.restoreCell(1, 1, state);
+  EXPECT_EQ(mapper.currentPrior().p_occ_given_free, config.prior_transitions.p_occ_given_free);
+  EXPECT_EQ(mapper.currentPrior().p_free_given_occ, config.prior_transitions.p_free_given_occ);
+  const dog::CellState back = *mapper.grid().cell(1, 1);
+  for (int k = 0; k < 2 * dog::kKindCount; ++k) EXPECT_EQ(back.em_stats[k], state.em_stats[k]);
+  // All zero (or not summing to 1): its next step would divide by zero.
+  state.em_stats.fill(0.0f);
+  EXPECT_THROW(mapper.restoreCell(2, 1, state), std::invalid_argument);
+  state.em_stats.fill(0.3f);
+  EXPECT_THROW(mapper.restoreCell(2, 1, state), std::invalid_argument);
+  EXPECT_FALSE(mapper.grid().cell(2, 1).has_value());
 }
