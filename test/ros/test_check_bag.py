@@ -186,9 +186,11 @@ class TestCheckBag(unittest.TestCase):
                              (["--no-learn-sensor-model"] if fixed_sensor else []))
 
     def neato_learners(self):
-        """The other learner: Cappe's step sizes with averaging and the empirical-Bayes prior."""
+        """The other learner, each cell's online EM: Cappe's step sizes with averaging and the
+        empirical-Bayes prior."""
         return self.run_once("neato_learners", NEATO_BAG,
-                             NEATO_ARGS + ["--learn-prior", "--schedule", "robbins_monro", "--step-size-exponent",
+                             NEATO_ARGS + ["--learner", "cell_em", "--learn-prior", "--schedule", "robbins_monro",
+                                           "--step-size-exponent",
                                            "0.7", "--step-size-offset", "3", "--averaging-start", "15",
                                            "--retention-after", "5"])
 
@@ -345,7 +347,15 @@ class TestCheckBag(unittest.TestCase):
     def test_end_report_default_learns_the_sensor_model(self):
         stdout = self.neato()[0]
         self.assertIn("sensor model learning on", stdout)
-        self.assertIn("online learning: schedule harmonic, averaging off, learned prior off", stdout)
+        self.assertIn("online learning: kinds of cells (5), switch probability 0.0001, forgetting 0.001 per step",
+                      stdout)
+        # What the map learned its places to be: five kinds, their shares summing to 1.
+        kinds = re.search(r"kinds of cells \(p_occ_given_free / p_free_given_occ per step, share of the cells\): (.*)",
+                          stdout)
+        self.assertIsNotNone(kinds, stdout)
+        shares = [float(kind.split(",")[1]) for kind in kinds.group(1).split(";")]
+        self.assertEqual(len(shares), 5)
+        self.assertAlmostEqual(sum(shares), 1.0, places=3)
         end = self.assert_end_report(self.neato())
         self.assertTrue(end["sensor_learned"])
         # Learned from the bag: it moved away from its start (0.7 / 0.2).
@@ -356,8 +366,8 @@ class TestCheckBag(unittest.TestCase):
 
     def test_end_report_other_learners(self):
         stdout = self.neato_learners()[0]
-        self.assertIn("online learning: schedule robbins_monro (step size exponent 0.7, offset 3), averaging from "
-                      "observed step 15, learned prior on", stdout)
+        self.assertIn("online learning: each cell's online EM, schedule robbins_monro (step size exponent 0.7, "
+                      "offset 3), averaging from observed step 15, learned prior on", stdout)
         self.assertRegex(stdout, r"learned prior: p_occ_given_free [0-9.]+, p_free_given_occ [0-9.]+ per step")
         end = self.assert_end_report(self.neato_learners())
         self.assertTrue(end["sensor_learned"])
@@ -466,7 +476,13 @@ class TestCheckBag(unittest.TestCase):
         for option in (["--learn-prior"], ["--schedule", "harmonic"], ["--averaging-start", "5"]):
             self.assert_fails([NEATO_BAG, "--no-learning"] + option, 2, option[0], "--no-learning turns off")
         for option in (["--step-size-exponent", "0.7"], ["--step-size-offset", "1"]):
-            self.assert_fails([NEATO_BAG] + option, 2, option[0] + " applies to --schedule robbins_monro only")
+            self.assert_fails([NEATO_BAG, "--learner", "cell_em"] + option, 2,
+                              option[0] + " applies to --schedule robbins_monro only")
+        # The options of each cell's online EM need that learner.
+        for option in (["--learn-prior"], ["--schedule", "robbins_monro"], ["--averaging-start", "5"]):
+            self.assert_fails([NEATO_BAG] + option, 2, option[0] + " tunes each cell's online EM",
+                              "--learner cell_em")
+        self.assert_fails([NEATO_BAG, "--learner", "em"], 2, "--learner", "kinds or cell_em")
         rc, stdout, _ = check_bag(["--help"])
         self.assertEqual(rc, 0)
         for option in ("--learn-sensor-model", "--no-learn-sensor-model", "--learn-prior", "--schedule",

@@ -322,12 +322,14 @@ class TestMemoryNode(unittest.TestCase):
         response = rospy.ServiceProxy(MEMORY + '/reset', Trigger)()
         self.assertTrue(response.success, response.message)
         # Stamped after the scans (the first, on subscription, was before them).
+        # A wait generous in wall time: the reset's publish failed to come within the default
+        # 15 s once, in a full run beside another two-core job.
         cleared = self.record[MEMORY, 'hypotheses'].wait_for(
             lambda m: m.updates == 0 and stamp_of(m) > self.stamps[-1] and len(m.configuration_ids) == 0,
-            clock=self.clock)
+            timeout=60.0, clock=self.clock)
         self.assertIsNotNone(cleared, 'no empty hypotheses after ~reset')
         empty = self.record[MEMORY, 'ltm'].wait_for(lambda m: m.info.width == 0 and stamp_of(m) > self.stamps[-1],
-                                                    clock=self.clock)
+                                                    timeout=60.0, clock=self.clock)
         self.assertIsNotNone(empty, 'no empty ~ltm after ~reset')
 
 

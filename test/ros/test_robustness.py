@@ -142,6 +142,11 @@ class TestRobustness(unittest.TestCase):
             (('sensor_model/prior_weight', 'must be a number'), '_sensor_model/prior_weight:=abc'),
             (('sensor_model/p_min', '(0, 0.4]'), '_sensor_model/p_min:=0.5'),
             (('sensor_model/p_min', '(0, 0.4]'), '_sensor_model/p_min:=0'),
+            (('learner', '"kinds" or "cell_em", got "em"'), '_learner:=em'),
+            (('kinds/switch_probability', '[0, 1)'), '_kinds/switch_probability:=1'),
+            (('kinds/forgetting', '[0, 1)'), '_kinds/forgetting:=-0.1'),
+            (('kinds/transition_prior_weight', '> 0'), '_kinds/transition_prior_weight:=0'),
+            (('kinds/weight_prior_cells', 'must be a number'), '_kinds/weight_prior_cells:=many'),
             # roscpp reads "[x]" on the command line as a string, not a list: not a topic name.
             (('scan_topics', "has '[x]', which is not a valid topic name"), '_scan_topics:=[x]'),
             (('scan_topics', 'not a valid topic name'), '_scan_topics:=scan%1'),
@@ -153,7 +158,7 @@ class TestRobustness(unittest.TestCase):
     def test_01b_learner_parameters_are_read(self):
         """Good values of the learners' options start the node, none is taken for a typo, and
         the start-up lines report them; by default the node learns the sensor model."""
-        arguments = ['_online_em/schedule:=robbins_monro', '_online_em/step_size_exponent:=0.75',
+        arguments = ['_learner:=cell_em', '_online_em/schedule:=robbins_monro', '_online_em/step_size_exponent:=0.75',
                      '_online_em/step_size_offset:=5', '_online_em/averaging_start:=20', '_learn_prior:=true',
                      '_prior_population_weight:=25', '_learn_sensor_model:=true', '_sensor_model/prior_weight:=400',
                      '_sensor_model/p_min:=0.02', '_online_em/learning_rate_floor:=0.002']
@@ -167,10 +172,22 @@ class TestRobustness(unittest.TestCase):
         self.assertIn('from p_hit_given_occ 0.7, p_hit_given_free 0.2, worth 400 beam ends per state', output)
         self.assertIn('within [0.02, 0.98]', output)
 
-        # The defaults: the harmonic schedule, no averaging, a fixed prior, the sensor model learned.
+        # The defaults: the kinds of cells, the sensor model learned.
         output = ''.join(wall_scene.node_startup_output(self, 'default_learner_parameters', [],
                                                         'online learning of the sensor model'))
         self.assertIn('transitions learned online, sensor model learned online', output)
+        self.assertIn('online learning of the transitions: 5 kinds of cells learned from the whole map (kind '
+                      'switch probability 0.0001 per step, forgetting 0.001 per step)', output)
+        # The kinds' options are read too.
+        output = ''.join(wall_scene.node_startup_output(
+            self, 'kinds_parameters', ['_kinds/switch_probability:=0.001', '_kinds/forgetting:=0.0002',
+                                       '_kinds/transition_prior_weight:=50', '_kinds/weight_prior_cells:=20'],
+            'online learning of the sensor model'))
+        self.assertNotIn('is not one of this node\'s parameters', output)
+        self.assertIn('(kind switch probability 0.001 per step, forgetting 0.0002 per step)', output)
+        # Each cell's online EM at its defaults: the harmonic schedule, no averaging, a fixed prior.
+        output = ''.join(wall_scene.node_startup_output(self, 'cell_em_learner', ['_learner:=cell_em'],
+                                                        'online learning of the sensor model'))
         self.assertIn('schedule harmonic (prior weight 10, learning rate floor 0.001), averaging off, '
                       'prior fixed (0.01 / 0.01)', output)
         self.assertIn('worth 1000 beam ends per state', output)
@@ -178,7 +195,7 @@ class TestRobustness(unittest.TestCase):
 
         # learn_sensor_model off: the fixed sensor model, and no line on its learning.
         output = ''.join(wall_scene.node_startup_output(self, 'fixed_sensor_model', ['_learn_sensor_model:=false'],
-                                                        'online EM of the transitions'))
+                                                        'online learning of the transitions'))
         self.assertIn('sensor model fixed (in use: p_hit_given_occ 0.700, p_hit_given_free 0.200)', output)
         self.assertNotIn('online learning of the sensor model', output)
         self.alive()

@@ -157,11 +157,15 @@ class TestServices(unittest.TestCase):
         n = cell.mixing_time_steps
         self.assertLessEqual(abs(cell.belief - stationary) * rate ** n, 0.01 + 1e-6)
         self.assertGreater(abs(cell.belief - stationary) * rate ** (n - 1), 0.01 - 1e-6)
-        self.assertEqual(len(cell.expected_transitions), 4)
-        self.assertTrue(all(c >= 0.0 for c in cell.expected_transitions), cell.expected_transitions)
-        self.assertGreater(sum(cell.expected_transitions), 0.0)
-        # Mostly occupied -> occupied for a wall.
-        self.assertEqual(max(range(4), key=lambda k: cell.expected_transitions[k]), 0, cell.expected_transitions)
+        # The default learner: the cell's posterior over the map's kinds of cells, and no
+        # online EM counts.
+        self.assertEqual(cell.learner, 'kinds')
+        self.assertEqual(len(cell.kind_posterior), 5)
+        self.assertTrue(all(p >= 0.0 for p in cell.kind_posterior), cell.kind_posterior)
+        self.assertAlmostEqual(sum(cell.kind_posterior), 1.0, places=6)
+        self.assertEqual(list(cell.expected_transitions), [0.0, 0.0, 0.0, 0.0])
+        # A wall seen occupied in every step: a kind that keeps its state, so it stays a wall.
+        self.assertLess(cell.p_free_given_occ, 0.01)
         # The belief layer shows the same value.
         grid = self.belief_grid()
         self.assertLessEqual(abs(grid_value(grid, *WALL_POINTS[2]) - 100.0 * cell.belief), 0.51)
