@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <stdexcept>
 #include <string>
 
@@ -17,7 +18,41 @@ void require(bool ok, const std::string& message) {
 // the normaliser positive and changes nothing else.
 constexpr double kMaxLogLikelihoodRatio = 700.0;
 
+// The distance bins: 1..16 steps one each, then four per octave.
+constexpr int kExactBins = 16;
+constexpr double kBinsPerOctave = 4.0;
+
+// P(x_n = j | x_0 = i), [i][j], of the chain with transitions t: pi_j + lambda^n (delta_ij -
+// pi_j) (THEORY.md §3). lambda >= 0 here (both rates at most 0.5).
+void nStep(const TransitionParams& t, double steps, double p[2][2]) {
+  const double pi = t.p_occ_given_free / (t.p_occ_given_free + t.p_free_given_occ);
+  const double decay = std::pow(std::max(t.lambda(), 0.0), steps);
+  p[0][0] = pi + decay * (1.0 - pi);
+  p[0][1] = 1.0 - p[0][0];
+  p[1][0] = pi * (1.0 - decay);
+  p[1][1] = 1.0 - p[1][0];
+}
+
+// b(z) up to a common factor, the larger 1.
+void evidenceFactors(double log_likelihood_ratio, double b[2]) {
+  const double ratio = std::clamp(log_likelihood_ratio, -kMaxLogLikelihoodRatio, kMaxLogLikelihoodRatio);
+  b[0] = ratio >= 0.0 ? 1.0 : std::exp(ratio);
+  b[1] = ratio >= 0.0 ? std::exp(-ratio) : 1.0;
+}
+
 }  // namespace
+
+int gapBin(std::int64_t steps) {
+  if (steps <= kExactBins) return static_cast<int>(std::max<std::int64_t>(steps, 1)) - 1;
+  const double octaves = std::log2(static_cast<double>(steps) / kExactBins);
+  return std::min(kExactBins + static_cast<int>(std::floor(kBinsPerOctave * octaves)), kGapBins - 1);
+}
+
+double gapBinSteps(int bin) {
+  if (bin < kExactBins) return bin + 1.0;
+  // The geometric middle of the bin's distances.
+  return kExactBins * std::exp2((bin - kExactBins + 0.5) / kBinsPerOctave);
+}
 
 void KindsConfig::validate() const {
   double sum = 0.0;
@@ -50,6 +85,11 @@ CellKinds::CellKinds(const KindsConfig& config, double p_min, double p_max) : co
   config_.validate();
   require(p_min > 0.0 && p_min <= p_max && p_max <= 0.5, "kinds need 0 < p_min <= p_max <= 0.5");
   log_keep_ = std::log1p(-config_.switch_probability);
+  for (int k = 0; k < kKindCount; ++k) {
+    const TransitionParams& start = config_.initial_transitions[k];
+    transitions_[k] = TransitionParams{std::clamp(start.p_occ_given_free, p_min_, p_max_),
+                                       std::clamp(start.p_free_given_occ, p_min_, p_max_)};
+  }
   recompute();
 }
 
@@ -80,8 +120,7 @@ void CellKinds::skip(KindJoint& joint, std::int64_t steps) const {
   }
 }
 
-double CellKinds::observe(KindJoint& joint, std::int64_t gap, double log_likelihood_ratio,
-                          KindTransitions* transitions) const {
+double CellKinds::observe(KindJoint& joint, std::int64_t gap, double log_likelihood_ratio) const {
   // The kind switch over the gap and this step: mass (1 - keep) redrawn from w, state kept.
   const double keep = std::exp(log_keep_ * static_cast<double>(gap + 1));
   const double occ = joint.occupancy();
@@ -93,31 +132,19 @@ double CellKinds::observe(KindJoint& joint, std::int64_t gap, double log_likelih
       joint.p[2 * k + s] = keep * joint.p[2 * k + s] + (1.0 - keep) * weights_[k] * state[s];
     }
   }
-  // b(z) up to a common factor, the larger 1.
-  const double ratio = std::clamp(log_likelihood_ratio, -kMaxLogLikelihoodRatio, kMaxLogLikelihoodRatio);
-  const double b[2] = {ratio >= 0.0 ? 1.0 : std::exp(ratio), ratio >= 0.0 ? std::exp(-ratio) : 1.0};
-  double xi[kKindCount][2][2];
+  double b[2];
+  evidenceFactors(log_likelihood_ratio, b);
+  double next[2 * kKindCount];
   double c = 0.0;
   for (int k = 0; k < kKindCount; ++k) {
     const TransitionParams& t = transitions_[k];
-    const double a[2][2] = {{1.0 - t.p_free_given_occ, t.p_free_given_occ}, {t.p_occ_given_free, 1.0 - t.p_occ_given_free}};
-    for (int i = 0; i < 2; ++i) {
-      for (int j = 0; j < 2; ++j) {
-        xi[k][i][j] = joint.p[2 * k + i] * a[i][j] * b[j];
-        c += xi[k][i][j];
-      }
-    }
+    const double to_occ = joint.p[2 * k] * (1.0 - t.p_free_given_occ) + joint.p[2 * k + 1] * t.p_occ_given_free;
+    const double to_free = joint.p[2 * k] * t.p_free_given_occ + joint.p[2 * k + 1] * (1.0 - t.p_occ_given_free);
+    next[2 * k] = to_occ * b[0];
+    next[2 * k + 1] = to_free * b[1];
+    c += next[2 * k] + next[2 * k + 1];
   }
-  for (int k = 0; k < kKindCount; ++k) {
-    for (int j = 0; j < 2; ++j) joint.p[2 * k + j] = (xi[k][0][j] + xi[k][1][j]) / c;
-  }
-  if (transitions != nullptr) {
-    for (int k = 0; k < kKindCount; ++k) {
-      for (int i = 0; i < 2; ++i) {
-        for (int j = 0; j < 2; ++j) transitions->n[k][i][j] += xi[k][i][j] / c;
-      }
-    }
-  }
+  for (int i = 0; i < 2 * kKindCount; ++i) joint.p[i] = next[i] / c;
   return joint.occupancy();
 }
 
@@ -161,29 +188,49 @@ TransitionParams CellKinds::summary(const KindJoint& joint) const {
   return TransitionParams{std::exp(log_of), std::exp(log_fo)};
 }
 
-void CellKinds::addTransitions(const KindTransitions& transitions) {
-  if (config_.counting == KindCounting::kPosterior) {
-    for (int k = 0; k < kKindCount; ++k) {
-      for (int i = 0; i < 2; ++i) {
-        for (int j = 0; j < 2; ++j) sums_.transitions.n[k][i][j] += transitions.n[k][i][j];
+CellKinds::PairPosterior CellKinds::pairPosterior(const KindJoint& last, std::int64_t steps,
+                                                  double log_likelihood_ratio) const {
+  double b[2];
+  evidenceFactors(log_likelihood_ratio, b);
+  PairPosterior pair{};
+  double total = 0.0;
+  for (int k = 0; k < kKindCount; ++k) {
+    double p[2][2];
+    nStep(transitions_[k], static_cast<double>(steps), p);
+    for (int i = 0; i < 2; ++i) {
+      for (int j = 0; j < 2; ++j) {
+        pair[k][i][j] = last.p[2 * k + i] * p[i][j] * b[j];
+        total += pair[k][i][j];
       }
     }
-    return;
   }
-  // The kind that holds most of the step's mass, and the transitions given that kind.
-  int best = 0;
-  double best_mass = -1.0;
-  for (int k = 0; k < kKindCount; ++k) {
-    const auto& n = transitions.n[k];
-    const double mass = n[0][0] + n[0][1] + n[1][0] + n[1][1];
-    if (mass > best_mass) {
-      best = k;
-      best_mass = mass;
+  if (!(total > 0.0)) return PairPosterior{};
+  for (auto& kind : pair) {
+    for (auto& row : kind) {
+      for (double& value : row) value /= total;
     }
   }
-  if (!(best_mass > 0.0)) return;
-  for (int i = 0; i < 2; ++i) {
-    for (int j = 0; j < 2; ++j) sums_.transitions.n[best][i][j] += transitions.n[best][i][j] / best_mass;
+  return pair;
+}
+
+void CellKinds::addPair(const KindJoint& last, std::int64_t steps, double log_likelihood_ratio) {
+  if (steps < 1 || (!config_.learn_from_gaps && steps != 1)) return;
+  const PairPosterior pair = pairPosterior(last, steps, log_likelihood_ratio);
+  double mass[kKindCount];
+  int best = 0;
+  for (int k = 0; k < kKindCount; ++k) {
+    mass[k] = pair[k][0][0] + pair[k][0][1] + pair[k][1][0] + pair[k][1][1];
+    if (mass[k] > mass[best]) best = k;
+  }
+  if (!(mass[best] > 0.0)) return;
+  const int bin = gapBin(steps);
+  for (int k = 0; k < kKindCount; ++k) {
+    // kMostProbable: the whole pair to the likeliest kind, given that kind.
+    const double weight = config_.counting == KindCounting::kPosterior ? 1.0 : (k == best ? 1.0 / mass[best] : 0.0);
+    if (weight == 0.0) continue;
+    for (int i = 0; i < 2; ++i) {
+      for (int j = 0; j < 2; ++j) sums_.pairs[k][bin][2 * i + j] += weight * pair[k][i][j];
+    }
   }
 }
 
@@ -194,38 +241,112 @@ void CellKinds::addMembership(const std::array<double, kKindCount>& delta, bool 
 
 void CellKinds::update() {
   const double decay = 1.0 - config_.forgetting;
-  for (auto& kind : sums_.transitions.n) {
-    for (auto& row : kind) {
-      for (double& value : row) value *= decay;
+  for (auto& kind : sums_.pairs) {
+    for (auto& bin : kind) {
+      for (double& value : bin) value *= decay;
     }
   }
+  for (int k = 0; k < kKindCount; ++k) transitions_[k] = fitPairs(k, transitions_[k]);
   recompute();
 }
 
-void CellKinds::restore(const Sums& sums) {
+void CellKinds::restore(const Sums& sums, const std::array<TransitionParams, kKindCount>& transitions) {
   bool ok = std::isfinite(sums.cells) && sums.cells >= 0.0;
   for (int k = 0; k < kKindCount; ++k) {
     ok = ok && std::isfinite(sums.membership[k]) && sums.membership[k] >= 0.0;
-    for (const auto& row : sums.transitions.n[k]) {
-      for (const double value : row) ok = ok && std::isfinite(value) && value >= 0.0;
+    for (const auto& bin : sums.pairs[k]) {
+      for (const double value : bin) ok = ok && std::isfinite(value) && value >= 0.0;
     }
+    const TransitionParams& t = transitions[k];
+    ok = ok && t.p_occ_given_free >= p_min_ && t.p_occ_given_free <= p_max_ && t.p_free_given_occ >= p_min_ &&
+         t.p_free_given_occ <= p_max_;
   }
-  require(ok, "kinds: saved sums must be finite and >= 0");
+  require(ok, "kinds: saved sums must be finite and >= 0, transitions within the bounds");
   sums_ = sums;
+  transitions_ = transitions;
   recompute();
 }
 
-void CellKinds::recompute() {
+TransitionParams CellKinds::fitPairs(int k, TransitionParams start) const {
+  // Maximise, over (u, v) = (log a, log b) within the bounds, the pairs' log-likelihood plus
+  // the start's pseudo-pairs, by Newton steps (finite differences, at most a unit step in
+  // log space) with backtracking: a smooth function of two variables, and the maximum of
+  // the step before is where this one starts.
+  const TransitionParams& prior = config_.initial_transitions[k];
   const double w = config_.transition_prior_weight;
+  const auto& bins = sums_.pairs[k];
+  const auto objective = [&](double u, double v) {
+    const double a = std::exp(u);
+    const double b = std::exp(v);
+    double value = w * (prior.p_occ_given_free * u + (1.0 - prior.p_occ_given_free) * std::log1p(-a)) +
+                   w * (prior.p_free_given_occ * v + (1.0 - prior.p_free_given_occ) * std::log1p(-b));
+    for (int bin = 0; bin < kGapBins; ++bin) {
+      const auto& c = bins[bin];
+      if (c[0] + c[1] + c[2] + c[3] <= 0.0) continue;
+      double p[2][2];
+      nStep(TransitionParams{a, b}, gapBinSteps(bin), p);
+      for (int i = 0; i < 2; ++i) {
+        for (int j = 0; j < 2; ++j) {
+          if (c[2 * i + j] > 0.0) value += c[2 * i + j] * std::log(std::max(p[i][j], 1e-300));
+        }
+      }
+    }
+    return value;
+  };
+  const double lo = std::log(p_min_);
+  const double hi = std::log(p_max_);
+  double u = std::clamp(std::log(start.p_occ_given_free), lo, hi);
+  double v = std::clamp(std::log(start.p_free_given_occ), lo, hi);
+  constexpr double h = 1e-4;
+  constexpr int kMaxIterations = 30;
+  for (int iteration = 0; iteration < kMaxIterations; ++iteration) {
+    const double f0 = objective(u, v);
+    const double fu1 = objective(u + h, v);
+    const double fu0 = objective(u - h, v);
+    const double fv1 = objective(u, v + h);
+    const double fv0 = objective(u, v - h);
+    const double gu = (fu1 - fu0) / (2.0 * h);
+    const double gv = (fv1 - fv0) / (2.0 * h);
+    const double huu = (fu1 - 2.0 * f0 + fu0) / (h * h);
+    const double hvv = (fv1 - 2.0 * f0 + fv0) / (h * h);
+    const double huv = (objective(u + h, v + h) - fu1 - fv1 + f0) / (h * h);
+    double du = gu;
+    double dv = gv;
+    const double det = huu * hvv - huv * huv;
+    if (huu < 0.0 && det > 0.0) {  // concave here: the Newton step
+      du = -(hvv * gu - huv * gv) / det;
+      dv = -(huu * gv - huv * gu) / det;
+    }
+    // A step that leaves the box along a bound the gradient pushes against is cut there.
+    if ((u <= lo && du < 0.0) || (u >= hi && du > 0.0)) du = 0.0;
+    if ((v <= lo && dv < 0.0) || (v >= hi && dv > 0.0)) dv = 0.0;
+    const double length = std::hypot(du, dv);
+    if (length < 1e-10) break;
+    if (length > 1.0) {
+      du /= length;
+      dv /= length;
+    }
+    bool moved = false;
+    for (double step = 1.0; step > 1e-6; step *= 0.5) {
+      const double nu = std::clamp(u + step * du, lo, hi);
+      const double nv = std::clamp(v + step * dv, lo, hi);
+      if (objective(nu, nv) > f0) {
+        moved = std::abs(nu - u) + std::abs(nv - v) > 1e-10;
+        u = nu;
+        v = nv;
+        break;
+      }
+    }
+    if (!moved) break;
+  }
+  return TransitionParams{std::exp(u), std::exp(v)};
+}
+
+void CellKinds::recompute() {
   double share_total = 0.0;
   for (int k = 0; k < kKindCount; ++k) {
-    const TransitionParams& start = config_.initial_transitions[k];
-    const auto& n = sums_.transitions.n[k];
-    const double of = (std::max(n[1][0], 0.0) + w * start.p_occ_given_free) / (std::max(n[1][0] + n[1][1], 0.0) + w);
-    const double fo = (std::max(n[0][1], 0.0) + w * start.p_free_given_occ) / (std::max(n[0][0] + n[0][1], 0.0) + w);
-    transitions_[k] = TransitionParams{std::clamp(of, p_min_, p_max_), std::clamp(fo, p_min_, p_max_)};
     const double lambda = transitions_[k].lambda();
-    log_lambda_[k] = lambda > 0.0 ? std::log(lambda) : -INFINITY;
+    log_lambda_[k] = lambda > 0.0 ? std::log(lambda) : -std::numeric_limits<double>::infinity();
     log_p_of_[k] = std::log(transitions_[k].p_occ_given_free);
     log_p_fo_[k] = std::log(transitions_[k].p_free_given_occ);
     weights_[k] = std::max(sums_.membership[k], 0.0) + config_.weight_prior_cells * config_.initial_weights[k];

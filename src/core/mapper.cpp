@@ -443,12 +443,11 @@ void Mapper::learnKindsStep(CellGrid::Tile& tile, int i, std::int32_t step, doub
   if (!first) {
     for (int k = 0; k < kKindCount; ++k) before[k] = joint.kind(k);
   }
+  // The pair (its state at its last observed step, its state now) teaches the kinds
+  // (cell_kinds.h), from the joint before the gap is crossed.
+  if (!first) kinds_.addPair(joint, gap + 1, evidence);
   kinds_.skip(joint, gap);
-  // Only consecutive observed steps teach the kinds their transitions (cell_kinds.h).
-  KindTransitions transitions;
-  const bool count = !first && gap == 0;
-  tile.p_occ[i] = static_cast<float>(kinds_.observe(joint, gap, evidence, count ? &transitions : nullptr));
-  if (count) kinds_.addTransitions(transitions);
+  tile.p_occ[i] = static_cast<float>(kinds_.observe(joint, gap, evidence));
   std::array<double, kKindCount> delta{};
   for (int k = 0; k < kKindCount; ++k) delta[k] = joint.kind(k) - before[k];
   kinds_.addMembership(delta, first);

@@ -11,6 +11,7 @@
 #include <zlib.h>
 
 #include <algorithm>
+#include <array>
 #include <cerrno>
 #include <cmath>
 #include <cstdio>
@@ -44,11 +45,13 @@ constexpr std::size_t kHeaderSizeV2 = kTimeEnd + (2 * 1 + 1 + 5 * 8 + 4) + 4 * 8
 static_assert(kHeaderSizeV2 == 276, "docs/model_format.md documents a 276-byte version 2 header");
 // Version 3 adds, before the cell count, the transition learner and the kinds of cells:
 // learner and kind count (2 bytes), per kind its initial transitions (2 doubles) and share,
-// 4 doubles of options, 2 bytes of choices, and the sums: per kind 4 transitions and a
-// membership, and the number of cells.
-constexpr std::size_t kHeaderSizeV3 =
-    kHeaderSizeV2 - 8 + 2 + kKindCount * (2 + 1) * 8 + 4 * 8 + 2 + (kKindCount * (4 + 1) + 1) * 8 + 8;
-static_assert(kHeaderSizeV3 == 640, "docs/model_format.md documents a 640-byte version 3 header");
+// 4 doubles of options, 3 bytes of choices, the number of distance bins (u16), and the
+// sums: per kind and bin 4 pairs, per kind a membership, the number of cells; then the
+// kinds' transitions learned so far (2 doubles each).
+constexpr std::size_t kKindsSumsSize = (kKindCount * kGapBins * 4 + kKindCount + 1) * 8;
+constexpr std::size_t kHeaderSizeV3 = kHeaderSizeV2 - 8 + 2 + kKindCount * (2 + 1) * 8 + 4 * 8 + 3 + 2 +
+                                      kKindsSumsSize + kKindCount * 2 * 8 + 8;
+static_assert(kHeaderSizeV3 == 20403, "docs/model_format.md documents a 20403-byte version 3 header");
 // x, y, p_occ, last_step, log_odds, p_occ_given_free, p_free_given_occ, em_stats[8],
 // observed_steps; version 2 adds last_hits and last_misses; version 3 stores the learner's
 // state in kLearnerStateSize floats instead of 8.
@@ -354,6 +357,7 @@ std::unique_ptr<Mapper> deserializeChecked(const std::string& bytes) {
   // Version 3: the transition learner and the kinds of cells. Older files were written by
   // each cell's online EM, and their cells hold its statistics: they go on with it.
   CellKinds::Sums kind_sums;
+  std::array<TransitionParams, kKindCount> kind_transitions{};
   if (version >= 3) {
     const std::uint8_t learner = reader.u8();
     if (learner > 1) {
@@ -387,13 +391,23 @@ std::unique_ptr<Mapper> deserializeChecked(const std::string& bytes) {
     }
     config.kinds.summary = static_cast<KindSummary>(summary);
     config.kinds.counting = static_cast<KindCounting>(counting);
-    for (auto& kind : kind_sums.transitions.n) {
-      for (auto& row : kind) {
-        for (double& value : row) value = reader.f64();
+    config.kinds.learn_from_gaps = reader.flag("kinds.learn_from_gaps");
+    const std::uint16_t bins = reader.u16();
+    if (bins != kGapBins) {
+      throw std::runtime_error("model file with " + std::to_string(bins) + " distance bins of the kinds' pairs, this "
+                               "build has " + std::to_string(kGapBins));
+    }
+    for (auto& kind : kind_sums.pairs) {
+      for (auto& bin : kind) {
+        for (double& value : bin) value = reader.f64();
       }
     }
     for (double& membership : kind_sums.membership) membership = reader.f64();
     kind_sums.cells = reader.f64();
+    for (TransitionParams& learned : kind_transitions) {
+      learned.p_occ_given_free = reader.f64();
+      learned.p_free_given_occ = reader.f64();
+    }
   } else {
     config.learner = TransitionLearner::kCellEm;
   }
@@ -423,7 +437,7 @@ std::unique_ptr<Mapper> deserializeChecked(const std::string& bytes) {
     throw std::runtime_error(std::string("invalid sensor model sums in model file: ") + error.what());
   }
   try {
-    mapper->restoreKindSums(kind_sums);
+    if (version >= 3) mapper->restoreKinds(kind_sums, kind_transitions);
   } catch (const std::invalid_argument& error) {
     throw std::runtime_error(std::string("invalid kinds of cells in model file: ") + error.what());
   }
@@ -577,14 +591,20 @@ std::string serializeModel(const Mapper& mapper) {
   writer.f64(config.kinds.forgetting);
   writer.u8(static_cast<std::uint8_t>(config.kinds.summary));
   writer.u8(static_cast<std::uint8_t>(config.kinds.counting));
+  writer.flag(config.kinds.learn_from_gaps);
+  writer.u16(static_cast<std::uint16_t>(kGapBins));
   const CellKinds::Sums& kind_sums = mapper.kinds().sums();
-  for (const auto& kind : kind_sums.transitions.n) {
-    for (const auto& row : kind) {
-      for (const double value : row) writer.f64(value);
+  for (const auto& kind : kind_sums.pairs) {
+    for (const auto& bin : kind) {
+      for (const double value : bin) writer.f64(value);
     }
   }
   for (const double membership : kind_sums.membership) writer.f64(membership);
   writer.f64(kind_sums.cells);
+  for (int k = 0; k < kKindCount; ++k) {
+    writer.f64(mapper.kinds().transitions(k).p_occ_given_free);
+    writer.f64(mapper.kinds().transitions(k).p_free_given_occ);
+  }
   writer.u64(cell_count);
 
   forEachObservedCell(grid, [&writer](std::int32_t x, std::int32_t y, const CellGrid::Tile& tile, int i) {

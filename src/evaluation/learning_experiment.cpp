@@ -332,6 +332,7 @@ std::vector<LearnerVariant> kindsAblationVariants() {
       {"kinds_mean_summary", [](MapperConfig& c) { c.kinds.summary = KindSummary::kMean; }},
       {"kinds_most_probable_summary", [](MapperConfig& c) { c.kinds.summary = KindSummary::kMostProbable; }},
       {"kinds_exact_prediction", {}, true},
+      {"kinds_consecutive_steps", [](MapperConfig& c) { c.kinds.learn_from_gaps = false; }},
   };
 }
 

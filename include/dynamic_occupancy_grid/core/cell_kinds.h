@@ -23,12 +23,19 @@
 // per kind (THEORY.md §3).
 //
 // Learning the kinds (population M-step after every applied step):
-//   A_k from the expected transitions between consecutive observed steps of all cells,
-//     p(kind = k, x_{t-1} = i, x_t = j | z_1:t), plus transition_prior_weight
-//     pseudo-transitions per from-state at the kind's initial transitions, all decayed by
-//     1 - forgetting per step. (Consecutive steps only: their posterior is exact given the
-//     data up to t, so at the true transitions the sums are unbiased; a gap's expected
-//     transitions would only repeat the current estimate back to it.)
+//   Each observed step of a cell seen before adds the pair (its state at its last observed
+//   step, its state now), n steps apart, to the cell's most probable kind, given that kind:
+//     p(kind = k, x_last = i, x_now = j | z_1:now)  ∝  f(k, i) (A_k^n)_ij b_j(z_now),
+//   binned by n (gapBin). A_k then maximises the likelihood of its pairs,
+//     sum over bins and (i, j) of c_k(n, i, j) log (A_k^n)_ij,
+//   plus transition_prior_weight one-step pseudo-pairs per from-state at the kind's start,
+//   with (A^n)_ij = pi_j + lambda^n (delta_ij - pi_j) (THEORY.md §3). At the true
+//   transitions the pair posteriors are unbiased in sum, whatever the gap, and the robot's
+//   visits do not depend on the state. Unlike the expected one-step transitions inside a
+//   gap (EM's E-step), a pair does not repeat the current estimate back to it: on a patrol
+//   nine steps of ten are gaps, and that echo is what keeps each cell's online EM slow.
+//   With consecutive steps only (learn_from_gaps false) the maximum is the ratio of expected
+//   transitions. The sums decay by 1 - forgetting per step.
 //   w_k = (sum over cells of p(kind = k | z) + weight_prior_cells * w0_k) / (cells + weight_prior_cells).
 //
 // ROS-free: standard library only.
@@ -56,14 +63,14 @@ enum class KindSummary {
   kMostProbable,
 };
 
-/// Which kinds a cell's transitions teach.
+/// Which kinds a cell's pairs teach.
 enum class KindCounting {
   /// All, each weighed by the cell's posterior of the kind (plain EM). A cell seen free for
   /// minutes fits every kind whose p_occ_given_free is small about as well as the floor, so
   /// the floor's many cells keep a share of every such kind and drown the few cells that
   /// really change: a kind of fast cells never gets its p_occ_given_free up.
   kPosterior,
-  /// Only the cell's most probable kind, with the cell's transitions given that kind
+  /// Only the cell's most probable kind, with the cell's pair given that kind
   /// (classification EM): cells the kinds explain equally well go to the biggest.
   kMostProbable,
 };
@@ -86,6 +93,9 @@ struct KindsConfig {
   double forgetting = 1e-3;
   KindSummary summary = KindSummary::kGeometricMean;
   KindCounting counting = KindCounting::kMostProbable;
+  /// Learn from every pair of a cell's consecutive observations, whatever the steps between
+  /// them; false: only from observations in consecutive steps.
+  bool learn_from_gaps = true;
 
   /// Throws std::invalid_argument naming the first bad field.
   void validate() const;
@@ -99,10 +109,12 @@ struct KindJoint {
   double occupancy() const;
 };
 
-/// Expected transitions i -> j per kind, [k][i][j] (0 = occ, 1 = free).
-struct KindTransitions {
-  double n[kKindCount][2][2] = {};
-};
+/// Bins of the pairs' distance n in steps (gapBin): 1 to 16 one each, then four per octave
+/// up to 2^31.
+constexpr int kGapBins = 16 + 4 * 27;
+/// The bin of a pair n >= 1 steps apart, and the distance a bin stands for.
+int gapBin(std::int64_t steps);
+double gapBinSteps(int bin);
 
 
 
@@ -124,35 +136,43 @@ class CellKinds {
   /// Crosses `steps` (>= 0) unobserved steps: each kind's state in closed form (THEORY.md §3).
   void skip(KindJoint& joint, std::int64_t steps) const;
   /// An observed step after `gap` (>= 0) unobserved ones: the kind switch for gap + 1 steps,
-  /// one transition, the evidence (log p(z|occ)/p(z|free)). With `transitions` set, adds
-  /// p(k, x_{t-1} = i, x_t = j | z_1:t) to it (meant for gap == 0). Returns p(occ).
-  double observe(KindJoint& joint, std::int64_t gap, double log_likelihood_ratio, KindTransitions* transitions) const;
+  /// one transition, the evidence (log p(z|occ)/p(z|free)). Returns p(occ).
+  double observe(KindJoint& joint, std::int64_t gap, double log_likelihood_ratio) const;
   /// p(occ) `steps` (>= 0) steps after the joint's step, exact (a mixture of closed forms).
   double predict(const KindJoint& joint, std::int64_t steps) const;
   /// The cell's two transition probabilities as the configured summary.
   TransitionParams summary(const KindJoint& joint) const;
 
-  /// Learning: a cell's transitions (observe's output), and the change of a cell's kind
-  /// posterior (new minus old; a new cell adds its whole posterior and `new_cell`).
-  void addTransitions(const KindTransitions& transitions);
+  /// Learning: a cell's pair (its state at its last observed step, its state now), `steps`
+  /// (>= 1) apart, from its joint at the last step and this step's evidence; and the change
+  /// of a cell's kind posterior (new minus old; a new cell adds its whole posterior and
+  /// `new_cell`).
+  void addPair(const KindJoint& last, std::int64_t steps, double log_likelihood_ratio);
   void addMembership(const std::array<double, kKindCount>& delta, bool new_cell);
-  /// The M-step after an applied step: decays the transition sums, then recomputes the
-  /// kinds' transitions and shares.
+  /// p(k, x_last = i, x_now = j | z) of a pair at [k][i][j] (addPair's posterior).
+  using PairPosterior = std::array<std::array<std::array<double, 2>, 2>, kKindCount>;
+  PairPosterior pairPosterior(const KindJoint& last, std::int64_t steps, double log_likelihood_ratio) const;
+  /// The M-step after an applied step: decays the pair sums, then recomputes the kinds'
+  /// transitions (from where they are) and shares.
   void update();
 
   /// Everything the kinds are learned from (model files).
   struct Sums {
-    KindTransitions transitions;
+    /// Expected pairs per kind and distance bin, [k][bin][2 i + j] (i: the state then, j now).
+    std::array<std::array<std::array<double, 4>, kGapBins>, kKindCount> pairs{};
     std::array<double, kKindCount> membership{};  ///< sum over cells of p(kind | z)
     double cells = 0.0;
   };
   const Sums& sums() const { return sums_; }
-  /// Restores saved sums and recomputes. Throws std::invalid_argument for negative or
-  /// non-finite values.
-  void restore(const Sums& sums);
+  /// Restores saved sums and the kinds' transitions learned from them (the M-step starts
+  /// from where the last one ended). Throws std::invalid_argument for negative or non-finite
+  /// values or transitions outside the bounds.
+  void restore(const Sums& sums, const std::array<TransitionParams, kKindCount>& transitions);
 
  private:
   void recompute();
+  /// The kind's transitions that maximise its pairs' likelihood, from `start`.
+  TransitionParams fitPairs(int k, TransitionParams start) const;
 
   KindsConfig config_;
   double p_min_;

@@ -205,9 +205,11 @@ class Mapper {
   /// Model loading: learn_sensor_model's saved sums; the sensor model becomes the one they
   /// give. Throws std::invalid_argument for negative or non-finite sums, or hits above trials.
   void restoreSensorModelStats(const SensorModelStats& stats);
-  /// Model loading: the kinds' saved sums (learner kKinds); the kinds become the ones they
-  /// give. Throws std::invalid_argument for negative or non-finite sums.
-  void restoreKindSums(const CellKinds::Sums& sums) { kinds_.restore(sums); }
+  /// Model loading: the kinds' saved sums and the transitions learned from them. Throws
+  /// std::invalid_argument for negative or non-finite sums or transitions out of bounds.
+  void restoreKinds(const CellKinds::Sums& sums, const std::array<TransitionParams, kKindCount>& transitions) {
+    kinds_.restore(sums, transitions);
+  }
 
  private:
   void applyGatheredStep();
