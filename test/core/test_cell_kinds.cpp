@@ -124,17 +124,45 @@ TEST(CellKinds, ObserveAndSkipEqualTheStepByStepReference) {
     for (int step = 0; step < 60; ++step) {
       const std::int64_t gap = step == 0 ? 0 : gaps(rng);
       const double ratio = ratios(rng);
-      dog::KindTransitions transitions;
       kinds.skip(joint, gap);
-      const double p = kinds.observe(joint, gap, ratio, &transitions);
+      const double p = kinds.observe(joint, gap, ratio);
       LD xi[K][2][2];
       const LD expected = referenceObserve(reference, kinds, gap, ratio, xi);
       ASSERT_NEAR(p, static_cast<double>(expected), 1e-12);
       for (int i = 0; i < 2 * K; ++i) ASSERT_NEAR(joint.p[i], static_cast<double>(reference[i]), 1e-12) << i;
-      for (int k = 0; k < K; ++k) {
-        for (int i = 0; i < 2; ++i) {
-          for (int j = 0; j < 2; ++j) ASSERT_NEAR(transitions.n[k][i][j], static_cast<double>(xi[k][i][j]), 1e-12);
+    }
+  }
+}
+
+TEST(CellKinds, PairPosteriorIsTheChainStepByStepFromEachState) {
+  // p(k, x_last = i, x_now = j | z): the joint at the last step, each (kind, state) moved n
+  // steps by its A_k one step at a time, weighed by this step's evidence.
+  std::mt19937_64 rng(13);
+  std::uniform_real_distribution<double> ratios(-6.0, 6.0);
+  const dog::CellKinds kinds(randomConfig(rng, 1e-3), 1e-4, 0.5);
+  dog::KindJoint last = kinds.newCell(0.4);
+  kinds.observe(last, 0, 1.5);
+  kinds.observe(last, 3, -0.7);
+  for (const std::int64_t n : {1, 2, 7, 40, 333}) {
+    SCOPED_TRACE(n);
+    const double ratio = ratios(rng);
+    const dog::CellKinds::PairPosterior pair = kinds.pairPosterior(last, n, ratio);
+    LD expected[K][2][2];
+    LD total = 0.0L;
+    for (int k = 0; k < K; ++k) {
+      for (int i = 0; i < 2; ++i) {
+        Joint chain{};
+        chain[2 * k + i] = 1.0L;
+        for (std::int64_t step = 0; step < n; ++step) referenceStep(chain, kinds);
+        for (int j = 0; j < 2; ++j) {
+          expected[k][i][j] = static_cast<LD>(last.p[2 * k + i]) * chain[2 * k + j] * (j == 0 ? std::exp(static_cast<LD>(ratio)) : 1.0L);
+          total += expected[k][i][j];
         }
+      }
+    }
+    for (int k = 0; k < K; ++k) {
+      for (int i = 0; i < 2; ++i) {
+        for (int j = 0; j < 2; ++j) ASSERT_NEAR(pair[k][i][j], static_cast<double>(expected[k][i][j] / total), 1e-12);
       }
     }
   }
@@ -144,8 +172,8 @@ TEST(CellKinds, PredictIsTheMixtureStepByStep) {
   std::mt19937_64 rng(12);
   const dog::CellKinds kinds(randomConfig(rng, 1e-3), 1e-4, 0.5);
   dog::KindJoint joint = kinds.newCell(0.5);
-  kinds.observe(joint, 0, 2.5, nullptr);
-  kinds.observe(joint, 3, -1.5, nullptr);
+  kinds.observe(joint, 0, 2.5);
+  kinds.observe(joint, 3, -1.5);
   Joint reference = toReference(joint);
   for (std::int64_t steps = 0; steps <= 300; ++steps) {
     SCOPED_TRACE(steps);
@@ -161,7 +189,7 @@ TEST(CellKinds, ExtremeEvidenceStaysFinite) {
   for (const double ratio : {-1e6, -800.0, 800.0, 1e6}) {
     dog::KindJoint joint = kinds.newCell(0.5);
     for (int step = 0; step < 5; ++step) {
-      const double p = kinds.observe(joint, step, ratio, nullptr);
+      const double p = kinds.observe(joint, step, ratio);
       ASSERT_TRUE(std::isfinite(p));
       EXPECT_NEAR(p, ratio > 0.0 ? 1.0 : 0.0, 1e-12);
       for (const double value : joint.p) ASSERT_TRUE(std::isfinite(value) && value >= 0.0);
@@ -174,62 +202,130 @@ TEST(CellKinds, NoKindDiesOfEvidence) {
   // place that starts to change is recognised again within a few observations.
   const dog::CellKinds kinds(dog::KindsConfig{}, 1e-4, 0.5);
   dog::KindJoint joint = kinds.newCell(0.5);
-  for (int step = 0; step < 10000; ++step) kinds.observe(joint, 0, -8.0, nullptr);
+  for (int step = 0; step < 10000; ++step) kinds.observe(joint, 0, -8.0);
   for (int k = 0; k < K; ++k) EXPECT_GT(joint.kind(k), 1e-6) << k;
   // Now it flickers: occupied, free, occupied, ... (a laser's hit or miss, log-odds 8). The
   // fastest kind takes over.
-  for (int step = 0; step < 12; ++step) kinds.observe(joint, 0, step % 2 == 0 ? 8.0 : -8.0, nullptr);
+  for (int step = 0; step < 12; ++step) kinds.observe(joint, 0, step % 2 == 0 ? 8.0 : -8.0);
   EXPECT_GT(joint.kind(K - 1), 0.5);
 }
 
-TEST(CellKinds, MStepIsTheCountsPlusTheInitialTransitionsAndForgets) {
+TEST(CellKinds, OneStepPairsGiveTheCountRatioAndForget) {
+  // With pairs one step apart only, the likelihood's maximum is the ratio of the expected
+  // transitions with the start's pseudo-transitions; the sums decay first.
   dog::KindsConfig config;
   config.transition_prior_weight = 10.0;
   config.weight_prior_cells = 4.0;
   config.forgetting = 0.5;
-  config.counting = dog::KindCounting::kPosterior;
   dog::CellKinds kinds(config, 1e-4, 0.5);
-  dog::KindTransitions counts;
-  counts.n[2][1][0] = 6.0;   // free -> occ
-  counts.n[2][1][1] = 14.0;  // free -> free
-  counts.n[2][0][1] = 3.0;   // occ -> free
-  counts.n[2][0][0] = 1.0;   // occ -> occ
-  kinds.addTransitions(counts);
-  std::array<double, K> membership{};
-  membership[2] = 2.0;
-  kinds.addMembership(membership, true);
-  kinds.addMembership(std::array<double, K>{}, true);
+  dog::CellKinds::Sums sums;
+  auto& one_step = sums.pairs[2][dog::gapBin(1)];
+  one_step[2 * 1 + 0] = 6.0;   // free -> occ
+  one_step[2 * 1 + 1] = 14.0;  // free -> free
+  one_step[2 * 0 + 1] = 3.0;   // occ -> free
+  one_step[2 * 0 + 0] = 1.0;   // occ -> occ
+  sums.membership[2] = 2.0;
+  sums.cells = 2.0;
+  std::array<dog::TransitionParams, K> start;
+  for (int k = 0; k < K; ++k) start[k] = kinds.transitions(k);
+  kinds.restore(sums, start);
   kinds.update();  // the sums decay by 1 - forgetting first: 3, 7, 1.5, 0.5
-  const dog::TransitionParams start = config.initial_transitions[2];
-  EXPECT_NEAR(kinds.transitions(2).p_occ_given_free, (3.0 + 10.0 * start.p_occ_given_free) / (10.0 + 10.0), 1e-15);
-  EXPECT_NEAR(kinds.transitions(2).p_free_given_occ, (1.5 + 10.0 * start.p_free_given_occ) / (2.0 + 10.0), 1e-15);
-  EXPECT_DOUBLE_EQ(kinds.transitions(0).p_occ_given_free, config.initial_transitions[0].p_occ_given_free);
+  const dog::TransitionParams prior = config.initial_transitions[2];
+  const double of = (3.0 + 10.0 * prior.p_occ_given_free) / (10.0 + 10.0);
+  const double fo = (1.5 + 10.0 * prior.p_free_given_occ) / (2.0 + 10.0);
+  EXPECT_NEAR(kinds.transitions(2).p_occ_given_free, of, 1e-6 * of);
+  EXPECT_NEAR(kinds.transitions(2).p_free_given_occ, fo, 1e-6 * fo);
+  // A kind without pairs stays at its start.
+  EXPECT_NEAR(kinds.transitions(0).p_occ_given_free, config.initial_transitions[0].p_occ_given_free, 1e-9);
   // Shares: (membership + weight_prior_cells * initial share) / (cells + weight_prior_cells).
   for (int k = 0; k < K; ++k) {
     const double expected = ((k == 2 ? 2.0 : 0.0) + 4.0 * config.initial_weights[k]) / (2.0 + 4.0);
     EXPECT_NEAR(kinds.weight(k), expected, 1e-15) << k;
   }
-  EXPECT_DOUBLE_EQ(kinds.sums().cells, 2.0);
 }
 
-TEST(CellKinds, MostProbableCountingGivesTheCellsTransitionsToItsLikeliestKind) {
+TEST(CellKinds, PairsAtManyDistancesGiveTheChainBack) {
+  // The expected pairs of a chain (0.03, 0.07) in its stationary distribution, a million at
+  // each of several distances, some of them longer than the chain's memory: the maximum is
+  // that chain (the start's 100 pseudo-pairs move it by less than 0.1 %).
+  const double a = 0.03;
+  const double b = 0.07;
+  const double pi = a / (a + b);
+  dog::CellKinds kinds(dog::KindsConfig{}, 1e-4, 0.5);
+  dog::CellKinds::Sums sums;
+  for (const int bin : {dog::gapBin(1), dog::gapBin(3), dog::gapBin(9), dog::gapBin(40), dog::gapBin(300)}) {
+    const double n = dog::gapBinSteps(bin);
+    const double decay = std::pow(1.0 - a - b, n);
+    const double occ_to_occ = pi + decay * (1.0 - pi);
+    const double free_to_occ = pi * (1.0 - decay);
+    auto& c = sums.pairs[3][bin];
+    c[0] = 1e6 * pi * occ_to_occ;
+    c[1] = 1e6 * pi * (1.0 - occ_to_occ);
+    c[2] = 1e6 * (1.0 - pi) * free_to_occ;
+    c[3] = 1e6 * (1.0 - pi) * (1.0 - free_to_occ);
+  }
+  std::array<dog::TransitionParams, K> start;
+  for (int k = 0; k < K; ++k) start[k] = kinds.transitions(k);
+  kinds.restore(sums, start);
+  kinds.update();
+  EXPECT_NEAR(kinds.transitions(3).p_occ_given_free, a, 1e-3 * a);
+  EXPECT_NEAR(kinds.transitions(3).p_free_given_occ, b, 1e-3 * b);
+  // Only pairs far apart (the chain forgotten between them) still give its long-run
+  // occupancy.
+  dog::CellKinds::Sums far;
+  far.pairs[3][dog::gapBin(2000)] = {1e6 * pi * pi, 1e6 * pi * (1.0 - pi), 1e6 * (1.0 - pi) * pi,
+                                     1e6 * (1.0 - pi) * (1.0 - pi)};
+  dog::CellKinds forgetful(dog::KindsConfig{}, 1e-4, 0.5);
+  forgetful.restore(far, start);
+  forgetful.update();
+  const dog::TransitionParams t = forgetful.transitions(3);
+  EXPECT_NEAR(t.p_occ_given_free / (t.p_occ_given_free + t.p_free_given_occ), pi, 1e-3);
+}
+
+TEST(CellKinds, MostProbableCountingGivesThePairToTheLikeliestKind) {
   dog::KindsConfig config;
   config.forgetting = 0.0;
   dog::CellKinds kinds(config, 1e-4, 0.5);
-  dog::KindTransitions counts;
-  // Kind 3 holds 0.6 of the step's mass, kind 1 0.4.
-  counts.n[3][1][0] = 0.3;
-  counts.n[3][1][1] = 0.3;
-  counts.n[1][1][1] = 0.4;
-  kinds.addTransitions(counts);
-  EXPECT_DOUBLE_EQ(kinds.sums().transitions.n[3][1][0], 0.5);
-  EXPECT_DOUBLE_EQ(kinds.sums().transitions.n[3][1][1], 0.5);
-  EXPECT_DOUBLE_EQ(kinds.sums().transitions.n[1][1][1], 0.0);
+  // Kind 3 holds 0.6 of the cell, kind 1 0.4, all of it free; no evidence now.
+  dog::KindJoint last;
+  last.p[2 * 3 + 1] = 0.6;
+  last.p[2 * 1 + 1] = 0.4;
+  kinds.addPair(last, 1, 0.0);
+  const auto& hard = kinds.sums().pairs;
+  const double to_kind_3 = hard[3][0][2] + hard[3][0][3];
+  EXPECT_NEAR(to_kind_3, 1.0, 1e-12);  // the whole pair, given kind 3
+  EXPECT_NEAR(hard[3][0][2], kinds.transitions(3).p_occ_given_free, 1e-12);
+  EXPECT_EQ(hard[1][0][2] + hard[1][0][3], 0.0);
   config.counting = dog::KindCounting::kPosterior;
   dog::CellKinds soft(config, 1e-4, 0.5);
-  soft.addTransitions(counts);
-  EXPECT_DOUBLE_EQ(soft.sums().transitions.n[1][1][1], 0.4);
-  EXPECT_DOUBLE_EQ(soft.sums().transitions.n[3][1][0], 0.3);
+  soft.addPair(last, 1, 0.0);
+  EXPECT_NEAR(soft.sums().pairs[1][0][2] + soft.sums().pairs[1][0][3], 0.4, 1e-12);
+  EXPECT_NEAR(soft.sums().pairs[3][0][2] + soft.sums().pairs[3][0][3], 0.6, 1e-12);
+  // A pair 50 steps apart goes to its distance's bin; with learn_from_gaps off it is left out.
+  kinds.addPair(last, 50, 0.0);
+  const auto& bin = kinds.sums().pairs[3][dog::gapBin(50)];
+  EXPECT_NEAR(bin[2] + bin[3], 1.0, 1e-12);
+  config.counting = dog::KindCounting::kMostProbable;
+  config.learn_from_gaps = false;
+  dog::CellKinds consecutive(config, 1e-4, 0.5);
+  consecutive.addPair(last, 50, 0.0);
+  const auto& none = consecutive.sums().pairs[3][dog::gapBin(50)];
+  EXPECT_EQ(none[2] + none[3], 0.0);
+}
+
+TEST(CellKinds, DistanceBinsAreExactUpToSixteenThenFourPerOctave) {
+  for (int n = 1; n <= 16; ++n) {
+    EXPECT_EQ(dog::gapBin(n), n - 1);
+    EXPECT_EQ(dog::gapBinSteps(n - 1), n);
+  }
+  EXPECT_EQ(dog::gapBin(17), 16);
+  EXPECT_EQ(dog::gapBin(32), 20);
+  EXPECT_EQ(dog::gapBin(std::int64_t{1} << 31), dog::kGapBins - 1);
+  EXPECT_EQ(dog::gapBin(std::int64_t{1} << 40), dog::kGapBins - 1);
+  for (int bin = 16; bin < dog::kGapBins; ++bin) {
+    const double n = dog::gapBinSteps(bin);
+    EXPECT_EQ(dog::gapBin(static_cast<std::int64_t>(n)), bin) << bin;
+  }
 }
 
 TEST(CellKinds, SummariesOfAKnownPosterior) {
@@ -261,25 +357,34 @@ TEST(CellKinds, SummariesOfAKnownPosterior) {
 
 TEST(CellKinds, SavedSumsRestoreTheKinds) {
   dog::CellKinds kinds(dog::KindsConfig{}, 1e-4, 0.5);
-  dog::KindTransitions counts;
-  counts.n[4][1][0] = 30.0;
-  counts.n[4][1][1] = 70.0;
-  kinds.addTransitions(counts);
+  dog::KindJoint last;
+  last.p[2 * 4 + 1] = 1.0;
+  for (int i = 0; i < 30; ++i) kinds.addPair(last, 1, 3.0);
+  for (int i = 0; i < 70; ++i) kinds.addPair(last, 1, -3.0);
   kinds.addMembership(std::array<double, K>{{0.0, 0.0, 0.0, 0.0, 5.0}}, true);
   kinds.update();
+  std::array<dog::TransitionParams, K> learned;
+  for (int k = 0; k < K; ++k) learned[k] = kinds.transitions(k);
   dog::CellKinds restored(dog::KindsConfig{}, 1e-4, 0.5);
-  restored.restore(kinds.sums());
+  restored.restore(kinds.sums(), learned);
   for (int k = 0; k < K; ++k) {
     EXPECT_EQ(restored.transitions(k).p_occ_given_free, kinds.transitions(k).p_occ_given_free);
     EXPECT_EQ(restored.transitions(k).p_free_given_occ, kinds.transitions(k).p_free_given_occ);
     EXPECT_EQ(restored.weight(k), kinds.weight(k));
   }
+  // Both go on the same.
+  restored.update();
+  kinds.update();
+  EXPECT_EQ(restored.transitions(4).p_occ_given_free, kinds.transitions(4).p_occ_given_free);
   dog::CellKinds::Sums bad = kinds.sums();
   bad.membership[1] = -1.0;
-  EXPECT_THROW(restored.restore(bad), std::invalid_argument);
+  EXPECT_THROW(restored.restore(bad, learned), std::invalid_argument);
   bad = kinds.sums();
-  bad.transitions.n[0][0][0] = std::nan("");
-  EXPECT_THROW(restored.restore(bad), std::invalid_argument);
+  bad.pairs[0][0][0] = std::nan("");
+  EXPECT_THROW(restored.restore(bad, learned), std::invalid_argument);
+  std::array<dog::TransitionParams, K> outside = learned;
+  outside[2].p_free_given_occ = 0.7;
+  EXPECT_THROW(restored.restore(kinds.sums(), outside), std::invalid_argument);
 }
 
 TEST(CellKinds, ConfigurationIsValidated) {
@@ -332,14 +437,14 @@ TEST(CellKinds, LearnsTheKindsOfASimulatedPopulation) {
       if (step > 0 && u(rng) < (occupied[c] ? truth.fo : truth.of)) occupied[c] = !occupied[c];
       const bool hit = u(rng) < (occupied[c] ? hit_occ : hit_free);
       std::array<double, K> before{};
+      const double ratio = hit ? hit_ratio : miss_ratio;
       if (step == 0) {
         joints[c] = kinds.newCell(0.5);
       } else {
         for (int k = 0; k < K; ++k) before[k] = joints[c].kind(k);
+        kinds.addPair(joints[c], 1, ratio);
       }
-      dog::KindTransitions transitions;
-      kinds.observe(joints[c], 0, hit ? hit_ratio : miss_ratio, step > 0 ? &transitions : nullptr);
-      if (step > 0) kinds.addTransitions(transitions);
+      kinds.observe(joints[c], 0, ratio);
       std::array<double, K> delta{};
       for (int k = 0; k < K; ++k) delta[k] = joints[c].kind(k) - before[k];
       kinds.addMembership(delta, step == 0);
