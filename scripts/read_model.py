@@ -7,7 +7,8 @@ As a library:
     model = load_model("map.dogm")
     model.config["resolution_m"], model.clock_origin_s, model.last_applied_step
     model.learner                                         # "kinds" or "cell_em"
-    model.config["kinds"], model.kind_sums                # the kinds of cells
+    model.config["kinds"], model.kind_sums                # the kinds of cells: configuration, pair sums,
+    model.kind_transitions                                # and the transitions they learned
     model.x, model.y, model.p_occ, model.learner_state    # one entry per observed cell
     model.kind_posterior    # learner "kinds": p(kind, state) per cell, N x 5 x 2 (else None)
     model.em_stats          # learner "cell_em": online EM statistics, N x 8 (else None)
@@ -23,6 +24,7 @@ prints it and exits with status 1.
 """
 
 import argparse
+import math
 import struct
 import sys
 import zlib
@@ -32,6 +34,7 @@ import numpy as np
 MAGIC = b"DOGMODEL"
 FORMAT_VERSION = 3  # the version the C++ writes; versions 1 and 2 are read too
 KIND_COUNT = 5  # core/cell_kinds.h kKindCount
+GAP_BINS = 124  # core/cell_kinds.h kGapBins: distance bins of the kinds' pairs (gap_bin)
 LEARNER_STATE_SIZE = 10  # core/cell_grid.h kLearnerStateSize: floats of a cell's learner state
 LEARNERS = ("cell_em", "kinds")  # the learner byte's values (TransitionLearner)
 KIND_SUMMARIES = ("geometric_mean", "mean", "most_probable")  # KindSummary
@@ -61,20 +64,25 @@ _LEARNERS_V2 = struct.Struct(
     "Bdd"           # learn_sensor_model, sensor_model_prior_weight, sensor_model_p_min
     "dddd"          # sensor model sums: trials occ, trials free, hits occ, hits free
 )
-# Version 3 inserts the transition learner and the kinds of cells before the cell count.
-_KINDS_V3 = struct.Struct(
+# Version 3 inserts the transition learner and the kinds of cells before the cell count: their
+# configuration,
+_KINDS_CONFIG_V3 = struct.Struct(
     "<BB"           # learner (0 cell_em, 1 kinds), kind count
     + "dd" * KIND_COUNT  # per kind: initial p_occ_given_free, p_free_given_occ
     + "d" * KIND_COUNT   # initial weights
     + "dddd"        # transition_prior_weight, weight_prior_cells, switch_probability, forgetting
-    "BB"            # summary, counting
-    + "d" * (KIND_COUNT * 4)  # expected transitions [kind][from][to] (0 = occ, 1 = free)
-    + "d" * KIND_COUNT   # membership
-    + "d"           # cells
+    "BBB"           # summary, counting, learn_from_gaps
+    "H"             # number of distance bins (GAP_BINS)
 )
+# then the sums (float64): pairs [kind][bin][2 i + j] (i the state then, j now; 0 = occ,
+# 1 = free), membership [kind], cells; then the kinds' learned transitions [kind] x
+# (p_occ_given_free, p_free_given_occ).
+_KIND_PAIRS = KIND_COUNT * GAP_BINS * 4
+_KIND_DOUBLES = _KIND_PAIRS + KIND_COUNT + 1 + 2 * KIND_COUNT
+_KINDS_V3_SIZE = _KINDS_CONFIG_V3.size + 8 * _KIND_DOUBLES
 CHECKSUM_SIZE = 4
 HEADER_SIZES = {1: _HEADER_V1.size, 2: _HEADER_V1.size + _LEARNERS_V2.size,
-                3: _HEADER_V1.size + _LEARNERS_V2.size + _KINDS_V3.size}
+                3: _HEADER_V1.size + _LEARNERS_V2.size + _KINDS_V3_SIZE}
 
 # One observed cell (version 1: 62 bytes, packed, 8 learner floats; version 2 adds last_hits,
 # last_misses; version 3 holds LEARNER_STATE_SIZE learner floats).
@@ -98,8 +106,12 @@ CELL_FIELDS = CELL_DTYPE_V3.names
 # is the other one), with the shape per cell.
 LEARNER_VIEWS = {"em_stats": (8,), "kind_posterior": (KIND_COUNT, 2)}
 
-assert (HEADER_SIZES == {1: 197, 2: 276, 3: 640} and _KINDS_V3.size == 364 and CELL_DTYPE_V1.itemsize == 62
+assert (HEADER_SIZES == {1: 197, 2: 276, 3: 20403} and _KINDS_CONFIG_V3.size == 159 and _KINDS_V3_SIZE == 20127
+        and CELL_DTYPE_V1.itemsize == 62
         and CELL_DTYPE_V2.itemsize == 64 and CELL_DTYPE_V3.itemsize == 72), "the layout of docs/model_format.md"
+
+
+_exp2 = getattr(math, "exp2", lambda x: 2.0 ** x)  # math.exp2: Python 3.11
 
 
 class ModelFormatError(ValueError):
@@ -118,7 +130,24 @@ def default_kinds():
         "forgetting": 1e-3,
         "summary": "geometric_mean",
         "counting": "most_probable",
+        "learn_from_gaps": True,
     }
+
+
+def gap_bin(steps):
+    """The distance bin (0 .. GAP_BINS - 1) of a pair `steps` >= 1 steps apart, as
+    core/cell_kinds.cpp gapBin: 1 to 16 steps one bin each, then four bins per octave."""
+    if steps <= 16:
+        return max(int(steps), 1) - 1
+    return min(16 + math.floor(4.0 * math.log2(float(steps) / 16.0)), GAP_BINS - 1)
+
+
+def gap_bin_steps(bin_index):
+    """The distance in steps that bin `bin_index` stands for (cell_kinds.cpp gapBinSteps):
+    its own for the first 16, else the geometric middle of the bin's distances."""
+    if bin_index < 16:
+        return bin_index + 1.0
+    return 16.0 * _exp2((bin_index - 16 + 0.5) / 4.0)
 
 
 class Model:
@@ -130,10 +159,16 @@ class Model:
         initial_weights are lists, one entry per kind); config["learner"] is learner.
     learner: how the cells learn their transitions, "kinds" (kinds of cells, the default)
         or "cell_em" (each cell's own online EM; every version 1 and 2 file).
-    kind_sums: what the kinds are learned from (CellKinds::Sums): "transitions" (float64,
-        KIND_COUNT x 2 x 2, expected transitions [kind][from][to], 0 = occ, 1 = free),
-        "membership" (float64, KIND_COUNT, sum over cells of p(kind)), "cells" (float);
-        zeros in version 1 and 2 files.
+    kind_sums: what the kinds are learned from (CellKinds::Sums): "pairs" (float64,
+        KIND_COUNT x GAP_BINS x 2 x 2, [kind][bin][then][now]: expected pairs of a cell's
+        states at two consecutive observations, then and now (0 = occ, 1 = free), in the
+        distance bin of the steps between them (gap_bin, gap_bin_steps)), "membership"
+        (float64, KIND_COUNT, sum over cells of p(kind)), "cells" (float); zeros in version
+        1 and 2 files.
+    kind_transitions: the transitions each kind learned from those sums, a list of
+        KIND_COUNT dicts (p_occ_given_free, p_free_given_occ), per step; version 1 and 2
+        files: the initial ones within the bounds [max(online_em.p_min, 1e-6),
+        min(online_em.p_max, 0.5)], as the C++ starts them.
     clock_origin_s: sensor time of the start of step 0, or None (no scan seen).
     last_applied_step: the last step applied to the cells, or None.
     One entry per observed cell, by row (y) then column (x):
@@ -152,11 +187,12 @@ class Model:
     """
 
     def __init__(self, format_version, config, clock_origin_s, last_applied_step, cells, sensor_model_stats,
-                 kind_sums):
+                 kind_sums, kind_transitions):
         self.format_version = format_version
         self.config = config
         self.learner = config["learner"]
         self.kind_sums = kind_sums
+        self.kind_transitions = kind_transitions
         self.sensor_model_stats = sensor_model_stats
         self.clock_origin_s = clock_origin_s
         self.last_applied_step = last_applied_step
@@ -284,9 +320,15 @@ def parse_model(data):
     # Versions 1 and 2 were written by each cell's online EM; their cells hold its statistics.
     config["learner"] = "cell_em"
     config["kinds"] = default_kinds()
-    kind_sums = {"transitions": np.zeros((KIND_COUNT, 2, 2)), "membership": np.zeros(KIND_COUNT), "cells": 0.0}
+    kind_sums = {"pairs": np.zeros((KIND_COUNT, GAP_BINS, 2, 2)), "membership": np.zeros(KIND_COUNT), "cells": 0.0}
+    # The bounds of the kinds' transitions (core/mapper.cpp builds CellKinds with these).
+    low = max(p_min, 1e-6)
+    high = min(p_max, 0.5)
+    kind_transitions = [{name: min(max(rate, low), high) for name, rate in start.items()}
+                        for start in config["kinds"]["initial_transitions"]]
     if version >= 3:
-        kinds = _KINDS_V3.unpack_from(data, HEADER_SIZES[2] - 8)
+        offset = HEADER_SIZES[2] - 8
+        kinds = _KINDS_CONFIG_V3.unpack_from(data, offset)
         learner, kind_count = kinds[:2]
         if learner >= len(LEARNERS):
             raise ModelFormatError(f"invalid model file: learner is {learner}, must be 0 (cell_em) or 1 (kinds)")
@@ -296,16 +338,25 @@ def parse_model(data):
         starts, rest = rest[:2 * KIND_COUNT], rest[2 * KIND_COUNT:]
         weights, rest = rest[:KIND_COUNT], rest[KIND_COUNT:]
         (transition_prior_weight, weight_prior_cells, switch_probability, forgetting, summary_index,
-         counting_index), rest = rest[:6], rest[6:]
+         counting_index, learn_from_gaps, bins) = rest
         if summary_index >= len(KIND_SUMMARIES):
             raise ModelFormatError(f"invalid model file: kinds.summary is {summary_index}, must be 0 (geometric_mean), "
                                    "1 (mean) or 2 (most_probable)")
         if counting_index >= len(KIND_COUNTINGS):
             raise ModelFormatError(f"invalid model file: kinds.counting is {counting_index}, must be 0 (posterior) or "
                                    "1 (most_probable)")
-        sums = np.array(rest, dtype=np.float64)
-        if not (np.all(np.isfinite(sums)) and np.all(sums >= 0.0)):
-            raise ModelFormatError("invalid kinds of cells in model file: kinds: saved sums must be finite and >= 0")
+        learn_from_gaps = _flag(learn_from_gaps, "kinds.learn_from_gaps")
+        if bins != GAP_BINS:
+            raise ModelFormatError(f"model file with {bins} distance bins of the kinds' pairs, this reader has "
+                                   f"{GAP_BINS}")
+        values = np.frombuffer(data, dtype="<f8", count=_KIND_DOUBLES,
+                               offset=offset + _KINDS_CONFIG_V3.size).astype(np.float64)
+        sums, learned = values[:_KIND_PAIRS + KIND_COUNT + 1], values[_KIND_PAIRS + KIND_COUNT + 1:]
+        # As CellKinds::restore: sums finite and >= 0, learned transitions within the bounds.
+        if not (np.all(np.isfinite(sums)) and np.all(sums >= 0.0) and np.all(learned >= low)
+                and np.all(learned <= high)):
+            raise ModelFormatError("invalid kinds of cells in model file: kinds: saved sums must be finite and >= 0, "
+                                   "transitions within the bounds")
         config["learner"] = LEARNERS[learner]
         config["kinds"] = {
             "initial_transitions": [{"p_occ_given_free": starts[2 * k], "p_free_given_occ": starts[2 * k + 1]}
@@ -317,9 +368,12 @@ def parse_model(data):
             "forgetting": forgetting,
             "summary": KIND_SUMMARIES[summary_index],
             "counting": KIND_COUNTINGS[counting_index],
+            "learn_from_gaps": learn_from_gaps,
         }
-        kind_sums = {"transitions": sums[:4 * KIND_COUNT].reshape(KIND_COUNT, 2, 2),
-                     "membership": sums[4 * KIND_COUNT:5 * KIND_COUNT], "cells": float(sums[-1])}
+        kind_sums = {"pairs": sums[:_KIND_PAIRS].reshape(KIND_COUNT, GAP_BINS, 2, 2),
+                     "membership": sums[_KIND_PAIRS:_KIND_PAIRS + KIND_COUNT], "cells": float(sums[-1])}
+        kind_transitions = [{"p_occ_given_free": float(learned[2 * k]), "p_free_given_occ": float(learned[2 * k + 1])}
+                            for k in range(KIND_COUNT)]
     has_origin = _flag(has_origin, "clock origin present")
     has_last = _flag(has_last, "last applied step present")
     if not (resolution_m > 0.0 and time_step_s > 0.0):
@@ -330,7 +384,7 @@ def parse_model(data):
         raise ModelFormatError("invalid time in model file: a last applied step needs a clock origin")
     cells = np.frombuffer(data, dtype=cell_dtype, count=count, offset=header_size)
     return Model(version, config, origin_s if has_origin else None, last_step if has_last else None, cells,
-                 sensor_model_stats, kind_sums)
+                 sensor_model_stats, kind_sums, kind_transitions)
 
 
 def load_model(path):
@@ -420,6 +474,9 @@ def summary(model):
         cells = model.kind_sums["cells"]
         shares = model.kind_sums["membership"] / cells if cells > 0 else np.zeros(KIND_COUNT)
         lines.append("kinds' shares:      " + " ".join(f"{share:.3g}" for share in shares) + f" (of {cells:.0f} cells)")
+        lines.append("kinds' transitions: " + " ".join(f"{t['p_occ_given_free']:.3g}/{t['p_free_given_occ']:.3g}"
+                                                     for t in model.kind_transitions)
+                     + " (p_occ_given_free/p_free_given_occ per step)")
     if model.cell_count > 0:
         p_of = model.p_occ_given_free.astype(np.float64)
         p_fo = model.p_free_given_occ.astype(np.float64)

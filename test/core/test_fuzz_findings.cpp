@@ -31,7 +31,7 @@ constexpr std::size_t kFixedBoundsOffset = 146;
 constexpr std::size_t kWidthOffset = 147;
 constexpr std::size_t kHeightOffset = 155;
 constexpr std::size_t kMaxMapSizeOffset = 163;
-constexpr std::size_t kHeaderSize = 640;
+constexpr std::size_t kHeaderSize = 20403;
 constexpr std::size_t kCellSize = 72;
 
 void putDouble(std::string& bytes, std::size_t offset, double value) {

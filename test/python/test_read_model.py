@@ -7,11 +7,13 @@ Usage:
 WRITE_MODEL_CLI is the test tool (or the environment variable DOG_WRITE_MODEL_CLI, e.g. under
 pytest; without either the tests are skipped there) test/tools/write_model_cli.cpp: it maps a scripted run,
 saves the model with core::saveModel and writes the mapper's configuration, time, sums and
-cells as exact text (%a). The reader's config, time, kinds' sums and arrays must equal those
-exactly (bit for bit for the floats), for either learner, and version 1 and 2 files built from
-those bytes must read as the same map; its dense grids must put every cell where it belongs,
-and damaged files (truncated, flipped bytes, other magic or version, trailing bytes, bad
-flags and choices, bad kinds' sums) must raise ModelFormatError. Runs with /usr/bin/python3
+cells as exact text (%a). The reader's config, time, kinds' pair sums and learned transitions
+and arrays must equal those exactly (bit for bit for the floats), for either learner, and
+version 1 and 2 files built from those bytes must read as the same map; its distance bins
+must be the C++ ones; its dense grids must put every cell where it belongs, and damaged files
+(truncated, flipped bytes, other magic or version, trailing bytes, bad flags and choices, a
+bin count other than 124, bad kinds' sums, learned transitions outside the bounds) must
+raise ModelFormatError. Runs with /usr/bin/python3
 and numpy; registered as a ctest by test/core_standalone/CMakeLists.txt.
 """
 
@@ -33,11 +35,24 @@ CLI = os.environ.get("DOG_WRITE_MODEL_CLI")
 
 FLOAT_FIELDS = ("p_occ", "log_odds", "p_occ_given_free", "p_free_given_occ")
 
+# docs/model_format.md, version 3: the kinds' block and the cells.
+LEARN_FROM_GAPS_OFFSET = 424
+BIN_COUNT_OFFSET = 425
+PAIRS_OFFSET = 427
+MEMBERSHIP_OFFSET = PAIRS_OFFSET + 8 * 4 * read_model.KIND_COUNT * read_model.GAP_BINS
+CELLS_SUM_OFFSET = MEMBERSHIP_OFFSET + 8 * read_model.KIND_COUNT
+LEARNED_OFFSET = CELLS_SUM_OFFSET + 8
+COUNT_OFFSET = LEARNED_OFFSET + 16 * read_model.KIND_COUNT
+CELLS_OFFSET = COUNT_OFFSET + 8
+assert (MEMBERSHIP_OFFSET, CELLS_SUM_OFFSET, LEARNED_OFFSET, COUNT_OFFSET, CELLS_OFFSET) == (
+    20267, 20307, 20315, 20395, 20403)
+
 
 def parse_values(path):
     """The CLI's text: (config dict with dotted names, origin, last step, cell columns); the
-    sensor model's and the kinds' sums are in the config as "sensor_model_stats" and
-    "kind_sums"."""
+    sensor model's and the kinds' sums, the kinds' learned transitions and the distance bins
+    are in the config as "sensor_model_stats", "kind_sums", "kind_transitions",
+    "gap_bin_steps" and "gap_bin"."""
     config = {}
     origin = last = None
     count = None
@@ -60,8 +75,17 @@ def parse_values(path):
                 config["sensor_model_stats"] = dict(zip(("trials_occ", "trials_free", "hits_occ", "hits_free"), values))
             elif line.startswith("# kind_sums "):
                 values = [float.fromhex(v) for v in line.split(" ")[2:]]
-                assert len(values) == 4 * read_model.KIND_COUNT + read_model.KIND_COUNT + 1, len(values)
+                assert len(values) == 4 * read_model.KIND_COUNT * read_model.GAP_BINS + read_model.KIND_COUNT + 1, len(
+                    values)
                 config["kind_sums"] = values
+            elif line.startswith("# kind_transitions "):
+                values = [float.fromhex(v) for v in line.split(" ")[2:]]
+                assert len(values) == 2 * read_model.KIND_COUNT, len(values)
+                config["kind_transitions"] = values
+            elif line.startswith("# gap_bin_steps "):
+                config["gap_bin_steps"] = [float.fromhex(v) for v in line.split(" ")[2:]]
+            elif line.startswith("# gap_bin "):
+                config["gap_bin"] = [tuple(int(part) for part in v.split(":")) for v in line.split(" ")[2:]]
             elif line.startswith("# cells "):
                 count = int(line.split(" ")[2])
             elif header is None:
@@ -103,10 +127,10 @@ def flat_config(config, prefix=""):
 def as_version_2(data):
     """A version 3 file as version 2 wrote it: without the learner and kinds block, and 8
     learner floats per cell (a file of learner cell_em is one version 2 could write)."""
-    count = struct.unpack_from("<Q", data, 632)[0]
-    cells = b"".join(data[640 + 72 * i:640 + 72 * i + 60] + data[640 + 72 * i + 68:640 + 72 * (i + 1)]
-                     for i in range(count))
-    v2 = bytearray(data[:268] + data[632:640] + cells + b"\0\0\0\0")
+    count = struct.unpack_from("<Q", data, COUNT_OFFSET)[0]
+    cells = b"".join(data[CELLS_OFFSET + 72 * i:CELLS_OFFSET + 72 * i + 60]
+                     + data[CELLS_OFFSET + 72 * i + 68:CELLS_OFFSET + 72 * (i + 1)] for i in range(count))
+    v2 = bytearray(data[:268] + data[COUNT_OFFSET:CELLS_OFFSET] + cells + b"\0\0\0\0")
     v2[8:12] = struct.pack("<I", 2)
     return with_checksum(v2)
 
@@ -168,10 +192,18 @@ class ReadModelTest(unittest.TestCase):
             self.assertEqual(struct.pack("<d", model.sensor_model_stats[name]), struct.pack("<d", value), name)
         kind_sums = np.array(config.pop("kind_sums"), dtype=np.float64)
         sums = model.kind_sums
-        self.assertEqual(sums["transitions"].shape, (read_model.KIND_COUNT, 2, 2))
+        self.assertEqual(sums["pairs"].shape, (read_model.KIND_COUNT, read_model.GAP_BINS, 2, 2))
+        self.assertEqual(sums["pairs"].dtype, np.float64)
         self.assertEqual(sums["membership"].shape, (read_model.KIND_COUNT,))
-        mine = np.concatenate([sums["transitions"].ravel(), sums["membership"], [sums["cells"]]])
+        # [kind][bin][then][now] is the C++ [kind][bin][2 * then + now].
+        mine = np.concatenate([sums["pairs"].ravel(), sums["membership"], [sums["cells"]]])
         self.assertTrue(np.array_equal(mine.view(np.uint64), kind_sums.view(np.uint64)))
+        learned = np.array(config.pop("kind_transitions"), dtype=np.float64)
+        self.assertEqual(len(model.kind_transitions), read_model.KIND_COUNT)
+        mine = np.array([[t["p_occ_given_free"], t["p_free_given_occ"]] for t in model.kind_transitions])
+        self.assertTrue(np.array_equal(mine.ravel().view(np.uint64), learned.view(np.uint64)))
+        config.pop("gap_bin_steps")
+        config.pop("gap_bin")
         self.assertEqual(model.format_version, read_model.FORMAT_VERSION)
         self.assertEqual(sorted(flat), sorted(config))
         for name, text in config.items():
@@ -210,9 +242,16 @@ class ReadModelTest(unittest.TestCase):
         self.assertEqual(model.config["learner"], "kinds")
         self.assertEqual(model.config["kinds"]["summary"], "mean")
         self.assertEqual(model.config["kinds"]["counting"], "posterior")
+        self.assertTrue(model.config["kinds"]["learn_from_gaps"])
         self.assertNotEqual(model.config["kinds"], read_model.default_kinds())
         self.assertGreater(model.kind_sums["cells"], 1000.0)
-        self.assertGreater(float(model.kind_sums["transitions"].sum()), 0.0)
+        # Pairs across gaps: in more than one distance bin, changes of state among them.
+        pairs = model.kind_sums["pairs"]
+        self.assertGreaterEqual(int(np.count_nonzero(pairs.sum(axis=(0, 2, 3)))), 2)
+        self.assertGreater(float(pairs[:, :, 0, 1].sum() + pairs[:, :, 1, 0].sum()), 0.0)
+        # The kinds' transitions moved from where they started.
+        starts = model.config["kinds"]["initial_transitions"]
+        self.assertNotEqual(model.kind_transitions, starts)
         # Learning moved transitions away from the prior: the values are not all the same.
         self.assertGreater(len(np.unique(model.p_occ_given_free)), 10)
         # Each cell's learner state is its posterior p(kind, state): a distribution.
@@ -227,6 +266,11 @@ class ReadModelTest(unittest.TestCase):
         self.assertEqual(model.learner, "cell_em")
         self.assertEqual(model.config["kinds"], read_model.default_kinds())  # the C++ defaults
         self.assertEqual(model.kind_sums["cells"], 0.0)
+        # Unused, the kinds keep their initial transitions within the bounds (p_min 1e-4 here).
+        low = max(model.config["online_em"]["p_min"], 1e-6)
+        self.assertEqual(model.kind_transitions,
+                         [{name: max(rate, low) for name, rate in start.items()}
+                          for start in read_model.default_kinds()["initial_transitions"]])
         # Each cell's own online EM: its statistics in the first 8 floats, the last two 0.
         self.assertIsNone(model.kind_posterior)
         self.assertEqual(model.em_stats.shape, (model.cell_count, 8))
@@ -256,13 +300,18 @@ class ReadModelTest(unittest.TestCase):
         newer = read_model.parse_model(data)
         v2 = as_version_2(data)
         self.assertEqual(len(v2), 280 + 64 * newer.cell_count)
+        self.assertEqual(len(data), 20407 + 72 * newer.cell_count)
         model = read_model.parse_model(v2)
         self.assertEqual(model.format_version, 2)
         self.assertEqual(model.learner, "cell_em")
         self.assertEqual(flat_config(model.config), flat_config(newer.config))
         self.assertEqual(model.sensor_model_stats, newer.sensor_model_stats)
         self.assertEqual(model.kind_sums["cells"], 0.0)
-        self.assertFalse(np.any(model.kind_sums["transitions"]) or np.any(model.kind_sums["membership"]))
+        self.assertEqual(model.kind_sums["pairs"].shape, (read_model.KIND_COUNT, read_model.GAP_BINS, 2, 2))
+        self.assertFalse(np.any(model.kind_sums["pairs"]) or np.any(model.kind_sums["membership"]))
+        # The C++ map of learner cell_em never learns kinds: its file holds the kinds'
+        # starting transitions, which version 2 files get too.
+        self.assertEqual(model.kind_transitions, newer.kind_transitions)
         self.assertEqual(model.clock_origin_s, newer.clock_origin_s)
         self.assertEqual(model.last_applied_step, newer.last_applied_step)
         for name in read_model.CELL_FIELDS + ("em_stats",):
@@ -284,11 +333,27 @@ class ReadModelTest(unittest.TestCase):
         self.assertFalse(np.any(model.learner_state[:, 8:]))
         self.assertEqual(model.learner, "cell_em")
         self.assertEqual(model.config["kinds"], read_model.default_kinds())
+        self.assertEqual(model.kind_transitions, newer.kind_transitions)
         self.assertFalse(model.config["learn_sensor_model"])
         self.assertEqual(model.config["online_em"]["schedule"], "harmonic")
         self.assertEqual(model.sensor_model_stats["trials_occ"], 0.0)
         self.assertEqual(int(model.last_hits.sum()), 0)
         self.assertGreater(int(newer.last_hits.sum()), 0)
+
+    def test_distance_bins_are_the_cpp_ones(self):
+        config = self.runs["growing"][1][0]
+        steps = config["gap_bin_steps"]
+        self.assertEqual(len(steps), read_model.GAP_BINS)
+        for index, value in enumerate(steps):
+            self.assertEqual(read_model.gap_bin_steps(index), value, index)
+        self.assertEqual(steps[:16], [float(n) for n in range(1, 17)])
+        checked = config["gap_bin"]
+        self.assertGreater(len(checked), 400)
+        for distance, index in checked:
+            self.assertEqual(read_model.gap_bin(distance), index, distance)
+        # 1..16 one bin each, then four per octave, the last bin open-ended.
+        self.assertEqual([read_model.gap_bin(n) for n in (1, 16, 17, 19, 20, 32, 64)], [0, 15, 16, 16, 17, 20, 24])
+        self.assertEqual(read_model.gap_bin(2 ** 62), read_model.GAP_BINS - 1)
 
     # ---- dense grids ----------------------------------------------------------------------------
 
@@ -337,13 +402,15 @@ class ReadModelTest(unittest.TestCase):
             data = self.bytes_of(mode)
             read_model.parse_model(data)
             lengths = range(len(data)) if mode == "empty" else list(range(0, 700)) + list(
-                range(len(data) - 200, len(data)))
+                range(CELLS_OFFSET - 200, CELLS_OFFSET + 300)) + list(range(len(data) - 200, len(data)))
             for length in lengths:
                 self.expect_error(data[:length], "truncated", f"{length} available")
 
     def test_flipped_bytes_raise(self):
         data = self.bytes_of("fixed")
-        for position in list(range(0, 640)) + list(range(len(data) - 80, len(data))) + [len(data) // 2]:
+        positions = (list(range(0, 700)) + list(range(700, MEMBERSHIP_OFFSET, 61)) + list(range(MEMBERSHIP_OFFSET,
+                     CELLS_OFFSET + 80)) + list(range(len(data) - 80, len(data))) + [len(data) // 2])
+        for position in positions:
             damaged = bytearray(data)
             damaged[position] ^= 0x40
             self.expect_error(bytes(damaged))
@@ -363,7 +430,7 @@ class ReadModelTest(unittest.TestCase):
         flag[146] = 2  # fixed_bounds
         self.expect_error(with_checksum(flag), "fixed_bounds is 2, must be 0 or 1")
         absurd = bytearray(data)
-        absurd[632:640] = struct.pack("<Q", 2 ** 64 - 1)  # the cell count of version 3
+        absurd[COUNT_OFFSET:CELLS_OFFSET] = struct.pack("<Q", 2 ** 64 - 1)  # the cell count of version 3
         self.expect_error(with_checksum(absurd), "truncated")
 
     def test_bad_kinds_block_raises(self):
@@ -379,9 +446,38 @@ class ReadModelTest(unittest.TestCase):
             self.expect_error(edited(269, bytes([kinds])), f"model file with {kinds} kinds of cells, this reader has 5")
         self.expect_error(edited(422, b"\3"), "kinds.summary is 3, must be 0 (geometric_mean), 1 (mean) or 2")
         self.expect_error(edited(423, b"\2"), "kinds.counting is 2, must be 0 (posterior) or 1 (most_probable)")
-        for offset in (424, 424 + 8 * 19, 584, 584 + 8 * 4, 624):  # transitions, membership, cells
-            for bad in (-1.0, float("nan"), float("inf")):
-                self.expect_error(edited(offset, struct.pack("<d", bad)), "invalid kinds of cells in model file")
+        for flag in (2, 255):
+            self.expect_error(edited(LEARN_FROM_GAPS_OFFSET, bytes([flag])),
+                              f"invalid model file: kinds.learn_from_gaps is {flag}, must be 0 or 1")
+        for bins in (0, 123, 125, 124 << 8, 65535):  # 124 << 8: 124 in the wrong byte order
+            self.expect_error(edited(BIN_COUNT_OFFSET, struct.pack("<H", bins)),
+                              f"model file with {bins} distance bins of the kinds' pairs, this reader has 124")
+        bad_kinds = ("invalid kinds of cells in model file: kinds: saved sums must be finite and >= 0, transitions "
+                     "within the bounds")
+        pair = PAIRS_OFFSET + 8 * ((2 * read_model.GAP_BINS + 17) * 4 + 3)  # kind 2, bin 17, free then and now
+        for offset in (PAIRS_OFFSET, pair, MEMBERSHIP_OFFSET - 8, MEMBERSHIP_OFFSET, MEMBERSHIP_OFFSET + 8 * 4,
+                       CELLS_SUM_OFFSET):  # pairs, membership, cells
+            for bad in (-1.0, -1e-300, float("nan"), float("inf")):
+                self.expect_error(edited(offset, struct.pack("<d", bad)), bad_kinds)
+        # The learned transitions: within [max(p_min, 1e-6), min(p_max, 0.5)].
+        online_em = read_model.parse_model(data).config["online_em"]
+        low, high = max(online_em["p_min"], 1e-6), min(online_em["p_max"], 0.5)
+        for index in range(2 * read_model.KIND_COUNT):
+            offset = LEARNED_OFFSET + 8 * index
+            for bad in (0.0, -0.1, np.nextafter(low, 0.0), np.nextafter(high, 1.0), 0.75, float("nan"), float("inf")):
+                self.expect_error(edited(offset, struct.pack("<d", bad)), bad_kinds)
+            for good in (low, high):
+                model = read_model.parse_model(edited(offset, struct.pack("<d", good)))
+                name = ("p_occ_given_free", "p_free_given_occ")[index % 2]
+                self.assertEqual(model.kind_transitions[index // 2][name], good)
+        # A pair sum is read at [kind][bin][then][now].
+        model = read_model.parse_model(edited(pair, struct.pack("<d", 12345.5)))
+        self.assertEqual(model.kind_sums["pairs"][2, 17, 1, 1], 12345.5)
+        model = read_model.parse_model(edited(PAIRS_OFFSET + 8 * ((4 * read_model.GAP_BINS + 123) * 4 + 1),
+                                              struct.pack("<d", 0.25)))
+        self.assertEqual(model.kind_sums["pairs"][4, 123, 0, 1], 0.25)
+        model = read_model.parse_model(edited(LEARN_FROM_GAPS_OFFSET, b"\0"))
+        self.assertFalse(model.config["kinds"]["learn_from_gaps"])
         # The learner and the choices as documented.
         model = read_model.parse_model(edited(268, b"\0"))
         self.assertEqual(model.learner, "cell_em")
@@ -417,6 +513,7 @@ class ReadModelTest(unittest.TestCase):
         self.assertIn("mean p_occ_given_free:", done.stdout)
         self.assertIn("(format version 3)", done.stdout)
         self.assertIn("learner:            kinds", done.stdout)
+        self.assertIn("kinds' transitions: ", done.stdout)
         # The file's own version and learner.
         old = os.path.join(self.directory.name, "version_1.dogm")
         with open(old, "wb") as file:

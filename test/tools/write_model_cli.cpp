@@ -6,7 +6,8 @@
 //
 // Usage: write_model_cli [--fixed | --empty | --cell-em] MODEL_PATH VALUES_PATH
 //   (default)  a growing map that learns transitions with kinds of cells (configured apart
-//              from the defaults), 30 steps with gaps
+//              from the defaults, but for learn_from_gaps: on, so that the pairs fill
+//              several distance bins), 30 steps with gaps
 //   --cell-em  the same map learning with each cell's own online EM (kinds' defaults)
 //   --fixed    a fixed-bounds map (partly outside the room) with fixed transitions
 //   --empty    a growing map that has seen nothing
@@ -16,8 +17,11 @@
 //   lines "# config NAME VALUE" for every MapperConfig field (nested names with dots, a
 //   kind's index as a name, booleans 0/1, choices by name), "# clock_origin_s VALUE|none",
 //   "# last_applied_step VALUE|none", "# sensor_model_stats TRIALS_OCC TRIALS_FREE HITS_OCC
-//   HITS_FREE", "# kind_sums" with the kinds' 20 expected transitions ([kind][from][to]),
-//   5 memberships and cells, "# cells N", then the header line
+//   HITS_FREE", "# kind_sums" with the kinds' 5 x 124 x 4 expected pairs ([kind][bin][2 i + j],
+//   i the state then, j now), 5 memberships and cells, "# kind_transitions" with the kinds'
+//   learned transitions (p_occ_given_free, p_free_given_occ per kind), "# gap_bin_steps"
+//   with gapBinSteps of every bin, "# gap_bin" with STEPS:BIN for some distances, "# cells N",
+//   then the header line
 //   x,y,p_occ,last_step,log_odds,p_occ_given_free,p_free_given_occ,learner_state_0,...,
 //   learner_state_9,observed_steps,last_hits,last_misses
 //   and one line per observed cell, by row (y) then column (x).
@@ -219,18 +223,39 @@ void writeValues(const dog::Mapper& mapper, std::FILE* out) {
   std::fprintf(out, "# config kinds.summary %s\n", summaryName(c.kinds.summary));
   std::fprintf(out, "# config kinds.counting %s\n",
                c.kinds.counting == dog::KindCounting::kPosterior ? "posterior" : "most_probable");
+  integer("kinds.learn_from_gaps", c.kinds.learn_from_gaps);
   const dog::SensorModelStats& stats = mapper.sensorModelStats();
   std::fprintf(out, "# sensor_model_stats %a %a %a %a\n", stats.trials[0], stats.trials[1], stats.hits[0],
                stats.hits[1]);
   const dog::CellKinds::Sums& sums = mapper.kinds().sums();
   std::fprintf(out, "# kind_sums");
-  for (const auto& kind : sums.transitions.n) {
-    for (const auto& row : kind) {
-      for (const double value : row) std::fprintf(out, " %a", value);
+  for (const auto& kind : sums.pairs) {
+    for (const auto& bin : kind) {
+      for (const double value : bin) std::fprintf(out, " %a", value);
     }
   }
   for (const double membership : sums.membership) std::fprintf(out, " %a", membership);
   std::fprintf(out, " %a\n", sums.cells);
+  std::fprintf(out, "# kind_transitions");
+  for (int k = 0; k < dog::kKindCount; ++k) {
+    std::fprintf(out, " %a %a", mapper.kinds().transitions(k).p_occ_given_free,
+                 mapper.kinds().transitions(k).p_free_given_occ);
+  }
+  std::fprintf(out, "\n# gap_bin_steps");
+  for (int bin = 0; bin < dog::kGapBins; ++bin) std::fprintf(out, " %a", dog::gapBinSteps(bin));
+  std::fprintf(out, "\n# gap_bin");
+  // Every distance to 100, the edges of the bins beyond, and the far ends.
+  std::vector<std::int64_t> distances;
+  for (std::int64_t steps = 1; steps <= 100; ++steps) distances.push_back(steps);
+  for (int bin = 17; bin < dog::kGapBins + 4; ++bin) {
+    const auto edge = static_cast<std::int64_t>(std::ceil(16.0 * std::exp2((bin - 16) / 4.0)));
+    for (const std::int64_t steps : {edge - 1, edge, edge + 1}) distances.push_back(steps);
+  }
+  for (const std::int64_t steps : {std::int64_t{1} << 40, std::numeric_limits<std::int64_t>::max()}) {
+    distances.push_back(steps);
+  }
+  for (const std::int64_t steps : distances) std::fprintf(out, " %" PRId64 ":%d", steps, dog::gapBin(steps));
+  std::fprintf(out, "\n");
   if (mapper.clock().origin()) {
     std::fprintf(out, "# clock_origin_s %a\n", *mapper.clock().origin());
   } else {
