@@ -339,7 +339,7 @@ TransitionParams CellKinds::fitPairs(int k, TransitionParams start) const {
     }
     if (!moved) break;
   }
-  return TransitionParams{std::exp(u), std::exp(v)};
+  return TransitionParams{std::clamp(std::exp(u), p_min_, p_max_), std::clamp(std::exp(v), p_min_, p_max_)};
 }
 
 void CellKinds::recompute() {

@@ -1076,12 +1076,11 @@ TEST(ModelIoRoundTrip, LearnedKindsComeBackAndGoOnTheSame) {
   }
 }
 
-// A kind whose fit ends at a bound of its transitions must save a file that loads. Disabled:
-// CellKinds::fitPairs returns exp(u) for u clamped to [log p_min, log p_max], and exp(log x)
-// is not always x (2e-4: one ulp below), so with online_em.p_min 2e-4 the floor's kind is
-// saved below p_min and CellKinds::restore refuses the file. Enable once fitPairs clamps
-// its result to [p_min, p_max] (src/core/cell_kinds.cpp).
-TEST(ModelIoRoundTrip, DISABLED_KindsFittedAtTheirBoundsLoad) {
+// A kind whose fit ends at a bound of its transitions must save a file that loads: exp(log x)
+// is not always x (2e-4: one ulp below), so CellKinds::fitPairs clamps its result to
+// [p_min, p_max]; without that, with online_em.p_min 2e-4 the floor's kind was saved below
+// p_min and CellKinds::restore refused the file.
+TEST(ModelIoRoundTrip, KindsFittedAtTheirBoundsLoad) {
   for (const double p_min : {1e-4, 2e-4, 3e-4, 7e-4, 0.0011}) {
     SCOPED_TRACE("p_min " + std::to_string(p_min));
     dog::MapperConfig config = growingLearningConfig();
