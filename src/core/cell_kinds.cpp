@@ -33,14 +33,13 @@ void nStep(const TransitionParams& t, double steps, double p[2][2]) {
   p[1][1] = 1.0 - p[1][0];
 }
 
-// b(z) up to a common factor, the larger 1.
-void evidenceFactors(double log_likelihood_ratio, double b[2]) {
-  const double ratio = std::clamp(log_likelihood_ratio, -kMaxLogLikelihoodRatio, kMaxLogLikelihoodRatio);
-  b[0] = ratio >= 0.0 ? 1.0 : std::exp(ratio);
-  b[1] = ratio >= 0.0 ? std::exp(-ratio) : 1.0;
-}
-
 }  // namespace
+
+KindEvidence::KindEvidence(double log_likelihood_ratio) {
+  const double ratio = std::clamp(log_likelihood_ratio, -kMaxLogLikelihoodRatio, kMaxLogLikelihoodRatio);
+  occ = ratio >= 0.0 ? 1.0 : std::exp(ratio);
+  free = ratio >= 0.0 ? std::exp(-ratio) : 1.0;
+}
 
 int gapBin(std::int64_t steps) {
   if (steps <= kExactBins) return static_cast<int>(std::max<std::int64_t>(steps, 1)) - 1;
@@ -75,12 +74,6 @@ void KindsConfig::validate() const {
   require(forgetting >= 0.0 && forgetting < 1.0, "kinds forgetting must be in [0, 1), got " + std::to_string(forgetting));
 }
 
-double KindJoint::occupancy() const {
-  double occ = 0.0;
-  for (int k = 0; k < kKindCount; ++k) occ += p[2 * k];
-  return occ;
-}
-
 CellKinds::CellKinds(const KindsConfig& config, double p_min, double p_max) : config_(config), p_min_(p_min), p_max_(p_max) {
   config_.validate();
   require(p_min > 0.0 && p_min <= p_max && p_max <= 0.5, "kinds need 0 < p_min <= p_max <= 0.5");
@@ -95,6 +88,7 @@ CellKinds::CellKinds(const KindsConfig& config, double p_min, double p_max) : co
 
 double CellKinds::lambdaPower(int k, std::int64_t steps) const {
   if (steps <= 0) return 1.0;
+  if (steps <= kTabulatedSteps) return lambda_powers_[steps][k];
   return std::exp(static_cast<double>(steps) * log_lambda_[k]);
 }
 
@@ -111,9 +105,8 @@ void CellKinds::skip(KindJoint& joint, std::int64_t steps) const {
   if (steps <= 0) return;
   for (int k = 0; k < kKindCount; ++k) {
     // p(k, occ) after n steps = p(k) pi_k + lambda_k^n (p(k, occ) - p(k) pi_k).
-    const TransitionParams& t = transitions_[k];
     const double mass = joint.kind(k);
-    const double stationary = mass * t.p_occ_given_free / (t.p_occ_given_free + t.p_free_given_occ);
+    const double stationary = mass * pi_[k];
     const double occ = stationary + lambdaPower(k, steps) * (joint.p[2 * k] - stationary);
     joint.p[2 * k] = occ;
     joint.p[2 * k + 1] = mass - occ;
@@ -121,8 +114,13 @@ void CellKinds::skip(KindJoint& joint, std::int64_t steps) const {
 }
 
 double CellKinds::observe(KindJoint& joint, std::int64_t gap, double log_likelihood_ratio) const {
+  return observe(joint, gap, KindEvidence(log_likelihood_ratio));
+}
+
+double CellKinds::observe(KindJoint& joint, std::int64_t gap, const KindEvidence& evidence) const {
   // The kind switch over the gap and this step: mass (1 - keep) redrawn from w, state kept.
-  const double keep = std::exp(log_keep_ * static_cast<double>(gap + 1));
+  const double keep =
+      gap + 1 <= kTabulatedSteps ? keep_powers_[gap + 1] : std::exp(log_keep_ * static_cast<double>(gap + 1));
   const double occ = joint.occupancy();
   double total = 0.0;
   for (const double value : joint.p) total += value;
@@ -132,8 +130,7 @@ double CellKinds::observe(KindJoint& joint, std::int64_t gap, double log_likelih
       joint.p[2 * k + s] = keep * joint.p[2 * k + s] + (1.0 - keep) * weights_[k] * state[s];
     }
   }
-  double b[2];
-  evidenceFactors(log_likelihood_ratio, b);
+  const double b[2] = {evidence.occ, evidence.free};
   double next[2 * kKindCount];
   double c = 0.0;
   for (int k = 0; k < kKindCount; ++k) {
@@ -144,7 +141,8 @@ double CellKinds::observe(KindJoint& joint, std::int64_t gap, double log_likelih
     next[2 * k + 1] = to_free * b[1];
     c += next[2 * k] + next[2 * k + 1];
   }
-  for (int i = 0; i < 2 * kKindCount; ++i) joint.p[i] = next[i] / c;
+  const double scale = 1.0 / c;
+  for (int i = 0; i < 2 * kKindCount; ++i) joint.p[i] = next[i] * scale;
   return joint.occupancy();
 }
 
@@ -157,80 +155,101 @@ double CellKinds::predict(const KindJoint& joint, std::int64_t steps) const {
 }
 
 TransitionParams CellKinds::summary(const KindJoint& joint) const {
-  double mass[kKindCount];
-  double total = 0.0;
-  int best = 0;
-  for (int k = 0; k < kKindCount; ++k) {
-    mass[k] = joint.kind(k);
-    total += mass[k];
-    if (mass[k] > mass[best]) best = k;
-  }
-  switch (config_.summary) {
-    case KindSummary::kMostProbable:
-      return transitions_[best];
-    case KindSummary::kMean: {
-      TransitionParams mean;
-      for (int k = 0; k < kKindCount; ++k) {
-        mean.p_occ_given_free += mass[k] / total * transitions_[k].p_occ_given_free;
-        mean.p_free_given_occ += mass[k] / total * transitions_[k].p_free_given_occ;
-      }
-      return mean;
+  if (config_.summary == KindSummary::kGeometricMean) {
+    // One pass, no array of the masses: this runs for every observed cell-step.
+    double total = 0.0;
+    double log_of = 0.0;
+    double log_fo = 0.0;
+    for (int k = 0; k < kKindCount; ++k) {
+      const double mass = joint.kind(k);
+      total += mass;
+      log_of += mass * log_p_of_[k];
+      log_fo += mass * log_p_fo_[k];
     }
-    case KindSummary::kGeometricMean:
-      break;
+    return TransitionParams{std::exp(log_of / total), std::exp(log_fo / total)};
   }
-  double log_of = 0.0;
-  double log_fo = 0.0;
+  if (config_.summary == KindSummary::kMostProbable) {
+    int best = 0;
+    for (int k = 1; k < kKindCount; ++k) {
+      if (joint.kind(k) > joint.kind(best)) best = k;
+    }
+    return transitions_[best];
+  }
+  double total = 0.0;
+  for (int k = 0; k < kKindCount; ++k) total += joint.kind(k);
+  TransitionParams mean;
   for (int k = 0; k < kKindCount; ++k) {
-    log_of += mass[k] / total * log_p_of_[k];
-    log_fo += mass[k] / total * log_p_fo_[k];
+    mean.p_occ_given_free += joint.kind(k) / total * transitions_[k].p_occ_given_free;
+    mean.p_free_given_occ += joint.kind(k) / total * transitions_[k].p_free_given_occ;
   }
-  return TransitionParams{std::exp(log_of), std::exp(log_fo)};
+  return mean;
 }
 
 CellKinds::PairPosterior CellKinds::pairPosterior(const KindJoint& last, std::int64_t steps,
                                                   double log_likelihood_ratio) const {
-  double b[2];
-  evidenceFactors(log_likelihood_ratio, b);
-  PairPosterior pair{};
+  return pairPosterior(last, steps, KindEvidence(log_likelihood_ratio));
+}
+
+CellKinds::PairPosterior CellKinds::pairPosterior(const KindJoint& last, std::int64_t steps,
+                                                  const KindEvidence& evidence) const {
+  PairPosterior pair = pairWeights(last, steps, evidence);
   double total = 0.0;
-  for (int k = 0; k < kKindCount; ++k) {
-    double p[2][2];
-    nStep(transitions_[k], static_cast<double>(steps), p);
-    for (int i = 0; i < 2; ++i) {
-      for (int j = 0; j < 2; ++j) {
-        pair[k][i][j] = last.p[2 * k + i] * p[i][j] * b[j];
-        total += pair[k][i][j];
-      }
-    }
-  }
+  for (const auto& kind : pair) total += kind[0][0] + kind[0][1] + kind[1][0] + kind[1][1];
   if (!(total > 0.0)) return PairPosterior{};
+  const double scale = 1.0 / total;
   for (auto& kind : pair) {
     for (auto& row : kind) {
-      for (double& value : row) value /= total;
+      for (double& value : row) value *= scale;
     }
   }
   return pair;
 }
 
+CellKinds::PairPosterior CellKinds::pairWeights(const KindJoint& last, std::int64_t steps,
+                                                const KindEvidence& evidence) const {
+  const double b[2] = {evidence.occ, evidence.free};
+  PairPosterior pair;
+  for (int k = 0; k < kKindCount; ++k) {
+    // (A_k^n)_ij as nStep, lambda_k^n from the table.
+    const double pi = pi_[k];
+    const double decay = lambdaPower(k, steps);
+    const double p00 = pi + decay * (1.0 - pi);
+    const double p10 = pi * (1.0 - decay);
+    pair[k][0][0] = last.p[2 * k] * p00 * b[0];
+    pair[k][0][1] = last.p[2 * k] * (1.0 - p00) * b[1];
+    pair[k][1][0] = last.p[2 * k + 1] * p10 * b[0];
+    pair[k][1][1] = last.p[2 * k + 1] * (1.0 - p10) * b[1];
+  }
+  return pair;
+}
+
 void CellKinds::addPair(const KindJoint& last, std::int64_t steps, double log_likelihood_ratio) {
+  addPair(last, steps, KindEvidence(log_likelihood_ratio));
+}
+
+void CellKinds::addPair(const KindJoint& last, std::int64_t steps, const KindEvidence& evidence) {
   if (steps < 1 || (!config_.learn_from_gaps && steps != 1)) return;
-  const PairPosterior pair = pairPosterior(last, steps, log_likelihood_ratio);
+  // The posterior up to its normaliser, which each counting divides out in its own way.
+  const PairPosterior pair = pairWeights(last, steps, evidence);
   double mass[kKindCount];
+  double total = 0.0;
   int best = 0;
   for (int k = 0; k < kKindCount; ++k) {
     mass[k] = pair[k][0][0] + pair[k][0][1] + pair[k][1][0] + pair[k][1][1];
+    total += mass[k];
     if (mass[k] > mass[best]) best = k;
   }
   if (!(mass[best] > 0.0)) return;
   const int bin = gapBin(steps);
+  if (config_.counting == KindCounting::kMostProbable) {
+    // The whole pair to the likeliest kind, given that kind.
+    const double scale = 1.0 / mass[best];
+    for (int c = 0; c < 4; ++c) sums_.pairs[best][bin][c] += scale * pair[best][c / 2][c % 2];
+    return;
+  }
+  const double scale = 1.0 / total;
   for (int k = 0; k < kKindCount; ++k) {
-    // kMostProbable: the whole pair to the likeliest kind, given that kind.
-    const double weight = config_.counting == KindCounting::kPosterior ? 1.0 : (k == best ? 1.0 / mass[best] : 0.0);
-    if (weight == 0.0) continue;
-    for (int i = 0; i < 2; ++i) {
-      for (int j = 0; j < 2; ++j) sums_.pairs[k][bin][2 * i + j] += weight * pair[k][i][j];
-    }
+    for (int c = 0; c < 4; ++c) sums_.pairs[k][bin][c] += scale * pair[k][c / 2][c % 2];
   }
 }
 
@@ -349,10 +368,16 @@ void CellKinds::recompute() {
     log_lambda_[k] = lambda > 0.0 ? std::log(lambda) : -std::numeric_limits<double>::infinity();
     log_p_of_[k] = std::log(transitions_[k].p_occ_given_free);
     log_p_fo_[k] = std::log(transitions_[k].p_free_given_occ);
+    pi_[k] = transitions_[k].p_occ_given_free / (transitions_[k].p_occ_given_free + transitions_[k].p_free_given_occ);
+    lambda_powers_[0][k] = 1.0;
+    for (int n = 1; n <= kTabulatedSteps; ++n) {
+      lambda_powers_[n][k] = std::exp(static_cast<double>(n) * log_lambda_[k]);
+    }
     weights_[k] = std::max(sums_.membership[k], 0.0) + config_.weight_prior_cells * config_.initial_weights[k];
     share_total += weights_[k];
   }
   for (double& weight : weights_) weight /= share_total;
+  for (int n = 0; n <= kTabulatedSteps; ++n) keep_powers_[n] = std::exp(log_keep_ * static_cast<double>(n));
 }
 
 }  // namespace core

@@ -268,21 +268,18 @@ void Mapper::applyCellStep(CellGrid::Tile& tile, int i, std::int32_t step) {
   tile.scan_record[i] = record & ScanRecord::kMarkMask;
   const double evidence = sensor_.logLikelihoodRatio(hits, misses);
   const bool kinds = config_.learner == TransitionLearner::kKinds;
-  const bool learn_kinds = kinds && config_.learn_transitions;
-  if (config_.learn_sensor_model && tile.last_step[i] != kNeverObserved) {
-    if (learn_kinds) {
-      addKindsSensorEvidence(tile, i, step, evidence);
-    } else {
-      addSensorEvidence(tile, i, step, evidence);
-    }
-  }
-  if (config_.learn_transitions) {
-    if (kinds) {
-      learnKindsStep(tile, i, step, evidence);
-    } else {
-      learnStep(tile, i, step, evidence);
-    }
+  const bool observed_before = tile.last_step[i] != kNeverObserved;
+  if (config_.learn_transitions && kinds) {
+    // The evidence's two likelihoods once, for the sensor model's statistics, the pair and
+    // the filter.
+    const KindEvidence kind_evidence(evidence);
+    if (config_.learn_sensor_model && observed_before) addKindsSensorEvidence(tile, i, step, kind_evidence);
+    learnKindsStep(tile, i, step, kind_evidence);
+  } else if (config_.learn_transitions) {
+    if (config_.learn_sensor_model && observed_before) addSensorEvidence(tile, i, step, evidence);
+    learnStep(tile, i, step, evidence);
   } else {
+    if (config_.learn_sensor_model && observed_before) addSensorEvidence(tile, i, step, evidence);
     const TransitionParams params{tile.p_occ_given_free[i], tile.p_free_given_occ[i]};
     const std::int32_t last = tile.last_step[i];
     // The belief just before this step's transition: the prior for a new cell, otherwise
@@ -428,7 +425,7 @@ void Mapper::learnStep(CellGrid::Tile& tile, int i, std::int32_t step, double ev
   tile.p_free_given_occ[i] = static_cast<float>(cell.params.p_free_given_occ);
 }
 
-void Mapper::learnKindsStep(CellGrid::Tile& tile, int i, std::int32_t step, double evidence) {
+void Mapper::learnKindsStep(CellGrid::Tile& tile, int i, std::int32_t step, const KindEvidence& evidence) {
   const std::int32_t last = tile.last_step[i];
   const bool first = last == kNeverObserved;
   KindJoint joint;
@@ -458,7 +455,8 @@ void Mapper::learnKindsStep(CellGrid::Tile& tile, int i, std::int32_t step, doub
   if (tile.observed_steps[i] < std::numeric_limits<std::uint16_t>::max()) ++tile.observed_steps[i];
 }
 
-void Mapper::addKindsSensorEvidence(const CellGrid::Tile& tile, int i, std::int32_t step, double evidence) {
+void Mapper::addKindsSensorEvidence(const CellGrid::Tile& tile, int i, std::int32_t step,
+                                    const KindEvidence& evidence) {
   // As addSensorEvidence, per kind: p(k, x_last = s | z up to this step) ∝ p(k, s | z up to
   // last) * sum_m A_k^n(s, m) p(z|m), n the transitions in between, counted only for the
   // kinds expected to keep their state in between (lambda_k^n >= 0.95), and only once the
@@ -467,14 +465,13 @@ void Mapper::addKindsSensorEvidence(const CellGrid::Tile& tile, int i, std::int3
   const std::uint32_t trials = hits + tile.last_misses[i];
   if (trials == 0 || tile.observed_steps[i] < config_.online_em.min_observed_steps) return;
   const std::int64_t n = std::int64_t{step} - tile.last_step[i];
-  const double like_occ = evidence >= 0.0 ? 1.0 : std::exp(evidence);
-  const double like_free = evidence >= 0.0 ? std::exp(-evidence) : 1.0;
+  const double like_occ = evidence.occ;
+  const double like_free = evidence.free;
   double counted[2] = {0.0, 0.0};
   double total = 0.0;
   for (int k = 0; k < kKindCount; ++k) {
-    const TransitionParams& t = kinds_.transitions(k);
     const double lambda_n = kinds_.lambdaPower(k, n);
-    const double pi = t.p_occ_given_free / (t.p_occ_given_free + t.p_free_given_occ);
+    const double pi = kinds_.stationary(k);
     const double occ_to_occ = pi + lambda_n * (1.0 - pi);
     const double free_to_occ = pi - lambda_n * pi;
     const double w_occ = tile.em_stats[2 * k][i] * (occ_to_occ * like_occ + (1.0 - occ_to_occ) * like_free);

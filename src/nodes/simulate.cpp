@@ -338,7 +338,7 @@ int run(const Options& options) {
   } catch (const std::exception& e) {
     // Reachable from a static to the end, so that a leak checker (the sanitized tests) does
     // not count it as lost; volatile, or the compiler drops a store nothing reads.
-    static rosbag::Bag* volatile unclosed_bag = nullptr;
+    [[maybe_unused]] static rosbag::Bag* volatile unclosed_bag = nullptr;
     unclosed_bag = bag.release();
     std::error_code ignored;
     std::filesystem::remove(temporary, ignored);

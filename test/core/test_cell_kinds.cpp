@@ -134,6 +134,26 @@ TEST(CellKinds, ObserveAndSkipEqualTheStepByStepReference) {
   }
 }
 
+TEST(CellKinds, GapsAtAndBeyondTheTablesEqualTheStepByStepReference) {
+  // lambda_k^n and the switch's keep are tabulated up to 64 steps and computed beyond: the
+  // filter must not tell the two apart.
+  std::mt19937_64 rng(17);
+  std::uniform_real_distribution<double> ratios(-6.0, 6.0);
+  const dog::CellKinds kinds(randomConfig(rng, 1e-3), 1e-4, 0.5);
+  dog::KindJoint joint = kinds.newCell(0.6);
+  Joint reference = toReference(joint);
+  for (const std::int64_t gap : {0, 62, 63, 64, 65, 66, 130, 700}) {
+    SCOPED_TRACE(gap);
+    const double ratio = ratios(rng);
+    kinds.skip(joint, gap);
+    const double p = kinds.observe(joint, gap, ratio);
+    LD xi[K][2][2];
+    const LD expected = referenceObserve(reference, kinds, gap, ratio, xi);
+    ASSERT_NEAR(p, static_cast<double>(expected), 1e-12);
+    for (int i = 0; i < 2 * K; ++i) ASSERT_NEAR(joint.p[i], static_cast<double>(reference[i]), 1e-12) << i;
+  }
+}
+
 TEST(CellKinds, PairPosteriorIsTheChainStepByStepFromEachState) {
   // p(k, x_last = i, x_now = j | z): the joint at the last step, each (kind, state) moved n
   // steps by its A_k one step at a time, weighed by this step's evidence.
@@ -143,7 +163,7 @@ TEST(CellKinds, PairPosteriorIsTheChainStepByStepFromEachState) {
   dog::KindJoint last = kinds.newCell(0.4);
   kinds.observe(last, 0, 1.5);
   kinds.observe(last, 3, -0.7);
-  for (const std::int64_t n : {1, 2, 7, 40, 333}) {
+  for (const std::int64_t n : {1, 2, 7, 40, 64, 65, 333}) {
     SCOPED_TRACE(n);
     const double ratio = ratios(rng);
     const dog::CellKinds::PairPosterior pair = kinds.pairPosterior(last, n, ratio);

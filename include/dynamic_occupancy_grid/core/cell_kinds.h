@@ -106,7 +106,21 @@ struct KindJoint {
   std::array<double, 2 * kKindCount> p{};
   double kind(int k) const { return p[2 * k] + p[2 * k + 1]; }
   /// p(occ) = sum_k p(k, occ).
-  double occupancy() const;
+  double occupancy() const {
+    double occ = 0.0;
+    for (int k = 0; k < kKindCount; ++k) occ += p[2 * k];
+    return occ;
+  }
+};
+
+/// An observed step's evidence as the two likelihoods p(z|occ), p(z|free) up to a common
+/// factor (the larger 1), from log p(z|occ)/p(z|free) clamped to +-700 (beyond that the
+/// other state's likelihood underflows). One per cell-step, shared by the filter, the pair
+/// and the sensor model's statistics.
+struct KindEvidence {
+  explicit KindEvidence(double log_likelihood_ratio);
+  double occ;
+  double free;
 };
 
 /// Bins of the pairs' distance n in steps (gapBin): 1 to 16 one each, then four per octave
@@ -127,8 +141,11 @@ class CellKinds {
   const KindsConfig& config() const { return config_; }
   const TransitionParams& transitions(int k) const { return transitions_[k]; }
   double weight(int k) const { return weights_[k]; }
-  /// lambda_k^steps (steps >= 0).
+  /// lambda_k^steps (steps >= 0): exp(steps log lambda_k), tabulated per M-step up to
+  /// kTabulatedSteps.
   double lambdaPower(int k, std::int64_t steps) const;
+  /// The kind's stationary occupancy p_occ_given_free / (p_occ_given_free + p_free_given_occ).
+  double stationary(int k) const { return pi_[k]; }
 
 
   /// A cell observed for the first time: the population's shares, the state as given.
@@ -138,6 +155,7 @@ class CellKinds {
   /// An observed step after `gap` (>= 0) unobserved ones: the kind switch for gap + 1 steps,
   /// one transition, the evidence (log p(z|occ)/p(z|free)). Returns p(occ).
   double observe(KindJoint& joint, std::int64_t gap, double log_likelihood_ratio) const;
+  double observe(KindJoint& joint, std::int64_t gap, const KindEvidence& evidence) const;
   /// p(occ) `steps` (>= 0) steps after the joint's step, exact (a mixture of closed forms).
   double predict(const KindJoint& joint, std::int64_t steps) const;
   /// The cell's two transition probabilities as the configured summary.
@@ -148,10 +166,12 @@ class CellKinds {
   /// of a cell's kind posterior (new minus old; a new cell adds its whole posterior and
   /// `new_cell`).
   void addPair(const KindJoint& last, std::int64_t steps, double log_likelihood_ratio);
+  void addPair(const KindJoint& last, std::int64_t steps, const KindEvidence& evidence);
   void addMembership(const std::array<double, kKindCount>& delta, bool new_cell);
   /// p(k, x_last = i, x_now = j | z) of a pair at [k][i][j] (addPair's posterior).
   using PairPosterior = std::array<std::array<std::array<double, 2>, 2>, kKindCount>;
   PairPosterior pairPosterior(const KindJoint& last, std::int64_t steps, double log_likelihood_ratio) const;
+  PairPosterior pairPosterior(const KindJoint& last, std::int64_t steps, const KindEvidence& evidence) const;
   /// The M-step after an applied step: decays the pair sums, then recomputes the kinds'
   /// transitions (from where they are) and shares.
   void update();
@@ -171,6 +191,8 @@ class CellKinds {
 
  private:
   void recompute();
+  /// f(k, i) (A_k^n)_ij b_j(z) at [k][i][j]: the pair posterior up to its normaliser.
+  PairPosterior pairWeights(const KindJoint& last, std::int64_t steps, const KindEvidence& evidence) const;
   /// The kind's transitions that maximise its pairs' likelihood, from `start`.
   TransitionParams fitPairs(int k, TransitionParams start) const;
 
@@ -182,7 +204,13 @@ class CellKinds {
   std::array<double, kKindCount> log_lambda_;  ///< log lambda_k (lambda_k > 0: rates <= 0.5)
   std::array<double, kKindCount> log_p_of_;
   std::array<double, kKindCount> log_p_fo_;
+  std::array<double, kKindCount> pi_;  ///< stationary occupancy per kind
   double log_keep_;  ///< log(1 - switch_probability)
+  /// Gaps up to this many steps (most of them) read lambda_k^n and the kind switch's keep
+  /// (1 - switch_probability)^n from tables computed in the M-step, by the same formulas.
+  static constexpr int kTabulatedSteps = 64;
+  std::array<std::array<double, kKindCount>, kTabulatedSteps + 1> lambda_powers_;  ///< [n][k]
+  std::array<double, kTabulatedSteps + 1> keep_powers_;  ///< [n]
   Sums sums_;
 };
 

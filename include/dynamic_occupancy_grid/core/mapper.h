@@ -215,8 +215,9 @@ class Mapper {
   void applyGatheredStep();
   void learnStep(CellGrid::Tile& tile, int offset, std::int32_t step, double evidence);
   /// learner kKinds: the cell's joint posterior over (kind, state), stored in em_stats.
-  void learnKindsStep(CellGrid::Tile& tile, int offset, std::int32_t step, double evidence);
-  void addKindsSensorEvidence(const CellGrid::Tile& tile, int offset, std::int32_t step, double evidence);
+  void learnKindsStep(CellGrid::Tile& tile, int offset, std::int32_t step, const KindEvidence& evidence);
+  void addKindsSensorEvidence(const CellGrid::Tile& tile, int offset, std::int32_t step,
+                              const KindEvidence& evidence);
   /// Writes a cell's statistics, keeping the population's pooled transitions up to date.
   void storeStats(CellGrid::Tile& tile, int offset, const TransitionStats& stats);
   void updatePrior();
