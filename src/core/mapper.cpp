@@ -210,9 +210,11 @@ void Mapper::nextScanId() {
 }
 
 void Mapper::addTouched(CellGrid::Tile& tile, int offset) {
-  if (touched_runs_.empty() || touched_runs_.back().tile != &tile) touched_runs_.push_back(TouchedRun{&tile, 0});
-  touched_offsets_.push_back(static_cast<std::uint16_t>(offset));
-  touched_runs_.back().end = static_cast<std::uint32_t>(touched_offsets_.size());
+  if (tile.touched_slot < 0) {
+    tile.touched_slot = static_cast<std::int32_t>(touched_tiles_.size());
+    touched_tiles_.push_back(TouchedTile{&tile, {}});
+  }
+  touched_tiles_[tile.touched_slot].cells[offset >> 6] |= std::uint64_t{1} << (offset & 63);
 }
 
 void Mapper::markMiss(CellGrid::Tile& tile, int offset) {
@@ -244,17 +246,17 @@ void Mapper::markHit(CellGrid::Tile& tile, int offset) {
 void Mapper::applyGatheredStep() {
   if (!gathering_step_) return;
   const auto step = static_cast<std::int32_t>(*gathering_step_);
-  std::uint32_t begin = 0;
-  for (const TouchedRun& run : touched_runs_) {
-    CellGrid::Tile& tile = *run.tile;
+  for (const TouchedTile& touched : touched_tiles_) {
+    CellGrid::Tile& tile = *touched.tile;
     tile_versions_.bump(tile.tile_x, tile.tile_y);
-    for (std::uint32_t k = begin; k < run.end; ++k) {
-      applyCellStep(tile, touched_offsets_[k], step);
+    for (int word = 0; word < static_cast<int>(touched.cells.size()); ++word) {
+      for (std::uint64_t bits = touched.cells[word]; bits != 0; bits &= bits - 1) {
+        applyCellStep(tile, 64 * word + __builtin_ctzll(bits), step);
+      }
     }
-    begin = run.end;
+    tile.touched_slot = -1;
   }
-  touched_runs_.clear();
-  touched_offsets_.clear();
+  touched_tiles_.clear();
   last_applied_step_ = gathering_step_;
   updatePrior();
   if (config_.learn_sensor_model) updateSensorModel();

@@ -94,6 +94,9 @@ class CellGrid {
     std::array<std::uint64_t, kTileCells> scan_record;
     std::int32_t tile_x;  ///< lattice coordinates of the tile (cell x >> kTileBits)
     std::int32_t tile_y;
+    /// The Mapper's bookkeeping of the step being gathered: this tile's index among the
+    /// tiles touched in it, -1 if none.
+    std::int32_t touched_slot = -1;
 
     std::int32_t cellX(int offset) const { return (tile_x * kTileSize) + (offset & (kTileSize - 1)); }
     std::int32_t cellY(int offset) const { return (tile_y * kTileSize) + (offset >> kTileBits); }

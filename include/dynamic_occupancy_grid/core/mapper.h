@@ -4,6 +4,7 @@
 // touched cell gathers hit and miss counts; when a scan of a later step arrives the step is
 // applied to the touched cells only (THEORY.md §3: untouched cells cost nothing).
 
+#include <array>
 #include <cstdint>
 #include <optional>
 #include <string>
@@ -230,11 +231,12 @@ class Mapper {
   void markHit(CellGrid::Tile& tile, int offset);
   void nextScanId();
 
-  /// Cells touched in the step being gathered, in the order first touched: runs of cells
-  /// of one tile (consecutive cells of a beam mostly share one), 2 bytes per cell.
-  struct TouchedRun {
+  /// Cells touched in the step being gathered: per tile (in the order first touched) one
+  /// bit per cell, so that the step visits each tile's cells in memory order, one tile after
+  /// the other (beams cross the same tiles again and again; their order is not the cells').
+  struct TouchedTile {
     CellGrid::Tile* tile;
-    std::uint32_t end;  ///< one past the run's last entry of touched_offsets_
+    std::array<std::uint64_t, CellGrid::kTileCells / 64> cells;
   };
   void addTouched(CellGrid::Tile& tile, int offset);
   /// One touched cell's step: the filter or the learner, the static baseline, the record.
@@ -249,8 +251,7 @@ class Mapper {
   CellGrid grid_;
   std::optional<std::int64_t> gathering_step_;
   std::optional<std::int64_t> last_applied_step_;
-  std::vector<TouchedRun> touched_runs_;
-  std::vector<std::uint16_t> touched_offsets_;
+  std::vector<TouchedTile> touched_tiles_;
   std::uint32_t scan_id_ = 0;
   CellBox changed_cells_;
   TileVersions tile_versions_;
