@@ -46,6 +46,9 @@ mkdir -p "$reports"
 # Leak detection on for every process, without suppressions: the ROS libraries the tests
 # reach reported no leak of their own (docs/reliability.md).
 export ASAN_OPTIONS="halt_on_error=1:abort_on_error=1:detect_leaks=1:log_path=$reports/asan"
+# The rostests' waits for a node's answer (test/ros/wall_scene.py), 15 s, times 3: the
+# sanitized nodes are slower, and a CI machine may be busy.
+export DOG_TEST_TIMEOUT_SCALE=3
 export UBSAN_OPTIONS="halt_on_error=1:abort_on_error=1:print_stacktrace=1:log_path=$reports/ubsan"
 
 targets=(run_tests_dynamic_occupancy_grid_gtest)
