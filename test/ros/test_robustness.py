@@ -97,9 +97,15 @@ class TestRobustness(unittest.TestCase):
             problems[:] = wall_problems(msg, check_behind=check_behind)
             return not problems
 
-        grid = self.belief.wait_for(mapped, clock=self.scene.clock)
+        # 3 x the default wait: this one failed twice in full CI runs with no grid of the step's
+        # stamp after 15 s (cause not found; the message below says what did arrive).
+        grid = self.belief.wait_for(mapped, timeout=3 * wall_scene.DEFAULT_TIMEOUT, clock=self.scene.clock)
+        if grid is None and not problems:
+            stamps = ['%.3f' % msg.header.stamp.to_sec() for msg in self.belief.snapshot()[-5:]]
+            problems = ['no grid with that stamp; the newest stamps %s, the cell %s, step offset %s, origin %.3f, '
+                        'clock %.3f' % (stamps, cell, self.scene.step_offset, self.scene.origin, self.scene.clock.now)]
         self.assertIsNotNone(grid, 'belief after step %d (stamp %.3f) does not show the wall: %s' % (
-            last, stamp, problems or 'no grid with that stamp'))
+            last, stamp, problems))
         return grid
 
     # --- parameters ---------------------------------------------------------------------------------
