@@ -22,15 +22,19 @@ constexpr double kMaxLogLikelihoodRatio = 700.0;
 constexpr int kExactBins = 16;
 constexpr double kBinsPerOctave = 4.0;
 
-// P(x_n = j | x_0 = i), [i][j], of the chain with transitions t: pi_j + lambda^n (delta_ij -
-// pi_j) (THEORY.md §3). lambda >= 0 here (both rates at most 0.5).
-void nStep(const TransitionParams& t, double steps, double p[2][2]) {
-  const double pi = t.p_occ_given_free / (t.p_occ_given_free + t.p_free_given_occ);
-  const double decay = std::pow(std::max(t.lambda(), 0.0), steps);
+// P(x_n = j | x_0 = i), [i][j], of a chain with stationary occupancy pi and lambda^n =
+// decay: pi_j + lambda^n (delta_ij - pi_j) (THEORY.md §3).
+void nStep(double pi, double decay, double p[2][2]) {
   p[0][0] = pi + decay * (1.0 - pi);
   p[0][1] = 1.0 - p[0][0];
   p[1][0] = pi * (1.0 - decay);
   p[1][1] = 1.0 - p[1][0];
+}
+
+// The same for the chain with transitions t, `steps` (not necessarily whole) apart; lambda >= 0
+// here (both rates at most 0.5).
+void nStep(const TransitionParams& t, double steps, double p[2][2]) {
+  nStep(t.p_occ_given_free / (t.p_occ_given_free + t.p_free_given_occ), std::pow(std::max(t.lambda(), 0.0), steps), p);
 }
 
 }  // namespace
@@ -210,15 +214,11 @@ CellKinds::PairPosterior CellKinds::pairWeights(const KindJoint& last, std::int6
   const double b[2] = {evidence.occ, evidence.free};
   PairPosterior pair;
   for (int k = 0; k < kKindCount; ++k) {
-    // (A_k^n)_ij as nStep, lambda_k^n from the table.
-    const double pi = pi_[k];
-    const double decay = lambdaPower(k, steps);
-    const double p00 = pi + decay * (1.0 - pi);
-    const double p10 = pi * (1.0 - decay);
-    pair[k][0][0] = last.p[2 * k] * p00 * b[0];
-    pair[k][0][1] = last.p[2 * k] * (1.0 - p00) * b[1];
-    pair[k][1][0] = last.p[2 * k + 1] * p10 * b[0];
-    pair[k][1][1] = last.p[2 * k + 1] * (1.0 - p10) * b[1];
+    double p[2][2];
+    nStep(pi_[k], lambdaPower(k, steps), p);  // lambda_k^n from the table
+    for (int i = 0; i < 2; ++i) {
+      for (int j = 0; j < 2; ++j) pair[k][i][j] = last.p[2 * k + i] * p[i][j] * b[j];
+    }
   }
   return pair;
 }

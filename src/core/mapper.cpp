@@ -277,27 +277,28 @@ void Mapper::applyCellStep(CellGrid::Tile& tile, int i, std::int32_t step) {
     const KindEvidence kind_evidence(evidence);
     if (config_.learn_sensor_model && observed_before) addKindsSensorEvidence(tile, i, step, kind_evidence);
     learnKindsStep(tile, i, step, kind_evidence);
-  } else if (config_.learn_transitions) {
-    if (config_.learn_sensor_model && observed_before) addSensorEvidence(tile, i, step, evidence);
-    learnStep(tile, i, step, evidence);
   } else {
     if (config_.learn_sensor_model && observed_before) addSensorEvidence(tile, i, step, evidence);
-    const TransitionParams params{tile.p_occ_given_free[i], tile.p_free_given_occ[i]};
-    const std::int32_t last = tile.last_step[i];
-    // The belief just before this step's transition: the prior for a new cell, otherwise
-    // the stored belief carried over the unobserved steps in closed form (THEORY.md §3).
-    const double before = last == kNeverObserved
-                              ? config_.initial_p_occ
-                              : predictOccupancy(tile.p_occ[i], params, std::int64_t{step} - 1 - last);
-    tile.p_occ[i] = static_cast<float>(filterStep(before, params, evidence));
-    if (kinds) {
-      // The kind posterior stays as it was; the state follows the filter, so that learning
-      // turned on again goes on from this belief.
-      for (int k = 0; k < kKindCount; ++k) {
-        const double mass = last == kNeverObserved ? kinds_.weight(k)
-                                                   : double{tile.em_stats[2 * k][i]} + tile.em_stats[2 * k + 1][i];
-        tile.em_stats[2 * k][i] = static_cast<float>(mass * tile.p_occ[i]);
-        tile.em_stats[2 * k + 1][i] = static_cast<float>(mass * (1.0 - tile.p_occ[i]));
+    if (config_.learn_transitions) {
+      learnStep(tile, i, step, evidence);
+    } else {
+      const TransitionParams params{tile.p_occ_given_free[i], tile.p_free_given_occ[i]};
+      const std::int32_t last = tile.last_step[i];
+      // The belief just before this step's transition: the prior for a new cell, otherwise
+      // the stored belief carried over the unobserved steps in closed form (THEORY.md §3).
+      const double before = last == kNeverObserved
+                                ? config_.initial_p_occ
+                                : predictOccupancy(tile.p_occ[i], params, std::int64_t{step} - 1 - last);
+      tile.p_occ[i] = static_cast<float>(filterStep(before, params, evidence));
+      if (kinds) {
+        // The kind posterior stays as it was; the state follows the filter, so that learning
+        // turned on again goes on from this belief.
+        for (int k = 0; k < kKindCount; ++k) {
+          const double mass = last == kNeverObserved ? kinds_.weight(k)
+                                                     : double{tile.em_stats[2 * k][i]} + tile.em_stats[2 * k + 1][i];
+          tile.em_stats[2 * k][i] = static_cast<float>(mass * tile.p_occ[i]);
+          tile.em_stats[2 * k + 1][i] = static_cast<float>(mass * (1.0 - tile.p_occ[i]));
+        }
       }
     }
   }

@@ -112,6 +112,17 @@ Joint toReference(const dog::KindJoint& joint) {
 
 }  // namespace
 
+// One observed step after `gap` unobserved ones, by CellKinds (skip, observe) and by the
+// reference: p(occ) and the joint must agree.
+void observeBoth(const dog::CellKinds& kinds, std::int64_t gap, double ratio, dog::KindJoint& joint, Joint& reference) {
+  kinds.skip(joint, gap);
+  const double p = kinds.observe(joint, gap, ratio);
+  LD xi[K][2][2];
+  const LD expected = referenceObserve(reference, kinds, gap, ratio, xi);
+  ASSERT_NEAR(p, static_cast<double>(expected), 1e-12);
+  for (int i = 0; i < 2 * K; ++i) ASSERT_NEAR(joint.p[i], static_cast<double>(reference[i]), 1e-12) << i;
+}
+
 TEST(CellKinds, ObserveAndSkipEqualTheStepByStepReference) {
   std::mt19937_64 rng(11);
   std::uniform_int_distribution<int> gaps(0, 40);
@@ -124,12 +135,7 @@ TEST(CellKinds, ObserveAndSkipEqualTheStepByStepReference) {
     for (int step = 0; step < 60; ++step) {
       const std::int64_t gap = step == 0 ? 0 : gaps(rng);
       const double ratio = ratios(rng);
-      kinds.skip(joint, gap);
-      const double p = kinds.observe(joint, gap, ratio);
-      LD xi[K][2][2];
-      const LD expected = referenceObserve(reference, kinds, gap, ratio, xi);
-      ASSERT_NEAR(p, static_cast<double>(expected), 1e-12);
-      for (int i = 0; i < 2 * K; ++i) ASSERT_NEAR(joint.p[i], static_cast<double>(reference[i]), 1e-12) << i;
+      ASSERT_NO_FATAL_FAILURE(observeBoth(kinds, gap, ratio, joint, reference));
     }
   }
 }
@@ -145,12 +151,7 @@ TEST(CellKinds, GapsAtAndBeyondTheTablesEqualTheStepByStepReference) {
   for (const std::int64_t gap : {0, 62, 63, 64, 65, 66, 130, 700}) {
     SCOPED_TRACE(gap);
     const double ratio = ratios(rng);
-    kinds.skip(joint, gap);
-    const double p = kinds.observe(joint, gap, ratio);
-    LD xi[K][2][2];
-    const LD expected = referenceObserve(reference, kinds, gap, ratio, xi);
-    ASSERT_NEAR(p, static_cast<double>(expected), 1e-12);
-    for (int i = 0; i < 2 * K; ++i) ASSERT_NEAR(joint.p[i], static_cast<double>(reference[i]), 1e-12) << i;
+    ASSERT_NO_FATAL_FAILURE(observeBoth(kinds, gap, ratio, joint, reference));
   }
 }
 
