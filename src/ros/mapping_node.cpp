@@ -165,6 +165,7 @@ bool MappingNode::start() {
   if (memory_) advertiseMemory();
   startDiagnostics();
   services_.push_back(service_nh_.advertiseService("reset", &MappingNode::reset, this));
+  services_.push_back(service_nh_.advertiseService("get_status", &MappingNode::getStatus, this));
 
   tf_listener_ = std::make_unique<tf2_ros::TransformListener>(tf_buffer_, nh_);
   for (const std::string& topic : parameters_.scan_topics) {
@@ -1174,6 +1175,23 @@ bool MappingNode::reset(std_srvs::Trigger::Request&, std_srvs::Trigger::Response
   response.success = true;
   response.message = mapper_ && memory_ ? "map and memory cleared" : mapper_ ? "map cleared" : "memory cleared";
   ROS_INFO("%s by ~reset", response.message.c_str());
+  return true;
+}
+
+bool MappingNode::getStatus(GetStatus::Request&, GetStatus::Response& response) {
+  response.scans_received = scan_counts_.received;
+  response.scans_integrated = scan_counts_.integrated;
+  response.scans_dropped_tf = scan_counts_.dropped_tf;
+  response.scans_dropped_invalid = scan_counts_.dropped_invalid;
+  response.scans_dropped_late = scan_counts_.dropped_late;
+  response.scans_refused_by_memory = scan_counts_.memory_rejected;
+  response.last_applied_step = -1;
+  std::lock_guard<std::mutex> lock(mutex_);
+  const std::optional<std::int64_t> step = mapper_ ? mapper_->lastAppliedStep() : std::nullopt;
+  if (step) {
+    response.last_applied_step = *step;
+    response.map_stamp = mapper_->clock().stepStart(*step + 1);
+  }
   return true;
 }
 

@@ -276,6 +276,13 @@ class TestMemoryNode(unittest.TestCase):
         for topic in ('belief', 'belief_updates', 'predicted', 'static_map', 'offline_em_progress'):
             self.assertNotIn(MEMORY + '/' + topic, published)
         self.assertIn(MEMORY + '/reset', offered)
+        self.assertIn(MEMORY + '/get_status', offered)
+        status = rospy.ServiceProxy(MEMORY + '/get_status', wall_scene.dog_srv.GetStatus)()
+        self.assertEqual(status.last_applied_step, -1, status)  # no cell HMM, no step
+        self.assertGreater(status.scans_integrated, 0, status)
+        self.assertEqual(status.scans_received, status.scans_integrated + status.scans_dropped_tf +
+                         status.scans_dropped_invalid + status.scans_dropped_late + status.scans_refused_by_memory,
+                         status)
         for service in ('get_cell', 'predict_map', 'save_model', 'load_model', 'export_layers', 'run_offline_em'):
             self.assertNotIn(MEMORY + '/' + service, offered)
         both = {topic for topic, nodes in publishers if BOTH in nodes}

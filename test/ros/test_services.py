@@ -132,6 +132,19 @@ class TestServices(unittest.TestCase):
             stamp, [round(m.header.stamp.to_sec(), 3) for m in self.belief.snapshot()[-10:]]))
         return grid
 
+    # --- get_status --------------------------------------------------------------------------
+    def test_00_get_status(self):
+        """The node's counts: every scan of setUpClass mapped, none dropped, the map's clock
+        at the last step."""
+        status = self.call('get_status')
+        scans = 1 + 2 * (STEPS - 1)  # first_scan, then two per step
+        self.assertEqual(status.scans_received, scans, status)
+        self.assertEqual(status.scans_integrated, scans, status)
+        self.assertEqual((status.scans_dropped_tf, status.scans_dropped_invalid, status.scans_dropped_late,
+                          status.scans_refused_by_memory), (0, 0, 0, 0), status)
+        self.assertEqual(status.last_applied_step, self.wall_cell().last_observed_step)
+        self.assertAlmostEqual(status.map_stamp, self.final_stamp, places=6)
+
     # --- get_cell ----------------------------------------------------------------------------
     def test_01_get_cell_wall(self):
         cell = self.wall_cell()

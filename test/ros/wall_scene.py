@@ -312,6 +312,11 @@ class WallScene(object):
         self.last_step = None    # step of the newest scan of the sequence
         self.step_offset = 0     # the node's number of step 0 of the sequence
         self._services = {}
+        # Scans published, by frame: those whose transform the scene has broadcast must have
+        # gone through the node (mapped or dropped) before the clock moves on (sync).
+        self._published_by_frame = {}
+        self._processed_base = None  # the node's processed count before the first scan
+        self._processed = 0          # the node's processed count, as last read
 
     # --- tf and the node ---------------------------------------------------------------
     def broadcast_tf(self, **pose):
@@ -331,6 +336,7 @@ class WallScene(object):
                 raise AssertionError('%s never subscribed to /scan' % self.node)
             threading.Event().wait(0.05)
         rospy.wait_for_service(self.node + '/get_cell', max(1.0, deadline - time.time()))
+        self._processed_base = self._processed = self._node_processed()
 
     def service(self, name, srv_type=None):
         if name not in self._services:
@@ -339,6 +345,7 @@ class WallScene(object):
                     'get_cell': dog_srv.GetCell, 'predict_map': dog_srv.PredictMap,
                     'save_model': dog_srv.SaveModel, 'load_model': dog_srv.LoadModel,
                     'export_layers': dog_srv.ExportLayers, 'run_offline_em': dog_srv.RunOfflineEm,
+                    'get_status': dog_srv.GetStatus,
                 }[name]
             full_name = self.node + '/' + name
             rospy.wait_for_service(full_name, 10.0)
@@ -354,11 +361,45 @@ class WallScene(object):
         return make_scan(stamp, **fields)
 
     def publish(self, scan):
-        """Publishes a scan, the clock first moved up to its stamp (never back)."""
+        """Publishes a scan, the clock first moved up to its stamp (never back, and only once
+        the node has taken every scan before it: sync)."""
         stamp = scan.header.stamp.to_sec()
         if stamp > self.clock.now:
+            self.sync()
             self.clock.set(stamp)
         self.scan_publisher.publish(scan)
+        frame = scan.header.frame_id
+        self._published_by_frame[frame] = self._published_by_frame.get(frame, 0) + 1
+
+    def _node_processed(self):
+        status = self.service('get_status')()
+        return (status.scans_integrated + status.scans_dropped_tf + status.scans_dropped_invalid +
+                status.scans_dropped_late + status.scans_refused_by_memory)
+
+    def sync(self, timeout=DEFAULT_TIMEOUT):
+        """Waits (wall time, the clock standing still) until the node has mapped or dropped
+        every scan published whose frame's transform the scene has broadcast. The scans and
+        /clock reach the node on separate connections, and a scan goes through its queue
+        twice (the tf filter's subscriber, then the filter's callback): a clock moved past a
+        step's end + max_scan_latency right after its scans were published can close that
+        step before its last scan is taken, which the node then drops as late."""
+        if self._processed_base is None:
+            return
+        expected = self._processed_base + sum(count for frame, count in self._published_by_frame.items()
+                                              if frame in self._static_transforms)
+        if self._processed >= expected:
+            return
+        deadline = time.time() + timeout
+        event = threading.Event()
+        while True:
+            self._processed = self._node_processed()
+            if self._processed >= expected:
+                return
+            if time.time() >= deadline or rospy.is_shutdown():
+                raise AssertionError('%s took %d of %d scans published within %.0f s: %s' % (
+                    self.node, self._processed - self._processed_base, expected - self._processed_base, timeout,
+                    self.service('get_status')()))
+            event.wait(0.005)
 
     def start_sequence(self, base):
         """Scans restart at `base` (a new map, or time jumping back): the next scan published
@@ -426,6 +467,7 @@ class WallScene(object):
         publish timer applies it without waiting for a later scan."""
         end = self.step_end(self.last_step) + MAX_SCAN_LATENCY + 0.05
         if end > self.clock.now:
+            self.sync()
             self.clock.set(end)
 
     def wait_until(self, predicate, timeout=DEFAULT_TIMEOUT, tick=0.02):

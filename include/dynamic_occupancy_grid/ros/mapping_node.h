@@ -42,6 +42,7 @@
 #include "dynamic_occupancy_grid/DynamicOccupancyGridConfig.h"
 #include "dynamic_occupancy_grid/ExportLayers.h"
 #include "dynamic_occupancy_grid/GetCell.h"
+#include "dynamic_occupancy_grid/GetStatus.h"
 #include "dynamic_occupancy_grid/LoadModel.h"
 #include "dynamic_occupancy_grid/PredictMap.h"
 #include "dynamic_occupancy_grid/RunOfflineEm.h"
@@ -150,6 +151,7 @@ class MappingNode {
   bool exportLayers(ExportLayers::Request& request, ExportLayers::Response& response);
   bool reset(std_srvs::Trigger::Request& request, std_srvs::Trigger::Response& response);
   bool getCell(GetCell::Request& request, GetCell::Response& response);
+  bool getStatus(GetStatus::Request& request, GetStatus::Response& response);
   bool predictMap(PredictMap::Request& request, PredictMap::Response& response);
 
   ros::NodeHandle nh_;
