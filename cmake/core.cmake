@@ -22,6 +22,11 @@ add_library(dynamic_occupancy_grid_core
   ${DOG_ROOT}/src/core/step_clock.cpp
   ${DOG_ROOT}/src/core/mapper.cpp
   ${DOG_ROOT}/src/core/memory_model.cpp
+  # the laser's pose when tf cannot be trusted: odometry, particles whose maps are cell HMMs
+  ${DOG_ROOT}/src/core/motion_model.cpp
+  ${DOG_ROOT}/src/core/resampling.cpp
+  ${DOG_ROOT}/src/core/particle_map.cpp
+  ${DOG_ROOT}/src/core/pose_filter.cpp
   # what leaves the map: layers and files (file_io: regular files only, atomic writes)
   ${DOG_ROOT}/src/core/file_io.cpp
   ${DOG_ROOT}/src/core/layers.cpp

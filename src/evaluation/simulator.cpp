@@ -278,20 +278,7 @@ Scan simulateScan(const World& world, const Pose2D& laser_pose, const LaserConfi
   return scan;
 }
 
-Pose2D compose(const Pose2D& robot, const Pose2D& mount) {
-  const double c = std::cos(robot.yaw_rad);
-  const double s = std::sin(robot.yaw_rad);
-  return Pose2D{robot.x_m + c * mount.x_m - s * mount.y_m, robot.y_m + s * mount.x_m + c * mount.y_m,
-                robot.yaw_rad + mount.yaw_rad};
-}
-
 // ---------------------------------------------------------------- DriftingOdometry
-
-void OdometryNoise::validate() const {
-  for (const double alpha : {rot_from_rot, rot_from_trans, trans_from_trans, trans_from_rot}) {
-    require(std::isfinite(alpha) && alpha >= 0.0, "OdometryNoise: every alpha must be finite and >= 0");
-  }
-}
 
 DriftingOdometry::DriftingOdometry(const OdometryNoise& noise, std::uint64_t seed) : noise_(noise), rng_(seed) {
   noise_.validate();
@@ -303,23 +290,9 @@ Pose2D DriftingOdometry::update(const Pose2D& truth) {
     odometry_ = truth;
     return odometry_;
   }
-  const Pose2D& from = *last_truth_;
-  const double dx = truth.x_m - from.x_m;
-  const double dy = truth.y_m - from.y_m;
-  const double trans = std::hypot(dx, dy);
-  // A turn on the spot has no direction of travel: all of it is the second rotation.
-  const double rot1 = trans > 1e-9 ? std::remainder(std::atan2(dy, dx) - from.yaw_rad, 2.0 * kPi) : 0.0;
-  const double rot2 = std::remainder(truth.yaw_rad - from.yaw_rad - rot1, 2.0 * kPi);
-  const auto noisy = [this](double value, double variance) { return value + std::sqrt(variance) * rng_.normal(); };
-  const OdometryNoise& a = noise_;
-  const double read_rot1 = noisy(rot1, a.rot_from_rot * rot1 * rot1 + a.rot_from_trans * trans * trans);
-  const double read_trans =
-      noisy(trans, a.trans_from_trans * trans * trans + a.trans_from_rot * (rot1 * rot1 + rot2 * rot2));
-  const double read_rot2 = noisy(rot2, a.rot_from_rot * rot2 * rot2 + a.rot_from_trans * trans * trans);
-  const double heading = odometry_.yaw_rad + read_rot1;
-  odometry_.x_m += read_trans * std::cos(heading);
-  odometry_.y_m += read_trans * std::sin(heading);
-  odometry_.yaw_rad = std::remainder(heading + read_rot2, 2.0 * kPi);
+  const OdometryMotion read = perturbMotion(odometryMotion(*last_truth_, truth), noise_,
+                                            {rng_.normal(), rng_.normal(), rng_.normal()});
+  odometry_ = applyMotion(odometry_, read);
   last_truth_ = truth;
   return odometry_;
 }
@@ -823,7 +796,7 @@ Scan Simulation::scanFrom(const Pose2D& robot_pose, int scan_index) {
   }
   const double stamp =
       (static_cast<double>(step_) + (scan_index + 0.5) / config_.scans_per_step) * config_.time_step_s;
-  const Pose2D laser = compose(robot_pose, config_.laser_mount);
+  const Pose2D laser = composePose(robot_pose, config_.laser_mount);
   if (config_.kind == ScenarioKind::kDividers) {
     // A person passing through the laser's own cell is too close to be seen (DividersLayout):
     // hide it for this scan.

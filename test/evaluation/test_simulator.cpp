@@ -263,7 +263,7 @@ TEST(LoopPath, DrivesTheLoopAtItsSpeed) {
 }
 
 TEST(Compose, MountsTheLaserOnTheRobot) {
-  const Pose2D laser = compose(Pose2D{1.0, 2.0, kPi / 2}, Pose2D{0.1, 0.0, 0.0});
+  const Pose2D laser = composePose(Pose2D{1.0, 2.0, kPi / 2}, Pose2D{0.1, 0.0, 0.0});
   EXPECT_NEAR(laser.x_m, 1.0, 1e-12);
   EXPECT_NEAR(laser.y_m, 2.1, 1e-12);
   EXPECT_NEAR(laser.yaw_rad, kPi / 2, 1e-12);

@@ -163,11 +163,7 @@ CorridorOfflineEmResult corridorOfflineEm(const CorridorModel& model, const Corr
 CorridorPosterior corridorOfflineEmPerStep(const CorridorModel& model, const CorridorEpisode& episode,
                                            const CorridorOfflineEmConfig& config);
 
-/// Liu & Chen's residual resampling: particle i gets floor(N w_i) copies, and the
-/// R = N - sum floor(N w_i) remaining draws are multinomial with probabilities proportional
-/// to the residuals N w_i - floor(N w_i). Returns the copies per particle (summing to
-/// `count`). `weights` need not be normalised; throws std::invalid_argument if one is
-/// negative or not finite, or all are zero.
+/// core::residualResample (Liu & Chen's residual resampling) with `rng`'s uniform draws.
 std::vector<std::size_t> residualResample(const std::vector<double>& weights, std::size_t count, Rng& rng);
 
 /// The RBPF's proposal for L_t (Section 4).

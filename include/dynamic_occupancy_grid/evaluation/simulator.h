@@ -18,6 +18,7 @@
 #include <vector>
 
 #include "dynamic_occupancy_grid/core/cell_model.h"
+#include "dynamic_occupancy_grid/core/motion_model.h"
 #include "dynamic_occupancy_grid/core/scan.h"
 #include "dynamic_occupancy_grid/core/traversal.h"
 
@@ -142,23 +143,6 @@ struct LaserConfig {
 /// dropout NaN, a reading below range_min is clamped to range_min.
 Scan simulateScan(const World& world, const Pose2D& laser_pose, const LaserConfig& laser, double stamp_s,
                   Rng& rng);
-
-/// Pose of a frame mounted at `mount` (in the robot frame) on a robot at `robot`.
-Pose2D compose(const Pose2D& robot, const Pose2D& mount);
-
-/// Noise of the odometry motion model (Thrun, Burgard, Fox, "Probabilistic Robotics",
-/// §5.4; amcl's odom_alpha1..4): the variances of a motion's two rotations and translation
-/// grow as alpha1 rot^2 + alpha2 trans^2 (rotations), alpha3 trans^2 + alpha4 (rot1^2 +
-/// rot2^2) (translation), in rad and m.
-struct OdometryNoise {
-  double rot_from_rot = 0.0;      ///< alpha1
-  double rot_from_trans = 0.0;    ///< alpha2
-  double trans_from_trans = 0.0;  ///< alpha3
-  double trans_from_rot = 0.0;    ///< alpha4
-  /// Throws std::invalid_argument unless all four are finite and >= 0.
-  void validate() const;
-  bool none() const { return rot_from_rot == 0.0 && rot_from_trans == 0.0 && trans_from_trans == 0.0 && trans_from_rot == 0.0; }
-};
 
 /// Odometry that drifts: each true motion between two poses, taken as rotation,
 /// translation, rotation, is read with noise (the motion model's sampler, §5.4) and added

@@ -1,0 +1,174 @@
+#pragma once
+// Mapping under pose uncertainty: a Rao-Blackwellised particle filter whose particles
+// sample the laser's trajectory and carry, each, the map given that trajectory as cell
+// HMMs (Murphy, "Bayesian map learning in dynamic environments", NIPS 1999, §4; the map
+// per particle as in gmapping, Grisetti et al. 2007).
+//
+// One update, once odometry has moved update_distance_m or update_angle_rad since the last:
+//   1. proposal: each particle's pose moved by the odometry's motion read with the motion
+//      model's noise (motion_model.h), then refined by scan matching against the
+//      particle's map *predicted* to the scan's step (a hill climb of gmapping's kind on the
+//      beam end points' distance to predicted-occupied cells);
+//   2. weight: times the scan's likelihood under the particle's predicted map. Cells are
+//      independent given the trajectory, so p(z | trajectory, past scans) is the product
+//      over the cells the scan reaches of q p(z_c | occ) + (1 - q) p(z_c | free), q the
+//      cell's predicted p(occ) (the RBPF's exact incremental weight under the package's
+//      sensor model);
+//   3. map: each cell the scan reaches takes one filter step with its evidence;
+//   4. resampling (Liu's residual resampling) when N_eff = 1 / sum w^2 falls below
+//      resample_below * N. Maps are copied by their tile pointers (particle_map.h).
+// A door the model predicts open (or a parked car predicted gone) is no evidence against a
+// particle that sees it open: that is where a dynamic map keeps particles where a static
+// one pulls them away.
+//
+// ROS-free: standard library only.
+
+#include <cstddef>
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <random>
+#include <vector>
+
+#include "dynamic_occupancy_grid/core/motion_model.h"
+#include "dynamic_occupancy_grid/core/particle_map.h"
+#include "dynamic_occupancy_grid/core/scan.h"
+#include "dynamic_occupancy_grid/core/step_clock.h"
+
+namespace dynamic_occupancy_grid {
+namespace core {
+
+struct PoseFilterConfig {
+  std::size_t particles = 30;
+  /// The odometry's noise (amcl's odom_alpha1..4) for the proposal.
+  OdometryNoise motion_noise{0.05, 0.05, 0.05, 0.05};
+  /// An update once odometry moved this far or turned this much since the last (gmapping's
+  /// linearUpdate / angularUpdate); the first scan is always one.
+  double update_distance_m = 0.5;
+  double update_angle_rad = 0.5;
+  /// Resample when N_eff < resample_below * particles (1: at every update).
+  double resample_below = 0.5;
+  double resolution_m = 0.05;
+  double time_step_s = 1.0;           ///< one HMM step of the maps, seconds of sensor time
+  double p_hit_given_occ = 0.7;       ///< sensor model, as MapperConfig's
+  double p_hit_given_free = 0.2;
+  double unknown_p_occ = 0.5;         ///< p(occ) of a cell no scan has reached
+  double max_free_range_m = 10.0;     ///< beams without return clear up to here (0: ignored)
+  double max_range_m = 30.0;          ///< no beam is walked further
+  /// Scan matching: on by default; off, the proposal is the motion model alone.
+  bool scan_matching = true;
+  std::size_t match_beam_stride = 2;      ///< every n-th beam with a return takes part
+  double match_sigma_m = 0.05;            ///< the score's kernel exp(-d^2 / 2 sigma^2)
+  double match_linear_step_m = 0.05;      ///< first step of the hill climb, halved 4 times
+  double match_angular_step_rad = 0.03;
+  int match_max_iterations = 40;
+  /// Matching keeps the motion model's pose unless the score, per beam taking part, is at
+  /// least this (a particle's map that has not seen the place yet).
+  double match_min_score = 0.2;
+  std::uint64_t seed = 1;
+  /// Threads for the particles (0 = one per core); results do not depend on it.
+  unsigned threads = 0;
+
+  /// Throws std::invalid_argument naming the first bad field.
+  void validate() const;
+};
+
+/// The laser's poses of a particle, newest first; shared by the particles resampled from it.
+struct TrajectoryNode {
+  double stamp_s = 0.0;
+  Pose2D pose;
+  std::shared_ptr<const TrajectoryNode> parent;
+};
+
+struct Particle {
+  Pose2D pose;              ///< the laser's pose in the map frame at the last update
+  double log_weight = 0.0;  ///< since the last resampling, up to a constant
+  ParticleMap map;
+  std::shared_ptr<const TrajectoryNode> trajectory;
+};
+
+/// What one scan did.
+struct PoseUpdate {
+  bool updated = false;   ///< false: odometry had not moved enough (the scan is not used)
+  bool resampled = false;
+  double effective_sample_size = 0.0;  ///< before resampling
+};
+
+/// A scan's evidence for one cell: one hit or one miss (a scan observes a cell once).
+struct CellEvidence {
+  std::int32_t x = 0;
+  std::int32_t y = 0;
+  std::uint32_t hits = 0;
+  std::uint32_t misses = 0;
+};
+
+/// The cells a scan from `laser_pose` reaches on a lattice of `resolution_m` (corner at the
+/// origin) and their evidence, sorted by (x, y); the reading rules of scan_beams.h and the
+/// Mapper's rule of one observation per cell and scan (a hit if any beam ends there with a
+/// return, otherwise a miss). Throws
+/// std::invalid_argument for a scan scanFieldsError refuses or a beam beyond the lattice.
+std::vector<CellEvidence> scanEvidence(const Scan& scan, const Pose2D& laser_pose, double resolution_m,
+                                       double max_free_range_m, double max_range_m);
+
+/// log p(z_c | q): the log-likelihood of a cell's evidence given its predicted p(occ) q.
+double cellEvidenceLogLikelihood(const CellEvidence& evidence, double q, const ObservationModel& sensor);
+
+class PoseFilter {
+ public:
+  /// Throws std::invalid_argument for a bad config or a null source.
+  PoseFilter(const PoseFilterConfig& config, std::shared_ptr<const TransitionSource> transitions);
+
+  /// A scan whose laser_pose is the laser's *odometry* pose at the scan's stamp. The first
+  /// scan puts every particle at that pose (the map frame starts at odometry's) and maps
+  /// it; a later one updates the particles once odometry has moved enough (else it is not
+  /// used). Stamps must not go back past the first scan's step. Throws
+  /// std::invalid_argument for a scan scanFieldsError refuses or a stamp before step 0.
+  PoseUpdate integrate(const Scan& scan);
+
+  const PoseFilterConfig& config() const { return config_; }
+  const std::vector<Particle>& particles() const { return particles_; }
+  bool started() const { return last_odometry_.has_value(); }
+  /// The particle with the highest weight (the first of equals). Requires started().
+  std::size_t bestIndex() const;
+  const Particle& best() const { return particles_[bestIndex()]; }
+  /// The particles' normalised weights.
+  std::vector<double> weights() const;
+  double effectiveSampleSize() const;
+  /// Entropy (nats) of a Gaussian fitted to the weighted particle poses (x, y, yaw), as
+  /// gmapping's ~entropy; a floor of 1e-12 per variance keeps it finite for equal poses.
+  double poseEntropy() const;
+  /// The map frame's correction of odometry: the best particle's pose times the inverse of
+  /// the odometry pose of the last update (map -> odom for the laser's poses).
+  Pose2D mapToOdometry() const;
+  /// The best particle's trajectory, oldest first.
+  std::vector<TrajectoryNode> bestTrajectory() const;
+  std::int64_t stepOf(double stamp_s) const { return clock_.stepOf(stamp_s); }
+  const ObservationModel& sensor() const { return sensor_; }
+  const TransitionSource& transitions() const { return *transitions_; }
+  std::size_t updates() const { return updates_; }
+  std::size_t resamplings() const { return resamplings_; }
+
+ private:
+  /// The scan-matching score of `pose` against the particle's map predicted to `step`.
+  double matchScore(const Particle& particle, const Scan& scan, const Pose2D& pose, std::int64_t step,
+                    std::size_t* beams) const;
+  Pose2D matchPose(const Particle& particle, const Scan& scan, const Pose2D& start, std::int64_t step) const;
+  /// Moves, weighs and maps one particle.
+  void updateParticle(Particle& particle, const Scan& scan, const OdometryMotion& motion,
+                      const std::array<double, 3>& normals, std::int64_t step) const;
+  void resample();
+
+  PoseFilterConfig config_;
+  std::shared_ptr<const TransitionSource> transitions_;
+  ObservationModel sensor_;
+  StepClock clock_;
+  std::mt19937_64 rng_;
+  std::vector<Particle> particles_;
+  std::optional<Pose2D> last_odometry_;  ///< at the last update
+  std::int64_t last_step_ = 0;           ///< the last update's step
+  std::size_t updates_ = 0;
+  std::size_t resamplings_ = 0;
+};
+
+}  // namespace core
+}  // namespace dynamic_occupancy_grid

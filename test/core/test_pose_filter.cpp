@@ -1,0 +1,413 @@
+// Tests of mapping under pose uncertainty (core/motion_model.h, core/resampling.h,
+// core/particle_map.h, core/pose_filter.h): the odometry motion model's formulas, the
+// particle maps' closed-form cells against the core Mapper fed the same scans at the same
+// poses, copy-on-write tiles, a scan's evidence and its likelihood against sums written out
+// here, and the filter on a room with drifting odometry, where it must end nearer the
+// truth than odometry.
+
+#include "dynamic_occupancy_grid/core/pose_filter.h"
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <array>
+#include <functional>
+#include <iostream>
+#include <cmath>
+#include <limits>
+#include <map>
+#include <memory>
+#include <random>
+#include <stdexcept>
+#include <utility>
+#include <vector>
+
+#include "dynamic_occupancy_grid/core/mapper.h"
+#include "dynamic_occupancy_grid/core/resampling.h"
+
+namespace dog = dynamic_occupancy_grid::core;
+
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+
+// --- a room to drive in: axis-aligned boxes, rays cast exactly -----------------------------
+struct Box {
+  double min_x, min_y, max_x, max_y;
+};
+
+// Distance along (cos a, sin a) from (x, y) to the nearest box side; +inf if none.
+double castRay(const std::vector<Box>& boxes, double x, double y, double angle) {
+  const double dx = std::cos(angle);
+  const double dy = std::sin(angle);
+  double nearest = std::numeric_limits<double>::infinity();
+  for (const Box& box : boxes) {
+    for (const double side_x : {box.min_x, box.max_x}) {
+      if (std::abs(dx) < 1e-12) continue;
+      const double t = (side_x - x) / dx;
+      const double hit_y = y + t * dy;
+      if (t > 1e-9 && hit_y >= box.min_y && hit_y <= box.max_y) nearest = std::min(nearest, t);
+    }
+    for (const double side_y : {box.min_y, box.max_y}) {
+      if (std::abs(dy) < 1e-12) continue;
+      const double t = (side_y - y) / dy;
+      const double hit_x = x + t * dx;
+      if (t > 1e-9 && hit_x >= box.min_x && hit_x <= box.max_x) nearest = std::min(nearest, t);
+    }
+  }
+  return nearest;
+}
+
+// A 12 m x 8 m room (walls 0.2 m thick) with three pillars and a shelf.
+std::vector<Box> room() {
+  return {{-0.2, -0.2, 12.2, 0.0}, {-0.2, 8.0, 12.2, 8.2}, {-0.2, 0.0, 0.0, 8.0}, {12.0, 0.0, 12.2, 8.0},
+          {3.0, 3.0, 3.4, 3.4},    {8.0, 4.6, 8.4, 5.0},   {5.5, 6.5, 7.5, 7.0}, {10.0, 1.0, 10.6, 2.2}};
+}
+
+dog::Scan simulatedScan(const std::vector<Box>& boxes, const dog::Pose2D& pose, double stamp_s, std::mt19937_64& rng,
+                        double noise_m, std::size_t beams = 181) {
+  dog::Scan scan;
+  scan.stamp_s = stamp_s;
+  scan.laser_pose = pose;
+  scan.angle_min_rad = -kPi / 2;
+  scan.angle_increment_rad = kPi / static_cast<double>(beams - 1);
+  scan.range_min_m = 0.05;
+  scan.range_max_m = 20.0;
+  std::normal_distribution<double> noise(0.0, noise_m);
+  for (std::size_t i = 0; i < beams; ++i) {
+    const double range = castRay(boxes, pose.x_m, pose.y_m, pose.yaw_rad + scan.angle_min_rad + i * scan.angle_increment_rad);
+    scan.ranges_m.push_back(static_cast<float>(noise_m > 0.0 ? range + noise(rng) : range));
+  }
+  return scan;
+}
+
+void expectPose(const dog::Pose2D& actual, const dog::Pose2D& expected, double tolerance) {
+  EXPECT_NEAR(actual.x_m, expected.x_m, tolerance);
+  EXPECT_NEAR(actual.y_m, expected.y_m, tolerance);
+  EXPECT_NEAR(std::remainder(actual.yaw_rad - expected.yaw_rad, 2 * kPi), 0.0, tolerance);
+}
+
+// --- the motion model ----------------------------------------------------------------------
+
+TEST(MotionModel, MotionBetweenTwoPosesTakesOneToTheOther) {
+  std::mt19937_64 rng(3);
+  std::uniform_real_distribution<double> coordinate(-5.0, 5.0);
+  std::uniform_real_distribution<double> angle(-kPi, kPi);
+  for (int i = 0; i < 200; ++i) {
+    const dog::Pose2D from{coordinate(rng), coordinate(rng), angle(rng)};
+    const dog::Pose2D to{coordinate(rng), coordinate(rng), angle(rng)};
+    expectPose(dog::applyMotion(from, dog::odometryMotion(from, to)), to, 1e-9);
+    // frame * (frame^-1 * pose) = pose
+    expectPose(dog::composePose(from, dog::relativePose(from, to)), to, 1e-9);
+  }
+  // A turn on the spot is all second rotation.
+  const dog::OdometryMotion turn = dog::odometryMotion({1.0, 2.0, 0.5}, {1.0, 2.0, 1.5});
+  EXPECT_EQ(turn.rot1_rad, 0.0);
+  EXPECT_EQ(turn.trans_m, 0.0);
+  EXPECT_NEAR(turn.rot2_rad, 1.0, 1e-12);
+}
+
+TEST(MotionModel, NoiseHasTheModelsVariances) {
+  const dog::OdometryMotion motion{0.3, 2.0, -0.2};
+  const dog::OdometryNoise noise{0.1, 0.02, 0.05, 0.3};
+  const dog::OdometryMotion same = dog::perturbMotion(motion, noise, {0.0, 0.0, 0.0});
+  EXPECT_EQ(same.rot1_rad, motion.rot1_rad);
+  EXPECT_EQ(same.trans_m, motion.trans_m);
+  EXPECT_EQ(same.rot2_rad, motion.rot2_rad);
+  // One standard deviation each: the square roots of Probabilistic Robotics' §5.4 variances.
+  const dog::OdometryMotion read = dog::perturbMotion(motion, noise, {1.0, -1.0, 2.0});
+  EXPECT_NEAR(read.rot1_rad, 0.3 + std::sqrt(0.1 * 0.09 + 0.02 * 4.0), 1e-12);
+  EXPECT_NEAR(read.trans_m, 2.0 - std::sqrt(0.05 * 4.0 + 0.3 * (0.09 + 0.04)), 1e-12);
+  EXPECT_NEAR(read.rot2_rad, -0.2 + 2.0 * std::sqrt(0.1 * 0.04 + 0.02 * 4.0), 1e-12);
+  EXPECT_THROW((dog::OdometryNoise{-0.1, 0, 0, 0}.validate()), std::invalid_argument);
+  EXPECT_THROW((dog::OdometryNoise{0, 0, std::nan(""), 0}.validate()), std::invalid_argument);
+}
+
+TEST(Resampling, EffectiveSampleSize) {
+  EXPECT_DOUBLE_EQ(dog::effectiveSampleSize({1.0, 1.0, 1.0, 1.0}), 4.0);
+  EXPECT_DOUBLE_EQ(dog::effectiveSampleSize({0.0, 5.0, 0.0}), 1.0);
+  EXPECT_DOUBLE_EQ(dog::effectiveSampleSize({3.0, 1.0}), 16.0 / 10.0);
+  EXPECT_EQ(dog::effectiveSampleSize({0.0, 0.0}), 0.0);
+  int calls = 0;
+  const auto copies = dog::residualResample({0.5, 0.25, 0.25}, 4, [&calls] { return ++calls, 0.5; });
+  EXPECT_EQ(copies, (std::vector<std::size_t>{2, 1, 1}));
+  EXPECT_EQ(calls, 0);  // the floors alone make the four
+}
+
+// --- the particle maps ---------------------------------------------------------------------
+
+TEST(ParticleMap, CellsFollowTheFilterStepByStep) {
+  // Closed-form prediction across gaps against one predictOneStep per step, then Bayes.
+  const dog::UniformTransitions transitions({0.07, 0.03});
+  dog::ParticleMap map;
+  double reference = 0.5;
+  std::int64_t last = 0;
+  map.update(-40, 17, 0, 1.2, transitions, 0.5);
+  reference = dog::bayesUpdate(dog::predictOneStep(reference, {0.07, 0.03}), 1.2);  // the prior, one step before
+  for (const auto& [step, llr] : std::vector<std::pair<std::int64_t, double>>{{1, -0.4}, {5, 2.0}, {5, -0.3}, {30, -1.1}}) {
+    for (std::int64_t k = last; k < step; ++k) reference = dog::predictOneStep(reference, {0.07, 0.03});
+    EXPECT_NEAR(map.predicted(-40, 17, step, transitions, 0.5), reference, 2e-6) << step;
+    map.update(-40, 17, step, llr, transitions, 0.5);
+    reference = static_cast<float>(dog::bayesUpdate(reference, llr));
+    last = step;
+    EXPECT_EQ(map.lastStep(-40, 17), step);
+  }
+  EXPECT_NEAR(map.predicted(-41, 17, 3, transitions, 0.3), 0.3 * 0.97 + 0.7 * 0.07, 1e-15);  // never updated
+  EXPECT_EQ(map.lastStep(5, 5), dog::kNeverObserved);
+}
+
+TEST(ParticleMap, CopiesShareTilesUntilOneWrites) {
+  const dog::UniformTransitions transitions({0.0, 0.0});
+  dog::ParticleMap a;
+  for (std::int32_t x = 0; x < 100; x += 10) a.update(x, 3, 0, 1.0, transitions, 0.5);
+  ASSERT_EQ(a.tileCount(), 3u);  // x 0..90: tiles 0, 1, 2 (32 cells each)
+  const std::size_t one_map = dog::ParticleMap::distinctTileBytes({&a});
+  dog::ParticleMap b = a;
+  EXPECT_EQ(a.sharedTileCount(), 3u);
+  EXPECT_EQ(dog::ParticleMap::distinctTileBytes({&a, &b}), one_map);
+  b.update(10, 3, 1, -2.0, transitions, 0.5);  // tile of x 0..31
+  EXPECT_FALSE(a.sharesTileWith(b, 10, 3));
+  EXPECT_TRUE(a.sharesTileWith(b, 40, 3));
+  EXPECT_EQ(dog::ParticleMap::distinctTileBytes({&a, &b}), one_map + sizeof(dog::ParticleMap::Tile));
+  // The copy's write left the original alone.
+  EXPECT_NEAR(a.predicted(10, 3, 1, transitions, 0.5), dog::bayesUpdate(0.5, 1.0), 1e-6);  // static: no drift
+  EXPECT_NEAR(b.predicted(10, 3, 1, transitions, 0.5), dog::bayesUpdate(dog::bayesUpdate(0.5, 1.0), -2.0), 1e-6);
+  // Negative coordinates have tiles of their own.
+  b.update(-1, -1, 1, 1.0, transitions, 0.5);
+  EXPECT_EQ(b.tileCount(), 4u);
+  EXPECT_TRUE(b.bounds().contains(-32, -32));
+  EXPECT_FALSE(b.bounds().contains(-33, 0));
+}
+
+// The particle map of one particle that never moves off the true poses is the core Mapper's
+// map of the same scans (one scan per step, learning off): same cells, same evidence, same
+// closed-form prediction across the steps a cell was not seen.
+TEST(ParticleMap, EqualsTheMappersMapOnTheSameScansAndPoses) {
+  const std::vector<Box> boxes = room();
+  dog::MapperConfig mapper_config;
+  mapper_config.resolution_m = 0.1;
+  mapper_config.time_step_s = 1.0;
+  mapper_config.learn_transitions = false;
+  mapper_config.prior_transitions = {0.04, 0.02};
+  mapper_config.max_free_range_m = 5.0;
+  dog::Mapper mapper(mapper_config);
+  dog::PoseFilterConfig config;
+  config.particles = 1;
+  config.resolution_m = 0.1;
+  config.max_free_range_m = 5.0;
+  config.motion_noise = {};
+  config.scan_matching = false;
+  config.update_distance_m = 1e-6;
+  config.update_angle_rad = 1e-6;
+  dog::PoseFilter filter(config, std::make_shared<dog::UniformTransitions>(dog::TransitionParams{0.04, 0.02}));
+  std::mt19937_64 rng(1);
+  std::vector<dog::Pose2D> poses;
+  for (int i = 0; i < 12; ++i) poses.push_back({1.5 + 0.6 * i, 2.0 + 0.25 * std::sin(i), 0.3 * i});
+  for (std::size_t i = 0; i < poses.size(); ++i) {
+    const dog::Scan scan = simulatedScan(boxes, poses[i], static_cast<double>(i), rng, 0.01);
+    ASSERT_EQ(mapper.integrate(scan).status, dog::ScanStatus::kIntegrated);
+    ASSERT_TRUE(filter.integrate(scan).updated) << i;
+  }
+  mapper.finishStep();
+  const std::int64_t last = static_cast<std::int64_t>(poses.size()) - 1;
+  const dog::ParticleMap& map = filter.particles()[0].map;
+  const dog::CellBox box = map.bounds();
+  int compared = 0;
+  for (std::int32_t y = box.min_y; y <= box.max_y; ++y) {
+    for (std::int32_t x = box.min_x; x <= box.max_x; ++x) {
+      if (map.lastStep(x, y) == dog::kNeverObserved) continue;
+      ASSERT_NEAR(map.predicted(x, y, last + 3, filter.transitions(), 0.5), mapper.beliefAt(x, y, last + 3), 2e-6)
+          << x << ", " << y;
+      ++compared;
+    }
+  }
+  EXPECT_GT(compared, 3000);
+  // And a cell the Mapper saw is one the particle saw.
+  EXPECT_NE(map.lastStep(static_cast<std::int32_t>(std::floor(1.5 / 0.1)) + 5, 20), dog::kNeverObserved);
+}
+
+// --- evidence and weights ------------------------------------------------------------------
+
+TEST(PoseFilter, CellLikelihoodIsTheMixtureOfTheTwoStates) {
+  const dog::ObservationModel sensor(0.7, 0.2);
+  for (const std::uint32_t hits : {0u, 1u, 3u, 40u}) {
+    for (const std::uint32_t misses : {0u, 1u, 6u, 200u}) {
+      for (const double q : {0.0, 0.01, 0.5, 0.93, 1.0}) {
+        const long double occ = std::pow(0.7L, hits) * std::pow(0.3L, misses);
+        const long double free = std::pow(0.2L, hits) * std::pow(0.8L, misses);
+        const double expected = static_cast<double>(std::log(q * occ + (1 - q) * free));
+        EXPECT_NEAR(dog::cellEvidenceLogLikelihood({0, 0, hits, misses}, q, sensor), expected,
+                    1e-9 * std::max(1.0, std::abs(expected)))
+            << hits << " " << misses << " " << q;
+      }
+    }
+  }
+}
+
+TEST(PoseFilter, ScanEvidenceCountsEachBeamsCells) {
+  // Four beams from the centre of cell (0, 0), 0.1 m cells (the others ignored, NaN): along
+  // +x to 0.5 m (a hit in cell 5, misses in 0..4), along +y without return (free to 0.3 m:
+  // misses in 0..3), along -x to 0.3 m (a hit in cell -3, misses in -2..0), and along +x
+  // again to 0.22 m, a hit in cell 2 that wins over the first beam's miss there. A scan
+  // observes each cell once.
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  dog::Scan scan;
+  scan.angle_min_rad = 0.0;
+  scan.angle_increment_rad = kPi / 4;
+  scan.range_min_m = 0.01;
+  scan.range_max_m = 2.0;
+  scan.ranges_m = {0.5f, nan, std::numeric_limits<float>::infinity(), nan, 0.3f, nan, nan, nan, 0.22f};
+  const auto evidence = dog::scanEvidence(scan, {0.05, 0.05, 0.0}, 0.1, 0.3, 10.0);
+  std::map<std::pair<int, int>, std::pair<unsigned, unsigned>> cells;
+  for (const dog::CellEvidence& e : evidence) cells[{e.x, e.y}] = {e.hits, e.misses};
+  const std::pair<unsigned, unsigned> hit{1, 0};
+  const std::pair<unsigned, unsigned> miss{0, 1};
+  const std::map<std::pair<int, int>, std::pair<unsigned, unsigned>> expected = {
+      {{0, 0}, miss}, {{1, 0}, miss},  {{2, 0}, hit},   {{3, 0}, miss},  {{4, 0}, miss},  {{5, 0}, hit},
+      {{0, 1}, miss}, {{0, 2}, miss},  {{0, 3}, miss},  {{-1, 0}, miss}, {{-2, 0}, miss}, {{-3, 0}, hit}};
+  EXPECT_EQ(cells, expected);
+  EXPECT_TRUE(std::is_sorted(evidence.begin(), evidence.end(), [](const auto& a, const auto& b) {
+    return std::make_pair(a.x, a.y) < std::make_pair(b.x, b.y);
+  }));
+}
+
+TEST(PoseFilter, WeightIsTheScansLikelihoodUnderThePredictedMap) {
+  const std::vector<Box> boxes = room();
+  dog::PoseFilterConfig config;
+  config.particles = 1;
+  config.resolution_m = 0.1;
+  config.motion_noise = {};
+  config.scan_matching = false;
+  config.resample_below = 0.0;
+  auto transitions = std::make_shared<dog::UniformTransitions>(dog::TransitionParams{0.05, 0.1});
+  dog::PoseFilter filter(config, transitions);
+  std::mt19937_64 rng(2);
+  ASSERT_TRUE(filter.integrate(simulatedScan(boxes, {2.0, 2.0, 0.0}, 0.0, rng, 0.01)).updated);
+  const dog::ParticleMap before = filter.particles()[0].map;
+  const dog::Pose2D next{2.6, 2.1, 0.2};
+  const dog::Scan scan = simulatedScan(boxes, next, 3.5, rng, 0.01);
+  ASSERT_TRUE(filter.integrate(scan).updated);
+  double expected = 0.0;
+  for (const dog::CellEvidence& cell : dog::scanEvidence(scan, next, 0.1, config.max_free_range_m, config.max_range_m)) {
+    expected += dog::cellEvidenceLogLikelihood(cell, before.predicted(cell.x, cell.y, 3, *transitions, 0.5),
+                                               dog::ObservationModel(0.7, 0.2));
+  }
+  EXPECT_NEAR(filter.particles()[0].log_weight, expected, 1e-9 * std::abs(expected));
+  expectPose(filter.particles()[0].pose, next, 1e-9);
+  // Not moved enough: the scan is not used.
+  EXPECT_FALSE(filter.integrate(simulatedScan(boxes, {2.65, 2.1, 0.25}, 4.0, rng, 0.01)).updated);
+  EXPECT_EQ(filter.updates(), 2u);
+  // Time going back before the last update's step is refused.
+  EXPECT_THROW(filter.integrate(simulatedScan(boxes, {4.0, 2.0, 0.0}, 1.0, rng, 0.01)), std::invalid_argument);
+}
+
+// --- the filter on a drive with drifting odometry ------------------------------------------
+
+struct DriveResult {
+  double odometry_error_m = 0.0;  ///< mean position error over the drive
+  double filter_error_m = 0.0;
+  double filter_final_m = 0.0;
+  double odometry_final_m = 0.0;
+  std::size_t resamplings = 0;
+};
+
+// Two laps around the room's pillars with odometry that drifts (the motion model's noise,
+// rotation-heavy), the laser at the true pose, 5 scans per metre.
+DriveResult drive(std::uint64_t seed, dog::PoseFilterConfig config) {
+  const std::vector<Box> boxes = room();
+  const std::vector<std::array<double, 2>> corners = {{1.5, 1.5}, {6.5, 1.5}, {6.5, 5.5}, {1.5, 5.5}};
+  std::vector<dog::Pose2D> truth;
+  for (int lap = 0; lap < 2; ++lap) {
+    for (std::size_t c = 0; c < corners.size(); ++c) {
+      const auto& a = corners[c];
+      const auto& b = corners[(c + 1) % corners.size()];
+      const double heading = std::atan2(b[1] - a[1], b[0] - a[0]);
+      const double length = std::hypot(b[0] - a[0], b[1] - a[1]);
+      for (double s = 0.0; s < length; s += 0.2) truth.push_back({a[0] + s * std::cos(heading), a[1] + s * std::sin(heading), heading});
+    }
+  }
+  const dog::OdometryNoise drift{0.02, 0.002, 0.01, 0.01};
+  std::mt19937_64 rng(seed);
+  std::normal_distribution<double> normal;
+  dog::PoseFilter filter(config, std::make_shared<dog::UniformTransitions>(dog::TransitionParams{0.0, 0.0}));
+  DriveResult result;
+  dog::Pose2D odometry = truth[0];
+  std::size_t updates = 0;
+  for (std::size_t i = 0; i < truth.size(); ++i) {
+    if (i > 0) {
+      odometry = dog::applyMotion(odometry, dog::perturbMotion(dog::odometryMotion(truth[i - 1], truth[i]), drift,
+                                                               {normal(rng), normal(rng), normal(rng)}));
+    }
+    dog::Scan scan = simulatedScan(boxes, truth[i], 0.5 * i, rng, 0.01);
+    scan.laser_pose = odometry;
+    if (!filter.integrate(scan).updated) continue;
+    ++updates;
+    const dog::Pose2D corrected = dog::composePose(filter.mapToOdometry(), odometry);
+    result.filter_final_m = std::hypot(corrected.x_m - truth[i].x_m, corrected.y_m - truth[i].y_m);
+    result.odometry_final_m = std::hypot(odometry.x_m - truth[i].x_m, odometry.y_m - truth[i].y_m);
+    result.filter_error_m += result.filter_final_m;
+    result.odometry_error_m += result.odometry_final_m;
+  }
+  result.filter_error_m /= static_cast<double>(updates);
+  result.odometry_error_m /= static_cast<double>(updates);
+  result.resamplings = filter.resamplings();
+  return result;
+}
+
+dog::PoseFilterConfig driveConfig() {
+  dog::PoseFilterConfig config;
+  config.particles = 20;
+  config.resolution_m = 0.1;
+  config.motion_noise = {0.04, 0.004, 0.02, 0.02};
+  config.update_distance_m = 0.4;
+  config.update_angle_rad = 0.4;
+  return config;
+}
+
+TEST(PoseFilter, EndsNearerTheTruthThanDriftingOdometry) {
+  for (const std::uint64_t seed : {1u, 2u, 3u}) {
+    const DriveResult result = drive(seed, driveConfig());
+    std::cout << "seed " << seed << ": mean position error filter " << result.filter_error_m << " m, odometry "
+              << result.odometry_error_m << " m; at the end " << result.filter_final_m << " m, "
+              << result.odometry_final_m << " m; " << result.resamplings << " resamplings\n";
+    EXPECT_LT(result.filter_error_m, 0.5 * result.odometry_error_m)
+        << "seed " << seed << ": filter " << result.filter_error_m << " m, odometry " << result.odometry_error_m << " m";
+    EXPECT_LT(result.filter_final_m, 0.25) << "seed " << seed << " (odometry " << result.odometry_final_m << " m)";
+  }
+}
+
+TEST(PoseFilter, ResultsDoNotDependOnTheThreads) {
+  dog::PoseFilterConfig one = driveConfig();
+  one.particles = 6;
+  one.threads = 1;
+  dog::PoseFilterConfig two = one;
+  two.threads = 2;
+  const DriveResult a = drive(7, one);
+  const DriveResult b = drive(7, two);
+  EXPECT_EQ(a.filter_error_m, b.filter_error_m);
+  EXPECT_EQ(a.resamplings, b.resamplings);
+}
+
+TEST(PoseFilter, BadConfigsAreRefused) {
+  const auto transitions = std::make_shared<dog::UniformTransitions>(dog::TransitionParams{0.0, 0.0});
+  const auto refused = [&](const std::function<void(dog::PoseFilterConfig&)>& change) {
+    dog::PoseFilterConfig config;
+    change(config);
+    EXPECT_THROW(dog::PoseFilter(config, transitions), std::invalid_argument);
+  };
+  refused([](auto& c) { c.particles = 0; });
+  refused([](auto& c) { c.update_distance_m = 0.0; });
+  refused([](auto& c) { c.resample_below = 1.5; });
+  refused([](auto& c) { c.resolution_m = std::nan(""); });
+  refused([](auto& c) { c.p_hit_given_occ = 0.1; });
+  refused([](auto& c) { c.unknown_p_occ = 1.0; });
+  refused([](auto& c) { c.match_beam_stride = 0; });
+  refused([](auto& c) { c.motion_noise.rot_from_rot = -1.0; });
+  EXPECT_THROW(dog::PoseFilter(dog::PoseFilterConfig{}, nullptr), std::invalid_argument);
+  EXPECT_THROW(dog::UniformTransitions({1.5, 0.0}), std::invalid_argument);
+  dog::PoseFilter filter(dog::PoseFilterConfig{}, transitions);
+  EXPECT_THROW(filter.bestIndex(), std::logic_error);
+  EXPECT_THROW(filter.integrate(dog::Scan{}), std::invalid_argument);  // no ranges
+}
+
+}  // namespace
