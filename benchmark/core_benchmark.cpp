@@ -9,6 +9,9 @@
 //   Issue 18: the textbook log-odds occupancy grid update of the same scan
 //   (BM_TextbookLogOddsScan), the price of the HMM as a ratio to what gmapping or
 //   costmap_2d pay per cell.
+//   Issue 19: one update of the pose filter (30 particles, a 720-beam 30 m laser, 0.5 m
+//   apart) in a 50 m x 50 m hall the robot has explored, and the particles' map memory
+//   against one map's.
 
 #include <benchmark/benchmark.h>
 
@@ -16,6 +19,7 @@
 #include <algorithm>
 #include <cstdint>
 #include <cstdlib>
+#include <memory>
 #include <random>
 #include <utility>
 #include <vector>
@@ -24,6 +28,7 @@
 #include "dynamic_occupancy_grid/core/mapper.h"
 #include "dynamic_occupancy_grid/core/offline_em.h"
 #include "dynamic_occupancy_grid/core/online_em.h"
+#include "dynamic_occupancy_grid/core/pose_filter.h"
 #include "dynamic_occupancy_grid/core/traversal.h"
 
 #include "scan_fixtures.h"
@@ -363,6 +368,96 @@ void BM_OfflineEm(benchmark::State& state) {
   state.SetLabel("threads " + std::to_string(state.range(0)));
 }
 BENCHMARK(BM_OfflineEm)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime();
+
+// --- issue 19: the pose filter -----------------------------------------------------------
+
+// A 50 m x 50 m hall with 0.6 m pillars every 6 m; rays cast exactly.
+struct Hall {
+  struct Box {
+    double min_x, min_y, max_x, max_y;
+  };
+  std::vector<Box> boxes;
+  Hall() {
+    boxes = {{-0.3, -0.3, 50.3, 0.0}, {-0.3, 50.0, 50.3, 50.3}, {-0.3, 0.0, 0.0, 50.0}, {50.0, 0.0, 50.3, 50.0}};
+    for (double x = 4.0; x < 48.0; x += 6.0) {
+      for (double y = 4.0; y < 48.0; y += 6.0) boxes.push_back({x, y, x + 0.6, y + 0.6});
+    }
+  }
+  double cast(double x, double y, double angle) const {
+    const double dx = std::cos(angle);
+    const double dy = std::sin(angle);
+    double nearest = 1e9;
+    for (const Box& b : boxes) {
+      for (const double side : {b.min_x, b.max_x}) {
+        const double t = std::abs(dx) < 1e-12 ? -1.0 : (side - x) / dx;
+        const double hit = y + t * dy;
+        if (t > 1e-9 && hit >= b.min_y && hit <= b.max_y) nearest = std::min(nearest, t);
+      }
+      for (const double side : {b.min_y, b.max_y}) {
+        const double t = std::abs(dy) < 1e-12 ? -1.0 : (side - y) / dy;
+        const double hit = x + t * dx;
+        if (t > 1e-9 && hit >= b.min_x && hit <= b.max_x) nearest = std::min(nearest, t);
+      }
+    }
+    return nearest;
+  }
+  dog::Scan scan(const dog::Pose2D& pose, double stamp_s) const {
+    dog::Scan scan = dog_benchmark::makeScan(stamp_s, pose, 720, 1.5 * M_PI, 0.0);
+    for (int i = 0; i < 720; ++i) {
+      const double range = cast(pose.x_m, pose.y_m, pose.yaw_rad + scan.angle_min_rad + i * scan.angle_increment_rad);
+      scan.ranges_m[i] = static_cast<float>(range < 30.0 ? range : INFINITY);
+    }
+    return scan;
+  }
+};
+
+// The robot's laser along a 40 m x 40 m square loop inside the hall, `step` metres apart.
+dog::Pose2D loopPose(double distance_m) {
+  const double side = 40.0;
+  const double s = std::fmod(distance_m, 4.0 * side);
+  const int leg = static_cast<int>(s / side);
+  const double along = s - leg * side;
+  switch (leg) {
+    case 0: return {5.0 + along, 5.0, 0.0};
+    case 1: return {45.0, 5.0 + along, M_PI / 2};
+    case 2: return {45.0 - along, 45.0, M_PI};
+    default: return {5.0, 45.0 - along, -M_PI / 2};
+  }
+}
+
+// One update per iteration (the odometry moved 0.5 m since the last), after a whole loop
+// that explored the hall; argument = particles. Counters: the particles' map memory (each
+// distinct tile once) over one particle's map, and MB.
+void BM_PoseFilterUpdate(benchmark::State& state) {
+  const Hall hall;
+  dog::PoseFilterConfig config;
+  config.particles = static_cast<std::size_t>(state.range(0));
+  config.resolution_m = kResolution;
+  config.max_range_m = 30.0;
+  config.max_free_range_m = 29.0;
+  config.update_distance_m = 0.5;
+  config.motion_noise = {0.01, 0.001, 0.005, 0.002};
+  dog::PoseFilter filter(config, std::make_shared<dog::UniformTransitions>(dog::TransitionParams{0.0, 0.0}));
+  double travelled = 0.0;
+  double stamp = 0.0;
+  for (; travelled < 160.0; travelled += 0.5, stamp += 0.5) filter.integrate(hall.scan(loopPose(travelled), stamp));
+  double peak_bytes = 0.0;
+  for (auto _ : state) {
+    state.PauseTiming();
+    const dog::Scan scan = hall.scan(loopPose(travelled), stamp);
+    travelled += 0.5;
+    stamp += 0.5;
+    state.ResumeTiming();
+    const dog::PoseUpdate update = filter.integrate(scan);
+    peak_bytes = std::max(peak_bytes, static_cast<double>(update.map_bytes));
+  }
+  // One map: the best particle's, all of its tiles.
+  const double one = static_cast<double>(dog::ParticleMap::distinctTileBytes({&filter.best().map}));
+  state.counters["peak_memory_vs_one_map"] = peak_bytes / one;
+  state.counters["one_map_MB"] = one / 1e6;
+  state.SetLabel(std::to_string(config.particles) + " particles, 720 beams, 30 m, 0.05 m cells, 50 m hall explored");
+}
+BENCHMARK(BM_PoseFilterUpdate)->Arg(30)->Unit(benchmark::kMillisecond)->UseRealTime();
 
 }  // namespace
 

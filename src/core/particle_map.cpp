@@ -32,9 +32,15 @@ TransitionParams MapperTransitions::at(std::int32_t x, std::int32_t y) const {
   const CellGrid& grid = mapper_.grid();
   const double u = std::floor(grid.toLatticeX((x + 0.5) * resolution_m_));
   const double v = std::floor(grid.toLatticeY((y + 0.5) * resolution_m_));
-  const std::optional<CellState> cell = grid.cell(static_cast<std::int32_t>(u), static_cast<std::int32_t>(v));
-  if (!cell || cell->last_step == kNeverObserved) return mapper_.currentPrior();
-  return TransitionParams{cell->p_occ_given_free, cell->p_free_given_occ};
+  constexpr double kLimit = 2147483647.0;
+  if (!(std::abs(u) < kLimit && std::abs(v) < kLimit)) return mapper_.currentPrior();  // beyond any Mapper
+  const auto cx = static_cast<std::int32_t>(u);
+  const auto cy = static_cast<std::int32_t>(v);
+  // The two fields straight from the tile: the whole CellState is 80 bytes.
+  const CellGrid::Tile* tile = grid.findTile(cx, cy);
+  const int offset = CellGrid::offsetOf(cx, cy);
+  if (tile == nullptr || tile->last_step[offset] == kNeverObserved) return mapper_.currentPrior();
+  return TransitionParams{tile->p_occ_given_free[offset], tile->p_free_given_occ[offset]};
 }
 
 std::uint64_t ParticleMap::keyOf(std::int32_t x, std::int32_t y) {
@@ -66,14 +72,29 @@ ParticleMap::Tile& ParticleMap::writable(std::int32_t x, std::int32_t y) {
   return *tile;
 }
 
-double ParticleMap::predicted(std::int32_t x, std::int32_t y, std::int64_t step, const TransitionSource& transitions,
-                              double unknown_p_occ) const {
-  const Tile* tile = find(x, y);
+double ParticleMap::predictedIn(const Tile* tile, std::int32_t x, std::int32_t y, std::int64_t step,
+                                const TransitionSource& transitions, double unknown_p_occ) {
   const std::size_t offset = offsetOf(x, y);
   const std::int32_t last = tile == nullptr ? kNeverObserved : tile->last_step[offset];
   // A new cell: the prior is its belief just before the step's transition (as the Mapper's).
   if (last == kNeverObserved) return predictOneStep(unknown_p_occ, transitions.at(x, y));
   return predictOccupancy(tile->p_occ[offset], transitions.at(x, y), step - last);
+}
+
+void ParticleMap::updateIn(Tile& tile, std::int32_t x, std::int32_t y, std::int64_t step, double log_likelihood_ratio,
+                           const TransitionSource& transitions, double unknown_p_occ) {
+  const std::size_t offset = offsetOf(x, y);
+  const std::int32_t last = tile.last_step[offset];
+  const TransitionParams params = transitions.at(x, y);
+  const double prior = last == kNeverObserved ? predictOneStep(unknown_p_occ, params)
+                                               : predictOccupancy(tile.p_occ[offset], params, step - last);
+  tile.p_occ[offset] = static_cast<float>(bayesUpdate(prior, log_likelihood_ratio));
+  tile.last_step[offset] = static_cast<std::int32_t>(step);
+}
+
+double ParticleMap::predicted(std::int32_t x, std::int32_t y, std::int64_t step, const TransitionSource& transitions,
+                              double unknown_p_occ) const {
+  return predictedIn(find(x, y), x, y, step, transitions, unknown_p_occ);
 }
 
 std::int32_t ParticleMap::lastStep(std::int32_t x, std::int32_t y) const {
@@ -83,14 +104,36 @@ std::int32_t ParticleMap::lastStep(std::int32_t x, std::int32_t y) const {
 
 void ParticleMap::update(std::int32_t x, std::int32_t y, std::int64_t step, double log_likelihood_ratio,
                          const TransitionSource& transitions, double unknown_p_occ) {
-  Tile& tile = writable(x, y);
-  const std::size_t offset = offsetOf(x, y);
-  const std::int32_t last = tile.last_step[offset];
-  const TransitionParams params = transitions.at(x, y);
-  const double prior = last == kNeverObserved ? predictOneStep(unknown_p_occ, params)
-                                               : predictOccupancy(tile.p_occ[offset], params, step - last);
-  tile.p_occ[offset] = static_cast<float>(bayesUpdate(prior, log_likelihood_ratio));
-  tile.last_step[offset] = static_cast<std::int32_t>(step);
+  updateIn(writable(x, y), x, y, step, log_likelihood_ratio, transitions, unknown_p_occ);
+}
+
+const ParticleMap::Tile* ParticleMap::Reader::tile(std::int32_t x, std::int32_t y) {
+  const std::uint64_t key = keyOf(x, y);
+  if (key != key_) {
+    key_ = key;
+    tile_ = map_.find(x, y);
+  }
+  return tile_;
+}
+
+double ParticleMap::Reader::predicted(std::int32_t x, std::int32_t y, std::int64_t step,
+                                      const TransitionSource& transitions, double unknown_p_occ) {
+  return predictedIn(tile(x, y), x, y, step, transitions, unknown_p_occ);
+}
+
+std::int32_t ParticleMap::Reader::lastStep(std::int32_t x, std::int32_t y) {
+  const Tile* cell_tile = tile(x, y);
+  return cell_tile == nullptr ? kNeverObserved : cell_tile->last_step[offsetOf(x, y)];
+}
+
+void ParticleMap::Writer::update(std::int32_t x, std::int32_t y, std::int64_t step, double log_likelihood_ratio,
+                                 const TransitionSource& transitions, double unknown_p_occ) {
+  const std::uint64_t key = keyOf(x, y);
+  if (key != key_) {
+    key_ = key;
+    tile_ = &map_.writable(x, y);
+  }
+  updateIn(*tile_, x, y, step, log_likelihood_ratio, transitions, unknown_p_occ);
 }
 
 std::size_t ParticleMap::sharedTileCount() const {

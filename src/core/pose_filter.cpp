@@ -25,6 +25,10 @@ void require(bool condition, const std::string& message) {
 
 bool finitePositive(double value) { return std::isfinite(value) && value > 0.0; }
 
+/// scanEvidence's scratch grid (4 bytes a cell, per thread) spans the scan's box: at most
+/// this many cells (2048 x 2048: 51 m of range at 0.05 m cells).
+constexpr std::int64_t kMaxEvidenceBoxCells = std::int64_t{2048} * 2048;
+
 /// A beam with a return, in the laser's frame: its end at `range` along `angle`.
 struct BeamPoint {
   double x_m;
@@ -58,7 +62,11 @@ void PoseFilterConfig::validate() const {
   ObservationModel(p_hit_given_occ, p_hit_given_free);  // throws for a bad sensor model
   require(unknown_p_occ > 0.0 && unknown_p_occ < 1.0, "unknown_p_occ must be in (0, 1)");
   require(std::isfinite(max_free_range_m) && max_free_range_m >= 0.0, "max_free_range_m must be finite and >= 0");
+  require(likelihood_temperature >= 1.0 && std::isfinite(likelihood_temperature),
+          "likelihood_temperature must be finite and >= 1");
   require(finitePositive(max_range_m), "max_range_m must be finite and > 0");
+  require(2.0 * max_range_m / resolution_m + 3.0 <= 2048.0,
+          "max_range_m must be at most 1022 cells (51 m at 0.05 m cells): a scan's box is at most 2048 cells wide");
   require(match_beam_stride >= 1, "match_beam_stride must be >= 1");
   require(finitePositive(match_sigma_m), "match_sigma_m must be finite and > 0");
   require(finitePositive(match_linear_step_m), "match_linear_step_m must be finite and > 0");
@@ -86,41 +94,36 @@ std::vector<CellEvidence> scanEvidence(const Scan& scan, const Pose2D& laser_pos
       beamEnds(placed, u0, v0, rules, ends, counts, box)) {
     throw std::invalid_argument("scanEvidence: a beam ends beyond the lattice");
   }
-  // One entry per beam cell: the cell and whether the beam ends there with a return;
-  // sorted, equal cells are adjacent. A scan observes a cell once, as the Mapper does: a hit
-  // if any beam ends there with a return, a miss otherwise. Lattice coordinates
-  // are within +-kMaxLatticeCoordinate < 2^30: offset by 2^30, each fits in 31 bits.
-  constexpr std::int64_t kOffset = std::int64_t{1} << 30;
-  static_assert(kMaxLatticeCoordinate < static_cast<double>(kOffset), "cell keys need coordinates below 2^30");
-  std::vector<std::uint64_t> marks;
-  const auto mark = [&marks](std::int32_t x, std::int32_t y, bool hit) {
-    marks.push_back((static_cast<std::uint64_t>(x + kOffset) << 32) | (static_cast<std::uint64_t>(y + kOffset) << 1) |
-                    (hit ? 1U : 0U));
+  // A scan observes a cell once, as the Mapper does: a hit if any beam ends there with a
+  // return, a miss otherwise. Marks on a scratch grid over the scan's box (every beam's
+  // cells lie in it) find each cell's first visit; the marks are cleared afterwards.
+  const std::int64_t width = box.width();
+  const std::int64_t cells = width * box.height();
+  if (cells > kMaxEvidenceBoxCells) {
+    throw std::invalid_argument("scanEvidence: the scan spans " + std::to_string(cells) +
+                                " cells; max_range / resolution too large");
+  }
+  // By box index: 0 if the scan has not reached the cell yet, else 1 + its entry's index.
+  thread_local std::vector<std::uint32_t> marks;
+  if (marks.size() < static_cast<std::size_t>(cells)) marks.assign(static_cast<std::size_t>(cells), 0);
+  std::vector<CellEvidence> evidence;
+  const auto visit = [&](std::int32_t x, std::int32_t y, bool hit) {
+    std::uint32_t& mark = marks[static_cast<std::size_t>((std::int64_t{y} - box.min_y) * width + (x - box.min_x))];
+    if (mark == 0) {
+      evidence.push_back(hit ? CellEvidence{x, y, 1, 0} : CellEvidence{x, y, 0, 1});
+      mark = static_cast<std::uint32_t>(evidence.size());
+    } else if (hit) {
+      evidence[mark - 1] = CellEvidence{x, y, 1, 0};  // the hit wins over a miss
+    }
   };
   for (const BeamEnd& beam : ends) {
-    const CellXY end = traverseSegment(u0, v0, beam.u1, beam.v1, [&](std::int32_t x, std::int32_t y) { mark(x, y, false); });
-    mark(end.x, end.y, beam.hit);
+    const CellXY end = traverseSegment(u0, v0, beam.u1, beam.v1, [&](std::int32_t x, std::int32_t y) { visit(x, y, false); });
+    visit(end.x, end.y, beam.hit);
   }
-  std::sort(marks.begin(), marks.end());
-  std::vector<CellEvidence> evidence;
-  for (const std::uint64_t entry : marks) {
-    const auto x = static_cast<std::int32_t>(static_cast<std::int64_t>(entry >> 32) - kOffset);
-    const auto y = static_cast<std::int32_t>(static_cast<std::int64_t>((entry >> 1) & 0x7fffffffU) - kOffset);
-    if (evidence.empty() || evidence.back().x != x || evidence.back().y != y) evidence.push_back(CellEvidence{x, y, 0, 1});
-    if (entry & 1U) evidence.back() = CellEvidence{x, y, 1, 0};
+  for (const CellEvidence& cell : evidence) {
+    marks[static_cast<std::size_t>((std::int64_t{cell.y} - box.min_y) * width + (cell.x - box.min_x))] = 0;
   }
   return evidence;
-}
-
-double cellEvidenceLogLikelihood(const CellEvidence& evidence, double q, const ObservationModel& sensor) {
-  // log[q p(z|occ) + (1 - q) p(z|free)] = log p(z|free) + log(q e^llr + (1 - q)), the
-  // last as a log-sum-exp (q = 0 or 1 and ratios of hundreds included).
-  const double log_free = evidence.hits * std::log(sensor.pHitGivenFree()) +
-                          evidence.misses * std::log1p(-sensor.pHitGivenFree());
-  const double occupied = std::log(q) + sensor.logLikelihoodRatio(evidence.hits, evidence.misses);
-  const double free = std::log1p(-q);
-  const double top = std::max(occupied, free);
-  return log_free + top + std::log1p(std::exp(std::min(occupied, free) - top));
 }
 
 PoseFilter::PoseFilter(const PoseFilterConfig& config, std::shared_ptr<const TransitionSource> transitions)
@@ -134,17 +137,20 @@ PoseFilter::PoseFilter(const PoseFilterConfig& config, std::shared_ptr<const Tra
   particles_.resize(config_.particles);
 }
 
-double PoseFilter::matchScore(const Particle& particle, const Scan& scan, const Pose2D& pose, std::int64_t step,
-                              std::size_t* beam_count) const {
-  const std::vector<BeamPoint> beams = matchBeams(scan, config_.match_beam_stride);
-  if (beam_count != nullptr) *beam_count = beams.size();
+namespace {
+
+/// gmapping's kind of scan-matching score: per beam, exp(-d^2 / 2 sigma^2) of the distance d
+/// from its end to the nearest cell centre of the 3 x 3 around it that the map, predicted to
+/// `step`, holds occupied (p > 0.5); 0 if none.
+double matchScore(const ParticleMap& map, const TransitionSource& transitions, const PoseFilterConfig& config,
+                  const std::vector<BeamPoint>& beams, const Pose2D& pose, std::int64_t step) {
   const double c = std::cos(pose.yaw_rad);
   const double s = std::sin(pose.yaw_rad);
-  const double inverse_resolution = 1.0 / config_.resolution_m;
-  // exp(-d^2 / 2 sigma^2) with d in cells.
-  const double cells_per_sigma = config_.match_sigma_m * inverse_resolution;
-  const double kernel = -0.5 / (cells_per_sigma * cells_per_sigma);
+  const double inverse_resolution = 1.0 / config.resolution_m;
+  const double cells_per_sigma = config.match_sigma_m * inverse_resolution;
+  const double kernel = -0.5 / (cells_per_sigma * cells_per_sigma);  // d in cells
   double score = 0.0;
+  ParticleMap::Reader reader(map);
   for (const BeamPoint& beam : beams) {
     const double u = (pose.x_m + c * beam.x_m - s * beam.y_m) * inverse_resolution;
     const double v = (pose.y_m + s * beam.x_m + c * beam.y_m) * inverse_resolution;
@@ -153,8 +159,7 @@ double PoseFilter::matchScore(const Particle& particle, const Scan& scan, const 
     double best = 0.0;
     for (std::int32_t dy = -1; dy <= 1; ++dy) {
       for (std::int32_t dx = -1; dx <= 1; ++dx) {
-        const double q = particle.map.predicted(cx + dx, cy + dy, step, *transitions_, config_.unknown_p_occ);
-        if (q <= 0.5) continue;
+        if (reader.predicted(cx + dx, cy + dy, step, transitions, config.unknown_p_occ) <= 0.5) continue;
         const double du = u - (cx + dx + 0.5);
         const double dv = v - (cy + dy + 0.5);
         best = std::max(best, std::exp(kernel * (du * du + dv * dv)));
@@ -165,10 +170,36 @@ double PoseFilter::matchScore(const Particle& particle, const Scan& scan, const 
   return score;
 }
 
+/// Whether the map has observed a cell of the 3 x 3 around the end of `beam` from `pose`.
+bool endInMappedPlace(ParticleMap::Reader& map, const PoseFilterConfig& config, const BeamPoint& beam,
+                      const Pose2D& pose) {
+  const double c = std::cos(pose.yaw_rad);
+  const double s = std::sin(pose.yaw_rad);
+  const auto cx = static_cast<std::int32_t>(std::floor((pose.x_m + c * beam.x_m - s * beam.y_m) / config.resolution_m));
+  const auto cy = static_cast<std::int32_t>(std::floor((pose.y_m + s * beam.x_m + c * beam.y_m) / config.resolution_m));
+  for (std::int32_t dy = -1; dy <= 1; ++dy) {
+    for (std::int32_t dx = -1; dx <= 1; ++dx) {
+      if (map.lastStep(cx + dx, cy + dy) != kNeverObserved) return true;
+    }
+  }
+  return false;
+}
+
+}  // namespace
+
 Pose2D PoseFilter::matchPose(const Particle& particle, const Scan& scan, const Pose2D& start, std::int64_t step) const {
-  std::size_t beams = 0;
+  // Only the beams that end where the map has been, seen from the proposal's pose, and the
+  // same beams at every pose tried: a score over whichever beams happen to end in mapped
+  // places would pull the pose back to where the map is (along a corridor, back towards
+  // where the robot came from).
+  std::vector<BeamPoint> beams;
+  ParticleMap::Reader reader(particle.map);
+  for (const BeamPoint& beam : matchBeams(scan, config_.match_beam_stride)) {
+    if (endInMappedPlace(reader, config_, beam, start)) beams.push_back(beam);
+  }
+  if (beams.empty()) return start;
   Pose2D pose = start;
-  double score = matchScore(particle, scan, pose, step, &beams);
+  double score = matchScore(particle.map, *transitions_, config_, beams, pose, step);
   double linear = config_.match_linear_step_m;
   double angular = config_.match_angular_step_rad;
   int refinements = 0;
@@ -179,7 +210,7 @@ Pose2D PoseFilter::matchPose(const Particle& particle, const Scan& scan, const P
                              {pose.x_m, pose.y_m + linear, pose.yaw_rad}, {pose.x_m, pose.y_m - linear, pose.yaw_rad},
                              {pose.x_m, pose.y_m, pose.yaw_rad + angular}, {pose.x_m, pose.y_m, pose.yaw_rad - angular}};
     for (const Pose2D& move : moves) {
-      const double move_score = matchScore(particle, scan, move, step, nullptr);
+      const double move_score = matchScore(particle.map, *transitions_, config_, beams, move, step);
       if (move_score > best_score) {
         best_score = move_score;
         best_move = move;
@@ -194,7 +225,7 @@ Pose2D PoseFilter::matchPose(const Particle& particle, const Scan& scan, const P
       angular *= 0.5;
     }
   }
-  if (beams == 0 || score < config_.match_min_score * static_cast<double>(beams)) return start;
+  if (score < config_.match_min_score * static_cast<double>(beams.size())) return start;
   pose.yaw_rad = std::remainder(pose.yaw_rad, 2.0 * kPi);
   return pose;
 }
@@ -205,16 +236,39 @@ void PoseFilter::updateParticle(Particle& particle, const Scan& scan, const Odom
   if (config_.scan_matching) pose = matchPose(particle, scan, pose, step);
   const std::vector<CellEvidence> evidence =
       scanEvidence(scan, pose, config_.resolution_m, config_.max_free_range_m, config_.max_range_m);
+  // The weight: the product over cells of q p(z|occ) + (1 - q) p(z|free), each evidence a
+  // single hit or miss (scanEvidence), multiplied up and taken as a log every 64 factors
+  // (each is at least min(p(z|s)) > 0, so 64 of them never underflow).
+  const double hit_occ = sensor_.pHitGivenOcc();
+  const double hit_free = sensor_.pHitGivenFree();
   double log_likelihood = 0.0;
+  double product = 1.0;
+  int factors = 0;
+  ParticleMap::Reader reader(particle.map);
   for (const CellEvidence& cell : evidence) {
-    const double q = particle.map.predicted(cell.x, cell.y, step, *transitions_, config_.unknown_p_occ);
-    log_likelihood += cellEvidenceLogLikelihood(cell, q, sensor_);
+    const bool hit = cell.hits > 0;
+    double factor;
+    if (!config_.unknown_cells_as_prior && reader.lastStep(cell.x, cell.y) == kNeverObserved) {
+      // The state that explains the evidence best: no pull towards mapped places.
+      factor = hit ? hit_occ : 1.0 - hit_free;
+    } else {
+      const double q = reader.predicted(cell.x, cell.y, step, *transitions_, config_.unknown_p_occ);
+      factor = hit ? q * hit_occ + (1.0 - q) * hit_free : q * (1.0 - hit_occ) + (1.0 - q) * (1.0 - hit_free);
+    }
+    product *= factor;
+    if (++factors == 64) {
+      log_likelihood += std::log(product);
+      product = 1.0;
+      factors = 0;
+    }
   }
+  log_likelihood += std::log(product);
+  ParticleMap::Writer writer(particle.map);
   for (const CellEvidence& cell : evidence) {
-    particle.map.update(cell.x, cell.y, step, sensor_.logLikelihoodRatio(cell.hits, cell.misses), *transitions_,
-                        config_.unknown_p_occ);
+    writer.update(cell.x, cell.y, step, sensor_.logLikelihoodRatio(cell.hits, cell.misses), *transitions_,
+                  config_.unknown_p_occ);
   }
-  particle.log_weight += log_likelihood;
+  particle.log_weight += log_likelihood / config_.likelihood_temperature;
   particle.pose = pose;
   particle.trajectory = std::make_shared<const TrajectoryNode>(TrajectoryNode{scan.stamp_s, pose, particle.trajectory});
 }
@@ -240,6 +294,7 @@ PoseUpdate PoseFilter::integrate(const Scan& scan) {
     ++updates_;
     result.updated = true;
     result.effective_sample_size = static_cast<double>(particles_.size());
+    result.map_bytes = ParticleMap::distinctTileBytes({&particles_.front().map});
     return result;
   }
   const std::int64_t step = clock_.stepOf(scan.stamp_s);
@@ -265,6 +320,9 @@ PoseUpdate PoseFilter::integrate(const Scan& scan) {
   ++updates_;
   result.updated = true;
   result.effective_sample_size = effectiveSampleSize();
+  std::vector<const ParticleMap*> maps;
+  for (const Particle& particle : particles_) maps.push_back(&particle.map);
+  result.map_bytes = ParticleMap::distinctTileBytes(maps);
   if (result.effective_sample_size < config_.resample_below * static_cast<double>(particles_.size())) {
     resample();
     result.resampled = true;

@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <array>
 #include <cerrno>
+#include <chrono>
 #include <cmath>
 #include <cstring>
 #include <cstdio>
@@ -30,6 +31,7 @@
 #include "dynamic_occupancy_grid/evaluation/memory_experiment.h"
 #include "dynamic_occupancy_grid/evaluation/mrf_experiment.h"
 #include "dynamic_occupancy_grid/evaluation/murphy_corridor.h"
+#include "dynamic_occupancy_grid/evaluation/pose_correction.h"
 #include "dynamic_occupancy_grid/evaluation/path_planning.h"
 
 namespace core = dynamic_occupancy_grid::core;
@@ -49,6 +51,7 @@ struct Options {
   int learning_repetitions = 4;
   bool learning_ablations = false;
   int murphy_repetitions = 100;
+  int pose_correction_runs = 0;
   std::uint64_t seed = 1;
   unsigned threads = 0;
 };
@@ -118,6 +121,10 @@ Options parseOptions(int argc, char** argv) {
       ("murphy-repetitions", cl::number(&options.murphy_repetitions, repetitions)->value_name("N"),
        "seeds of Murphy's 1D corridor (docs/murphy_corridor.md: exact Bayes, online and offline EM, the RBPF; "
        "default 100, about a second; 0 skips it)")
+      ("pose-correction-runs", cl::number(&options.pose_correction_runs, repetitions)->value_name("N"),
+       "runs of the pose filter's comparison on patrol_office with drifting odometry (docs/pose_correction.md: known "
+       "pose, odometry, the RBPF with a static, learned and true-transition map; 30 particles, 400 steps, about a "
+       "minute each; default 0 skips it)")
       ("seed",
        cl::number(&options.seed, cl::between<std::uint64_t>(0, std::numeric_limits<long long>::max()))
            ->value_name("S"),
@@ -127,10 +134,12 @@ Options parseOptions(int argc, char** argv) {
   line.parse(argc, argv);
   if (options.learning_repetitions == 0) options.learning_scenarios.clear();
   if (options.scenarios.empty() && options.path_repetitions == 0 && options.mrf_repetitions == 0 &&
-      options.memory_repetitions == 0 && options.learning_scenarios.empty() && options.murphy_repetitions == 0) {
+      options.memory_repetitions == 0 && options.learning_scenarios.empty() && options.murphy_repetitions == 0 &&
+      options.pose_correction_runs == 0) {
     line.fail("nothing to run: no scenarios (--scenarios none), no path planning (--path-repetitions 0), no "
               "MRF experiment (--mrf-repetitions 0), no memory experiment (--memory-repetitions 0), no "
-              "learning experiment (--learning-scenarios none) and no corridor (--murphy-repetitions 0)");
+              "learning experiment (--learning-scenarios none), no corridor (--murphy-repetitions 0) and no pose "
+              "correction (--pose-correction-runs 0)");
   }
   return options;
 }
@@ -1019,6 +1028,25 @@ int main(int argc, char** argv) {
       std::vector<core::MurphyTarget> targets;
       summary << core::formatMurphySummary(config, result, &targets);
       for (const core::MurphyTarget& target : targets) checks.push_back({target.target, target.measured, target.met});
+    }
+
+    if (options.pose_correction_runs > 0) {
+      core::PoseCorrectionConfig config;
+      config.filter.threads = options.threads;
+      std::vector<core::PoseCorrectionResult> runs;
+      for (int r = 0; r < options.pose_correction_runs; ++r) {
+        config.world_seed = options.seed;
+        config.run_seed = options.seed + static_cast<std::uint64_t>(r);
+        std::cerr << "evaluate: pose correction, run " << r + 1 << " of " << options.pose_correction_runs << " ..."
+                  << std::flush;
+        const auto start = std::chrono::steady_clock::now();
+        runs.push_back(core::runPoseCorrection(config));
+        std::cerr << " " << fixed(std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count(), 1)
+                  << " s\n";
+      }
+      config.run_seed = options.seed;
+      for (const auto& [name, csv] : core::poseCorrectionCsvTables(runs)) core::writeFileAtomically(options.out + "/" + name, csv);
+      summary << core::formatPoseCorrectionSummary(config, runs);
     }
 
     summary << "\n## Targets\n\n| target | measured | met |\n|---|---|---|\n";

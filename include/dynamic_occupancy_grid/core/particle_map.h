@@ -87,6 +87,35 @@ class ParticleMap {
   void update(std::int32_t x, std::int32_t y, std::int64_t step, double log_likelihood_ratio,
               const TransitionSource& transitions, double unknown_p_occ);
 
+  /// Reads cells remembering the tile of the last one (the cells of a beam mostly share a
+  /// tile). Valid while the map is not changed.
+  class Reader {
+   public:
+    explicit Reader(const ParticleMap& map) : map_(map) {}
+    double predicted(std::int32_t x, std::int32_t y, std::int64_t step, const TransitionSource& transitions,
+                     double unknown_p_occ);
+    std::int32_t lastStep(std::int32_t x, std::int32_t y);
+
+   private:
+    const Tile* tile(std::int32_t x, std::int32_t y);
+    const ParticleMap& map_;
+    std::uint64_t key_ = ~std::uint64_t{0};
+    const Tile* tile_ = nullptr;
+  };
+  /// update() remembering the tile of the last cell (copied, if shared, at its first write).
+  /// The only writer of the map while it lives.
+  class Writer {
+   public:
+    explicit Writer(ParticleMap& map) : map_(map) {}
+    void update(std::int32_t x, std::int32_t y, std::int64_t step, double log_likelihood_ratio,
+                const TransitionSource& transitions, double unknown_p_occ);
+
+   private:
+    ParticleMap& map_;
+    std::uint64_t key_ = ~std::uint64_t{0};
+    Tile* tile_ = nullptr;
+  };
+
   std::size_t tileCount() const { return tiles_.size(); }
   /// Tiles this map shares with another map (none written since the copy).
   std::size_t sharedTileCount() const;
@@ -99,6 +128,10 @@ class ParticleMap {
 
  private:
   static std::uint64_t keyOf(std::int32_t x, std::int32_t y);
+  static double predictedIn(const Tile* tile, std::int32_t x, std::int32_t y, std::int64_t step,
+                            const TransitionSource& transitions, double unknown_p_occ);
+  static void updateIn(Tile& tile, std::int32_t x, std::int32_t y, std::int64_t step, double log_likelihood_ratio,
+                       const TransitionSource& transitions, double unknown_p_occ);
   const Tile* find(std::int32_t x, std::int32_t y) const;
   /// The cell's tile, copied first if another map shares it, created if missing.
   Tile& writable(std::int32_t x, std::int32_t y);

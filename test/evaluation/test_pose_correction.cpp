@@ -1,0 +1,67 @@
+// Tests of the pose-correction comparison (evaluation/pose_correction.h) on a short patrol
+// of the office with drifting odometry: the filters end far nearer the truth than
+// odometry, the known-pose map is the best map, and the tables have their rows.
+
+#include "dynamic_occupancy_grid/evaluation/pose_correction.h"
+
+#include <gtest/gtest.h>
+
+#include <iostream>
+#include <sstream>
+#include <string>
+
+namespace dog = dynamic_occupancy_grid::core;
+
+namespace {
+
+const dog::PoseEstimatorResult& find(const dog::PoseCorrectionResult& result, const std::string& name) {
+  for (const auto& e : result.estimators) {
+    if (e.name == name) return e;
+  }
+  throw std::runtime_error("no estimator " + name);
+}
+
+TEST(PoseCorrection, FiltersBeatOdometryOnAPatrol) {
+  dog::PoseCorrectionConfig config;
+  config.steps = 200;
+  config.filter.particles = 10;
+  const dog::PoseCorrectionResult result = dog::runPoseCorrection(config);
+  for (const auto& e : result.estimators) {
+    std::cout << e.name << ": ATE " << e.ate_rmse_m << " m, RPE " << e.rpe_trans_rmse_m << " m / " << e.rpe_rot_rmse_rad
+              << " rad, final " << e.final_error_m << " m, changing " << e.changing_accuracy << ", static "
+              << e.static_accuracy << ", " << e.ms_per_update << " ms/update, " << e.updates << " updates, "
+              << e.resamplings << " resamplings\n";
+  }
+  ASSERT_EQ(result.estimators.size(), 5u);
+  EXPECT_EQ(result.scans, 400u);
+  EXPECT_EQ(find(result, "known_pose").ate_rmse_m, 0.0);
+  const double odometry = find(result, "odometry").ate_rmse_m;
+  EXPECT_GT(odometry, 0.3);
+  const dog::PoseEstimatorResult& known = find(result, "known_pose");
+  for (const char* name : {"rbpf_static", "rbpf_hmm", "rbpf_oracle"}) {
+    const dog::PoseEstimatorResult& filter = find(result, name);
+    EXPECT_LT(filter.ate_rmse_m, 0.2 * odometry) << name;
+    EXPECT_LT(filter.ate_rmse_m, 0.5) << name;
+    EXPECT_GT(filter.static_accuracy, find(result, "odometry").static_accuracy + 0.05) << name;
+    EXPECT_LE(filter.static_accuracy, known.static_accuracy) << name;
+    EXPECT_GT(filter.updates, 100u) << name;
+  }
+  // The world's true transitions in the particles' maps: close to the bound on the cells
+  // that change (the filters' maps are a particle's, re-drawn at every resampling).
+  EXPECT_GT(find(result, "rbpf_oracle").changing_accuracy, known.changing_accuracy - 0.05);
+  EXPECT_GT(known.static_accuracy, 0.99);
+  const auto tables = dog::poseCorrectionCsvTables({result, result});
+  EXPECT_NE(dog::formatPoseCorrectionSummary(config, {result}).find("| rbpf_hmm |"), std::string::npos);
+  ASSERT_EQ(tables.count("pose_correction_errors.csv"), 1u);
+  std::istringstream trajectory(tables.at("pose_correction_trajectory.csv"));
+  std::string line;
+  int lines = 0;
+  while (std::getline(trajectory, line)) ++lines;
+  EXPECT_EQ(lines, 401);
+  std::istringstream errors(tables.at("pose_correction_errors.csv"));
+  lines = 0;
+  while (std::getline(errors, line)) ++lines;
+  EXPECT_EQ(lines, 1 + 2 * 5);
+}
+
+}  // namespace
