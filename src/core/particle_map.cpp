@@ -21,8 +21,8 @@ UniformTransitions::UniformTransitions(const TransitionParams& params) : params_
   if (!params.isValid()) throw std::invalid_argument("UniformTransitions: invalid transition probabilities");
 }
 
-MapperTransitions::MapperTransitions(const Mapper& mapper, double resolution_m)
-    : mapper_(mapper), resolution_m_(resolution_m) {
+MapperTransitions::MapperTransitions(const Mapper& mapper, double resolution_m, std::uint32_t min_observed_steps)
+    : mapper_(mapper), resolution_m_(resolution_m), min_observed_steps_(min_observed_steps) {
   if (!(resolution_m > 0.0) || !std::isfinite(resolution_m)) {
     throw std::invalid_argument("MapperTransitions: resolution must be finite and > 0");
   }
@@ -33,13 +33,16 @@ TransitionParams MapperTransitions::at(std::int32_t x, std::int32_t y) const {
   const double u = std::floor(grid.toLatticeX((x + 0.5) * resolution_m_));
   const double v = std::floor(grid.toLatticeY((y + 0.5) * resolution_m_));
   constexpr double kLimit = 2147483647.0;
-  if (!(std::abs(u) < kLimit && std::abs(v) < kLimit)) return mapper_.currentPrior();  // beyond any Mapper
+  if (!(std::abs(u) < kLimit && std::abs(v) < kLimit)) return TransitionParams{0.0, 0.0};  // beyond any Mapper
   const auto cx = static_cast<std::int32_t>(u);
   const auto cy = static_cast<std::int32_t>(v);
   // The two fields straight from the tile: the whole CellState is 80 bytes.
   const CellGrid::Tile* tile = grid.findTile(cx, cy);
   const int offset = CellGrid::offsetOf(cx, cy);
-  if (tile == nullptr || tile->last_step[offset] == kNeverObserved) return mapper_.currentPrior();
+  if (tile == nullptr || tile->last_step[offset] == kNeverObserved ||
+      tile->observed_steps[offset] < min_observed_steps_) {
+    return TransitionParams{0.0, 0.0};
+  }
   return TransitionParams{tile->p_occ_given_free[offset], tile->p_free_given_occ[offset]};
 }
 

@@ -118,7 +118,8 @@ PoseCorrectionResult runPoseCorrection(const PoseCorrectionConfig& config) {
   filters[0].name = "rbpf_static";
   filters[0].filter = std::make_unique<PoseFilter>(filter_config, std::make_shared<UniformTransitions>(TransitionParams{0.0, 0.0}));
   filters[1].name = "rbpf_hmm";
-  filters[1].filter = std::make_unique<PoseFilter>(filter_config, std::make_shared<MapperTransitions>(learner, scenario.resolution_m));
+  filters[1].filter = std::make_unique<PoseFilter>(filter_config, std::make_shared<MapperTransitions>(learner, scenario.resolution_m,
+                                                                                      config.learned_min_observed_steps));
   filters[2].name = "rbpf_oracle";
   filters[2].filter = std::make_unique<PoseFilter>(filter_config, std::make_shared<WorldTransitions>(world));
 

@@ -49,18 +49,21 @@ class UniformTransitions final : public TransitionSource {
 };
 
 /// The transitions a Mapper has learned (the package's learners, on the scans the pose
-/// filter corrected): the Mapper's cell holding the centre of the particle maps' cell, or
-/// the Mapper's prior for a cell it has not observed. The Mapper must outlive this and not
-/// change while particles read it.
+/// filter corrected): the Mapper's cell holding the centre of the particle maps' cell. A
+/// cell the Mapper has observed in fewer than `min_observed_steps` steps (or never) is
+/// static ({0, 0}) until then: the learner's prior forgets a wall within a loop of a
+/// patrol, before the learner has seen it often enough to call it a wall. The Mapper must
+/// outlive this and not change while particles read it.
 class MapperTransitions final : public TransitionSource {
  public:
   /// Throws std::invalid_argument unless resolution_m > 0.
-  MapperTransitions(const Mapper& mapper, double resolution_m);
+  MapperTransitions(const Mapper& mapper, double resolution_m, std::uint32_t min_observed_steps);
   TransitionParams at(std::int32_t x, std::int32_t y) const override;
 
  private:
   const Mapper& mapper_;
   double resolution_m_;
+  std::uint32_t min_observed_steps_;
 };
 
 class ParticleMap {
