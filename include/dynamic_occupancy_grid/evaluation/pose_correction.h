@@ -41,7 +41,7 @@ struct PoseCorrectionConfig {
   PoseFilterConfig filter;
   std::size_t relative_error_scans = 10;  ///< the relative error's span
   /// rbpf_hmm: cells its learner has observed in fewer steps stay static (MapperTransitions).
-  std::uint32_t learned_min_observed_steps = 10;
+  std::uint32_t learned_min_observed_steps = 30;
   /// Throws std::invalid_argument naming the first bad field.
   void validate() const;
 };
