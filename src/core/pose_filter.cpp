@@ -29,14 +29,11 @@ bool finitePositive(double value) { return std::isfinite(value) && value > 0.0; 
 /// this many cells (2048 x 2048: 51 m of range at 0.05 m cells).
 constexpr std::int64_t kMaxEvidenceBoxCells = std::int64_t{2048} * 2048;
 
-/// A beam with a return, in the laser's frame: its end at `range` along `angle`.
-struct BeamPoint {
-  double x_m;
-  double y_m;
-};
+using LaserPoint = PoseFilter::LaserPoint;
 
-std::vector<BeamPoint> matchBeams(const Scan& scan, std::size_t stride) {
-  std::vector<BeamPoint> beams;
+/// The ends of every `stride`-th beam with a return, in the laser's frame.
+std::vector<LaserPoint> matchBeams(const Scan& scan, std::size_t stride) {
+  std::vector<LaserPoint> beams;
   std::size_t with_return = 0;
   for (std::size_t i = 0; i < scan.ranges_m.size(); ++i) {
     const double range = scan.ranges_m[i];
@@ -44,7 +41,7 @@ std::vector<BeamPoint> matchBeams(const Scan& scan, std::size_t stride) {
     if (with_return++ % stride != 0) continue;
     const double beam_angle = scan.angle_min_rad + static_cast<double>(i) * scan.angle_increment_rad;
     const double angle = scan.upside_down ? -beam_angle : beam_angle;
-    beams.push_back(BeamPoint{range * std::cos(angle), range * std::sin(angle)});
+    beams.push_back(LaserPoint{range * std::cos(angle), range * std::sin(angle)});
   }
   return beams;
 }
@@ -143,7 +140,7 @@ namespace {
 /// from its end to the nearest cell centre of the 3 x 3 around it that the map, predicted to
 /// `step`, holds occupied (p > 0.5); 0 if none.
 double matchScore(const ParticleMap& map, const TransitionSource& transitions, const PoseFilterConfig& config,
-                  const std::vector<BeamPoint>& beams, const Pose2D& pose, std::int64_t step) {
+                  const std::vector<LaserPoint>& beams, const Pose2D& pose, std::int64_t step) {
   const double c = std::cos(pose.yaw_rad);
   const double s = std::sin(pose.yaw_rad);
   const double inverse_resolution = 1.0 / config.resolution_m;
@@ -151,9 +148,9 @@ double matchScore(const ParticleMap& map, const TransitionSource& transitions, c
   const double kernel = -0.5 / (cells_per_sigma * cells_per_sigma);  // d in cells
   double score = 0.0;
   ParticleMap::Reader reader(map);
-  for (const BeamPoint& beam : beams) {
-    const double u = (pose.x_m + c * beam.x_m - s * beam.y_m) * inverse_resolution;
-    const double v = (pose.y_m + s * beam.x_m + c * beam.y_m) * inverse_resolution;
+  for (const LaserPoint& beam : beams) {
+    const double u = (pose.x_m + c * beam[0] - s * beam[1]) * inverse_resolution;
+    const double v = (pose.y_m + s * beam[0] + c * beam[1]) * inverse_resolution;
     const auto cx = static_cast<std::int32_t>(std::floor(u));
     const auto cy = static_cast<std::int32_t>(std::floor(v));
     double best = 0.0;
@@ -171,12 +168,12 @@ double matchScore(const ParticleMap& map, const TransitionSource& transitions, c
 }
 
 /// Whether the map has observed a cell of the 3 x 3 around the end of `beam` from `pose`.
-bool endInMappedPlace(ParticleMap::Reader& map, const PoseFilterConfig& config, const BeamPoint& beam,
+bool endInMappedPlace(ParticleMap::Reader& map, const PoseFilterConfig& config, const LaserPoint& beam,
                       const Pose2D& pose) {
   const double c = std::cos(pose.yaw_rad);
   const double s = std::sin(pose.yaw_rad);
-  const auto cx = static_cast<std::int32_t>(std::floor((pose.x_m + c * beam.x_m - s * beam.y_m) / config.resolution_m));
-  const auto cy = static_cast<std::int32_t>(std::floor((pose.y_m + s * beam.x_m + c * beam.y_m) / config.resolution_m));
+  const auto cx = static_cast<std::int32_t>(std::floor((pose.x_m + c * beam[0] - s * beam[1]) / config.resolution_m));
+  const auto cy = static_cast<std::int32_t>(std::floor((pose.y_m + s * beam[0] + c * beam[1]) / config.resolution_m));
   for (std::int32_t dy = -1; dy <= 1; ++dy) {
     for (std::int32_t dx = -1; dx <= 1; ++dx) {
       if (map.lastStep(cx + dx, cy + dy) != kNeverObserved) return true;
@@ -187,14 +184,15 @@ bool endInMappedPlace(ParticleMap::Reader& map, const PoseFilterConfig& config, 
 
 }  // namespace
 
-Pose2D PoseFilter::matchPose(const Particle& particle, const Scan& scan, const Pose2D& start, std::int64_t step) const {
+Pose2D PoseFilter::matchPose(const Particle& particle, const std::vector<LaserPoint>& match_beams, const Pose2D& start,
+                             std::int64_t step) const {
   // Only the beams that end where the map has been, seen from the proposal's pose, and the
   // same beams at every pose tried: a score over whichever beams happen to end in mapped
   // places would pull the pose back to where the map is (along a corridor, back towards
   // where the robot came from).
-  std::vector<BeamPoint> beams;
+  std::vector<LaserPoint> beams;
   ParticleMap::Reader reader(particle.map);
-  for (const BeamPoint& beam : matchBeams(scan, config_.match_beam_stride)) {
+  for (const LaserPoint& beam : match_beams) {
     if (endInMappedPlace(reader, config_, beam, start)) beams.push_back(beam);
   }
   if (beams.empty()) return start;
@@ -230,10 +228,11 @@ Pose2D PoseFilter::matchPose(const Particle& particle, const Scan& scan, const P
   return pose;
 }
 
-void PoseFilter::updateParticle(Particle& particle, const Scan& scan, const OdometryMotion& motion,
-                                const std::array<double, 3>& normals, std::int64_t step) const {
+void PoseFilter::updateParticle(Particle& particle, const Scan& scan, const std::vector<LaserPoint>& match_beams,
+                                const OdometryMotion& motion, const std::array<double, 3>& normals,
+                                std::int64_t step) const {
   Pose2D pose = applyMotion(particle.pose, perturbMotion(motion, config_.motion_noise, normals));
-  if (config_.scan_matching) pose = matchPose(particle, scan, pose, step);
+  if (config_.scan_matching) pose = matchPose(particle, match_beams, pose, step);
   const std::vector<CellEvidence> evidence =
       scanEvidence(scan, pose, config_.resolution_m, config_.max_free_range_m, config_.max_range_m);
   // The weight: the product over cells of q p(z|occ) + (1 - q) p(z|free), each evidence a
@@ -263,14 +262,18 @@ void PoseFilter::updateParticle(Particle& particle, const Scan& scan, const Odom
     }
   }
   log_likelihood += std::log(product);
-  ParticleMap::Writer writer(particle.map);
+  mapEvidence(particle.map, evidence, step);
+  particle.log_weight += log_likelihood / config_.likelihood_temperature;
+  particle.pose = pose;
+  particle.trajectory = std::make_shared<const TrajectoryNode>(TrajectoryNode{scan.stamp_s, pose, particle.trajectory});
+}
+
+void PoseFilter::mapEvidence(ParticleMap& map, const std::vector<CellEvidence>& evidence, std::int64_t step) const {
+  ParticleMap::Writer writer(map);
   for (const CellEvidence& cell : evidence) {
     writer.update(cell.x, cell.y, step, sensor_.logLikelihoodRatio(cell.hits, cell.misses), *transitions_,
                   config_.unknown_p_occ);
   }
-  particle.log_weight += log_likelihood / config_.likelihood_temperature;
-  particle.pose = pose;
-  particle.trajectory = std::make_shared<const TrajectoryNode>(TrajectoryNode{scan.stamp_s, pose, particle.trajectory});
 }
 
 PoseUpdate PoseFilter::integrate(const Scan& scan) {
@@ -283,10 +286,7 @@ PoseUpdate PoseFilter::integrate(const Scan& scan) {
     first.pose = odometry;
     const std::vector<CellEvidence> evidence =
         scanEvidence(scan, odometry, config_.resolution_m, config_.max_free_range_m, config_.max_range_m);
-    for (const CellEvidence& cell : evidence) {
-      first.map.update(cell.x, cell.y, 0, sensor_.logLikelihoodRatio(cell.hits, cell.misses), *transitions_,
-                       config_.unknown_p_occ);
-    }
+    mapEvidence(first.map, evidence, 0);
     first.trajectory = std::make_shared<const TrajectoryNode>(TrajectoryNode{scan.stamp_s, odometry, nullptr});
     std::fill(particles_.begin(), particles_.end(), first);  // every map shares the first's tiles
     last_odometry_ = odometry;
@@ -313,8 +313,10 @@ PoseUpdate PoseFilter::integrate(const Scan& scan) {
   for (auto& draw : normals) {
     for (double& value : draw) value = normal(rng_);
   }
+  const std::vector<LaserPoint> match_beams = matchBeams(scan, config_.match_beam_stride);  // the same for all
   runRepetitions(particles_.size(), config_.threads,
-                 [&](std::size_t i) { updateParticle(particles_[i], scan, motion, normals[i], step); }, nullptr);
+                 [&](std::size_t i) { updateParticle(particles_[i], scan, match_beams, motion, normals[i], step); },
+                 nullptr);
   last_odometry_ = odometry;
   last_step_ = step;
   ++updates_;

@@ -35,10 +35,6 @@ struct CellAccuracy {
   double fraction() const { return total == 0 ? 0.0 : static_cast<double>(right) / static_cast<double>(total); }
 };
 
-struct Track {
-  std::vector<Pose2D> poses;  ///< per scan
-};
-
 struct TrajectoryErrors {
   double ate = 0.0;
   double rpe_trans = 0.0;
@@ -208,7 +204,7 @@ PoseCorrectionResult runPoseCorrection(const PoseCorrectionConfig& config) {
     PoseEstimatorResult& estimator = add(run.name, run.estimate, run.changing, run.still);
     estimator.updates = run.filter->updates();
     estimator.resamplings = run.filter->resamplings();
-    estimator.ms_per_update = run.update_ms / static_cast<double>(std::max<std::size_t>(1, run.filter->updates() - 1));
+    estimator.ms_per_update = run.update_ms / static_cast<double>(std::max<std::size_t>(1, run.filter->updates()));
   }
   result.changing_cells = known_changing.total / static_cast<std::size_t>(std::max<std::int64_t>(1, config.steps - score_from));
   result.static_cells = known_still.total / static_cast<std::size_t>(std::max<std::int64_t>(1, config.steps - score_from));

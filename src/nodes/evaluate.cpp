@@ -1044,7 +1044,6 @@ int main(int argc, char** argv) {
         std::cerr << " " << fixed(std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count(), 1)
                   << " s\n";
       }
-      config.run_seed = options.seed;
       for (const auto& [name, csv] : core::poseCorrectionCsvTables(runs)) core::writeFileAtomically(options.out + "/" + name, csv);
       summary << core::formatPoseCorrectionSummary(config, runs);
     }

@@ -393,6 +393,34 @@ TEST(PoseFilter, ResultsDoNotDependOnTheThreads) {
   EXPECT_EQ(a.resamplings, b.resamplings);
 }
 
+TEST(PoseFilter, TrajectoryEntropyAndCorrection) {
+  // Odometry exact, no noise, no matching: every particle follows odometry, so the best
+  // trajectory is the updates' poses, the correction is the identity, and the particles
+  // (all at one pose) have the entropy of the variance floor.
+  const std::vector<Box> boxes = room();
+  dog::PoseFilterConfig config;
+  config.particles = 4;
+  config.resolution_m = 0.1;
+  config.motion_noise = {};
+  config.scan_matching = false;
+  dog::PoseFilter filter(config, std::make_shared<dog::UniformTransitions>(dog::TransitionParams{0.0, 0.0}));
+  std::mt19937_64 rng(5);
+  const std::vector<dog::Pose2D> poses = {{2.0, 2.0, 0.0}, {2.6, 2.0, 0.0}, {2.6, 2.0, 0.7}, {3.2, 2.4, 0.7}};
+  for (std::size_t i = 0; i < poses.size(); ++i) {
+    ASSERT_TRUE(filter.integrate(simulatedScan(boxes, poses[i], static_cast<double>(i), rng, 0.0)).updated) << i;
+  }
+  const std::vector<dog::TrajectoryNode> trajectory = filter.bestTrajectory();
+  ASSERT_EQ(trajectory.size(), poses.size());
+  for (std::size_t i = 0; i < poses.size(); ++i) {
+    EXPECT_EQ(trajectory[i].stamp_s, static_cast<double>(i));
+    expectPose(trajectory[i].pose, poses[i], 1e-9);
+  }
+  expectPose(filter.mapToOdometry(), dog::Pose2D{}, 1e-9);
+  const double floor_entropy = 0.5 * std::log(std::pow(2.0 * kPi * std::exp(1.0), 3) * 1e-36);
+  EXPECT_NEAR(filter.poseEntropy(), floor_entropy, 1e-6);
+  EXPECT_NEAR(filter.effectiveSampleSize(), 4.0, 1e-9);
+}
+
 TEST(PoseFilter, BadConfigsAreRefused) {
   const auto transitions = std::make_shared<dog::UniformTransitions>(dog::TransitionParams{0.0, 0.0});
   const auto refused = [&](const std::function<void(dog::PoseFilterConfig&)>& change) {

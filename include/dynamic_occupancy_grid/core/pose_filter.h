@@ -24,6 +24,7 @@
 //
 // ROS-free: standard library only.
 
+#include <array>
 #include <cstddef>
 #include <cstdint>
 #include <memory>
@@ -130,6 +131,9 @@ std::vector<CellEvidence> scanEvidence(const Scan& scan, const Pose2D& laser_pos
 
 class PoseFilter {
  public:
+  /// A beam's end in the laser frame (x, y; m).
+  using LaserPoint = std::array<double, 2>;
+
   /// Throws std::invalid_argument for a bad config or a null source.
   PoseFilter(const PoseFilterConfig& config, std::shared_ptr<const TransitionSource> transitions);
 
@@ -157,17 +161,19 @@ class PoseFilter {
   Pose2D mapToOdometry() const;
   /// The best particle's trajectory, oldest first.
   std::vector<TrajectoryNode> bestTrajectory() const;
-  std::int64_t stepOf(double stamp_s) const { return clock_.stepOf(stamp_s); }
-  const ObservationModel& sensor() const { return sensor_; }
   const TransitionSource& transitions() const { return *transitions_; }
   std::size_t updates() const { return updates_; }
   std::size_t resamplings() const { return resamplings_; }
 
  private:
-  Pose2D matchPose(const Particle& particle, const Scan& scan, const Pose2D& start, std::int64_t step) const;
+  /// `beams`: the ends of the scan's beams that take part in matching.
+  Pose2D matchPose(const Particle& particle, const std::vector<LaserPoint>& beams, const Pose2D& start,
+                   std::int64_t step) const;
   /// Moves, weighs and maps one particle.
-  void updateParticle(Particle& particle, const Scan& scan, const OdometryMotion& motion,
-                      const std::array<double, 3>& normals, std::int64_t step) const;
+  void updateParticle(Particle& particle, const Scan& scan, const std::vector<LaserPoint>& match_beams,
+                      const OdometryMotion& motion, const std::array<double, 3>& normals, std::int64_t step) const;
+  /// One filter step of every cell of `evidence` in `map`.
+  void mapEvidence(ParticleMap& map, const std::vector<CellEvidence>& evidence, std::int64_t step) const;
   void resample();
 
   PoseFilterConfig config_;
