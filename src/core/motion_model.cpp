@@ -1,5 +1,6 @@
 #include "dynamic_occupancy_grid/core/motion_model.h"
 
+#include <algorithm>
 #include <cmath>
 #include <stdexcept>
 
@@ -7,7 +8,8 @@ namespace dynamic_occupancy_grid {
 namespace core {
 
 namespace {
-constexpr double kTwoPi = 2.0 * 3.14159265358979323846;
+constexpr double kPi = 3.14159265358979323846;
+constexpr double kTwoPi = 2.0 * kPi;
 }  // namespace
 
 void OdometryNoise::validate() const {
@@ -30,15 +32,21 @@ OdometryMotion odometryMotion(const Pose2D& from, const Pose2D& to) {
 
 OdometryMotion perturbMotion(const OdometryMotion& motion, const OdometryNoise& noise,
                              const std::array<double, 3>& standard_normals) {
-  const double rot1 = motion.rot1_rad;
   const double trans = motion.trans_m;
-  const double rot2 = motion.rot2_rad;
+  // The rotations' size for the noise: a sensor moving backwards (driving in reverse, or a
+  // laser mounted facing back) turns by about pi on paper but not on its wheels, so the
+  // turn is measured from the nearer of forward and backward (as amcl's diff model does).
+  const auto turned = [](double rotation) { return std::min(std::abs(rotation), kPi - std::abs(rotation)); };
+  const double rot1 = turned(motion.rot1_rad);
+  const double rot2 = turned(motion.rot2_rad);
   const OdometryNoise& a = noise;
   OdometryMotion read;
-  read.rot1_rad = rot1 + std::sqrt(a.rot_from_rot * rot1 * rot1 + a.rot_from_trans * trans * trans) * standard_normals[0];
+  read.rot1_rad = motion.rot1_rad +
+                  std::sqrt(a.rot_from_rot * rot1 * rot1 + a.rot_from_trans * trans * trans) * standard_normals[0];
   read.trans_m = trans + std::sqrt(a.trans_from_trans * trans * trans + a.trans_from_rot * (rot1 * rot1 + rot2 * rot2)) *
                              standard_normals[1];
-  read.rot2_rad = rot2 + std::sqrt(a.rot_from_rot * rot2 * rot2 + a.rot_from_trans * trans * trans) * standard_normals[2];
+  read.rot2_rad = motion.rot2_rad +
+                  std::sqrt(a.rot_from_rot * rot2 * rot2 + a.rot_from_trans * trans * trans) * standard_normals[2];
   return read;
 }
 

@@ -112,7 +112,7 @@ void ParticleMap::update(std::int32_t x, std::int32_t y, std::int64_t step, doub
 
 const ParticleMap::Tile* ParticleMap::Reader::tile(std::int32_t x, std::int32_t y) {
   const std::uint64_t key = keyOf(x, y);
-  if (key != key_) {
+  if (key_ != key) {
     key_ = key;
     tile_ = map_.find(x, y);
   }
@@ -132,7 +132,7 @@ std::int32_t ParticleMap::Reader::lastStep(std::int32_t x, std::int32_t y) {
 void ParticleMap::Writer::update(std::int32_t x, std::int32_t y, std::int64_t step, double log_likelihood_ratio,
                                  const TransitionSource& transitions, double unknown_p_occ) {
   const std::uint64_t key = keyOf(x, y);
-  if (key != key_) {
+  if (key_ != key) {
     key_ = key;
     tile_ = &map_.writable(x, y);
   }

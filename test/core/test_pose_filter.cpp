@@ -156,6 +156,33 @@ TEST(ParticleMap, CellsFollowTheFilterStepByStep) {
   EXPECT_EQ(map.lastStep(5, 5), dog::kNeverObserved);
 }
 
+TEST(ParticleMap, ReaderAndWriterOnEveryTileIncludingMinusOne) {
+  // The Reader and Writer remember their last tile by its key; the tile of cells (-32..-1,
+  // -32..-1) has the key of all ones, which once stood for "no tile yet" (a real robot's map
+  // around a negative origin crashed the filter).
+  const dog::UniformTransitions transitions({0.02, 0.01});
+  const std::vector<std::pair<std::int32_t, std::int32_t>> cells = {{-1, -1}, {-5, -3}, {-32, -32}, {-33, -1},
+                                                                     {0, 0}, {-1, 0}, {31, -1}, {40, 70}};
+  dog::ParticleMap written;
+  dog::ParticleMap reference;
+  {
+    dog::ParticleMap::Writer writer(written);
+    for (std::size_t i = 0; i < cells.size(); ++i) {
+      const double llr = 0.3 * static_cast<double>(i) - 1.0;
+      writer.update(cells[i].first, cells[i].second, 2, llr, transitions, 0.5);
+      reference.update(cells[i].first, cells[i].second, 2, llr, transitions, 0.5);
+    }
+  }
+  dog::ParticleMap::Reader reader(written);
+  for (const auto& [x, y] : cells) {
+    EXPECT_EQ(reader.lastStep(x, y), 2) << x << ", " << y;
+    EXPECT_EQ(reader.predicted(x, y, 4, transitions, 0.5), reference.predicted(x, y, 4, transitions, 0.5))
+        << x << ", " << y;
+  }
+  dog::ParticleMap::Reader first_read(written);  // a reader whose first cell is in that tile
+  EXPECT_EQ(first_read.lastStep(-1, -1), 2);
+}
+
 TEST(ParticleMap, CopiesShareTilesUntilOneWrites) {
   const dog::UniformTransitions transitions({0.0, 0.0});
   dog::ParticleMap a;

@@ -40,6 +40,8 @@ OdometryMotion odometryMotion(const Pose2D& from, const Pose2D& to);
 
 /// `motion` read with noise (§5.4, sample_motion_model_odometry): each part plus the square
 /// root of its variance times one of `standard_normals` (rot1, trans, rot2 in that order).
+/// A rotation's size in the variances is its distance to the nearer of 0 and ±pi, as in
+/// amcl: moving backwards is not a half turn.
 OdometryMotion perturbMotion(const OdometryMotion& motion, const OdometryNoise& noise,
                              const std::array<double, 3>& standard_normals);
 

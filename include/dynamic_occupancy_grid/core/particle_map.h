@@ -16,6 +16,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <memory>
+#include <optional>
 #include <unordered_map>
 #include <vector>
 
@@ -102,7 +103,7 @@ class ParticleMap {
    private:
     const Tile* tile(std::int32_t x, std::int32_t y);
     const ParticleMap& map_;
-    std::uint64_t key_ = ~std::uint64_t{0};
+    std::optional<std::uint64_t> key_;  ///< of tile_; none before the first cell (every key is some tile's)
     const Tile* tile_ = nullptr;
   };
   /// update() remembering the tile of the last cell (copied, if shared, at its first write).
@@ -115,7 +116,7 @@ class ParticleMap {
 
    private:
     ParticleMap& map_;
-    std::uint64_t key_ = ~std::uint64_t{0};
+    std::optional<std::uint64_t> key_;  ///< of tile_; none before the first cell
     Tile* tile_ = nullptr;
   };
 
