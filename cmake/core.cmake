@@ -27,6 +27,7 @@ add_library(dynamic_occupancy_grid_core
   ${DOG_ROOT}/src/core/resampling.cpp
   ${DOG_ROOT}/src/core/particle_map.cpp
   ${DOG_ROOT}/src/core/pose_filter.cpp
+  ${DOG_ROOT}/src/core/corrected_mapping.cpp
   # what leaves the map: layers and files (file_io: regular files only, atomic writes)
   ${DOG_ROOT}/src/core/file_io.cpp
   ${DOG_ROOT}/src/core/layers.cpp

@@ -10,8 +10,10 @@
 #include <array>
 #include <chrono>
 #include <cmath>
+#include <cstdint>
 #include <cstdio>
 #include <exception>
+#include <limits>
 #include <stdexcept>
 #include <string>
 #include <thread>
@@ -21,10 +23,13 @@
 #include <boost/algorithm/string/split.hpp>
 
 #include "command_line.h"
+#include "dynamic_occupancy_grid/core/corrected_mapping.h"
 #include "dynamic_occupancy_grid/core/mapper.h"
+#include "dynamic_occupancy_grid/core/motion_model.h"
 #include "dynamic_occupancy_grid/core/offline_em.h"
 #include "dynamic_occupancy_grid/ros/bag_offline_em.h"
 #include "dynamic_occupancy_grid/ros/bag_scan_source.h"
+#include "dynamic_occupancy_grid/ros/parameters.h"
 
 namespace dynamic_occupancy_grid {
 namespace bag_tools {
@@ -55,7 +60,19 @@ inline core::Pose2D toLaserPose(const std::string& text) {
   throw std::invalid_argument("needs X,Y,YAW (three numbers), got '" + text + "'");
 }
 
-/// Adds the options of the bag source and the mapper to `line`, read into `options`.
+/// "A1,A2,A3,A4" as the odometry motion model's four alphas; throws std::invalid_argument
+/// saying what was expected.
+inline core::OdometryNoise toOdometryNoise(const std::string& text) {
+  std::vector<std::string> parts;
+  boost::split(parts, text, boost::is_any_of(","));
+  if (parts.size() != 4) throw std::invalid_argument("needs four comma-separated numbers, got '" + text + "'");
+  const command_line::Range<double> any{};  // any finite number
+  const core::OdometryNoise noise{command_line::toNumber(parts[0], any), command_line::toNumber(parts[1], any),
+                                  command_line::toNumber(parts[2], any), command_line::toNumber(parts[3], any)};
+  noise.validate();
+  return noise;
+}
+
 /// The name of a transition learner, as the node's ~learner.
 inline core::TransitionLearner toLearner(const std::string& text) {
   if (text == "kinds") return core::TransitionLearner::kKinds;
@@ -63,6 +80,7 @@ inline core::TransitionLearner toLearner(const std::string& text) {
   throw std::invalid_argument("needs kinds or cell_em, got '" + text + "'");
 }
 
+/// Adds the options of the bag source and the mapper to `line`, read into `options`.
 inline void addMappingOptions(command_line::CommandLine& line, SharedOptions* options) {
   namespace cl = command_line;
   ros_layer::BagScanSourceOptions& source = options->source;
@@ -102,6 +120,63 @@ inline void addMappingOptions(command_line::CommandLine& line, SharedOptions* op
            ->value_name("NAME"),
        "how cells learn their transitions: kinds (kinds of cells learned from the whole map, the default) or "
        "cell_em (each cell's own online EM), as the node's ~learner");
+}
+
+/// --pose-correction and the filter's options (process_bag, check_bag).
+struct PoseCorrectionOptions {
+  std::string mode = "none";  ///< "none" or "rbpf", as given
+  bool enabled = false;       ///< rbpf: the scans' poses are odometry, corrected by the pose filter
+  core::PoseFilterConfig filter = [] {
+    core::PoseFilterConfig config;
+    const double alpha = ros_layer::kDefaultOdometryAlpha;  // as the node's ~rbpf/odom_alpha1..4
+    config.motion_noise = {alpha, alpha, alpha, alpha};
+    return config;
+  }();
+  std::uint32_t learned_min_observed_steps = 30;  ///< as the node's ~rbpf/learned_min_observed_steps
+};
+
+/// Adds --pose-correction and the pose filter's options to `line`, read into `options`.
+inline void addPoseCorrectionOptions(command_line::CommandLine& line, PoseCorrectionOptions* options) {
+  namespace cl = command_line;
+  core::PoseFilterConfig& filter = options->filter;
+  line.options().add_options()
+      ("pose-correction", cl::nonEmpty(&options->mode, "none or rbpf")->value_name("MODE"),
+       "none (the default: the scans' poses in --fixed-frame are the truth) or rbpf: they are odometry, "
+       "corrected by the Rao-Blackwellised particle filter whose particle maps are cell HMMs (as the node's "
+       "~pose_correction); the map frame then starts at odometry's first pose")
+      ("particles", cl::number(&filter.particles, cl::between<std::size_t>(1, 100000))->value_name("N"),
+       "pose correction: particles (default 30)")
+      ("odometry-alphas",
+       cl::converted(toOdometryNoise, [&filter](const core::OdometryNoise& noise) { filter.motion_noise = noise; })
+           ->value_name("A1,A2,A3,A4"),
+       "pose correction: the odometry's noise, amcl's odom_alpha1..4 (rotation from rotation, rotation from "
+       "translation, translation from translation, translation from rotation; default 0.05 each)")
+      ("update-distance", cl::number(&filter.update_distance_m, cl::above(0.0))->value_name("M"),
+       "pose correction: a filter update once odometry moved M metres (default 0.5)")
+      ("update-angle", cl::number(&filter.update_angle_rad, cl::above(0.0))->value_name("RAD"),
+       "pose correction: ... or turned RAD radians (default 0.5)")
+      ("filter-seed",
+       cl::number(&filter.seed, cl::between<std::uint64_t>(0, std::numeric_limits<long>::max()))->value_name("N"),
+       "pose correction: the particles' random seed (default 1)");
+}
+
+/// Checks the options addPoseCorrectionOptions read against the parsed `shared` ones (call
+/// after validateSharedOptions) and completes the filter's config from the mapper's.
+inline void validatePoseCorrectionOptions(const command_line::CommandLine& line, const SharedOptions& shared,
+                                          PoseCorrectionOptions* options) {
+  if (options->mode == "rbpf") {
+    options->enabled = true;
+  } else if (options->mode != "none") {
+    line.fail("--pose-correction needs none or rbpf, got '" + options->mode + "'");
+  }
+  if (!options->enabled) return;
+  if (shared.source.static_laser_pose) line.fail("--pose-correction rbpf needs odometry from tf, not --laser-pose");
+  options->filter = core::poseFilterConfigFor(shared.mapper, options->filter);
+  try {
+    options->filter.validate();
+  } catch (const std::invalid_argument& e) {
+    line.fail(e.what());
+  }
 }
 
 /// The names of the options addEmOptions adds.

@@ -26,6 +26,7 @@
 
 #include "bag_tools.h"
 #include "dynamic_occupancy_grid/core/cell_model.h"
+#include "dynamic_occupancy_grid/core/corrected_mapping.h"
 #include "dynamic_occupancy_grid/core/map_export.h"
 #include "dynamic_occupancy_grid/core/mapper.h"
 #include "dynamic_occupancy_grid/evaluation/prediction_check.h"
@@ -55,6 +56,9 @@ struct Options {
   /// end (in whole steps).
   double retention_after_s = kDefaultRetentionAfter_s;
   std::int64_t retention_after_steps = 0;
+  /// --pose-correction rbpf: every pass corrects the scans' odometry poses the same way (its
+  /// own filter and learner, deterministic) before the map being scored sees them.
+  dog::bag_tools::PoseCorrectionOptions correction;
 };
 
 const char* scheduleName(dog::core::StepSchedule schedule) {
@@ -115,6 +119,7 @@ Options parseArguments(int argc, char** argv) {
        "the end-of-run retention is also reported on the cells last observed at least S seconds before the "
        "end (default 10)");
   dog::bag_tools::addMappingOptions(line, &options.shared);
+  dog::bag_tools::addPoseCorrectionOptions(line, &options.correction);
   // The options that tune offline EM are read (so that they are refused by name) but not
   // listed: check_bag runs no offline EM, which would learn the transitions from the very
   // scans the map is scored on.
@@ -160,6 +165,7 @@ Options parseArguments(int argc, char** argv) {
     }
   }
   dog::bag_tools::validateSharedOptions(line, &options.shared);
+  dog::bag_tools::validatePoseCorrectionOptions(line, options.shared, &options.correction);
   if (options.horizons_s.empty()) options.horizons_s = kDefaultHorizons_s;
   const double time_step_s = options.shared.mapper.time_step_s;
   for (const double horizon_s : options.horizons_s) {
@@ -450,6 +456,7 @@ void checkAndReport(dog::ros_layer::BagScanSource& source, const Options& option
   // configuration and fed the same scans in the second pass, ends as the same map (the
   // mapper is deterministic) for the end-of-run report.
   dog::core::Mapper final_map(mapper);
+  std::size_t correction_updates = 0;
   const dog::core::ScanReplay replay = [&](const dog::core::ScanConsumer& consumer) {
     ++pass;
     const std::string phase = "pass " + std::to_string(pass);
@@ -457,11 +464,30 @@ void checkAndReport(dog::ros_layer::BagScanSource& source, const Options& option
       consumer(scan);
       final_map.integrate(scan);
     };
+    const dog::core::ScanConsumer& use = pass == 2 ? both : consumer;
+    // With pose correction, a filter and its learner made afresh for each pass: both passes
+    // see the same corrected poses.
+    dog::core::Mapper learner(mapper);
+    std::optional<dog::core::CorrectedMapping> correction;
+    if (options.correction.enabled) {
+      correction.emplace(learner, options.correction.filter, options.correction.learned_min_observed_steps);
+    }
+    const dog::core::ScanConsumer corrected = [&use, &correction](const dog::core::Scan& scan) {
+      dog::core::CorrectedScan result;
+      try {
+        result = correction->integrate(scan);
+      } catch (const std::invalid_argument&) {
+        use(scan);  // refused by the filter: the map refuses it too, and counts it
+        return;
+      }
+      use(result.corrected);
+    };
     const dog::ros_layer::BagScanStats stats =
-        source.forEachScan(pass == 2 ? both : consumer, [&bar, &phase](double done) {
+        source.forEachScan(correction ? corrected : use, [&bar, &phase](double done) {
           bar.show(phase, done);
           return true;
         });
+    if (correction) correction_updates = correction->filter().updates();
     if (pass > 1) return;
     first_pass = stats;
     // Said here, with what the bag reader knows (tf errors, time range), rather than as the
@@ -495,6 +521,10 @@ void checkAndReport(dog::ros_layer::BagScanSource& source, const Options& option
               "bag %.1f s read twice in %.2f s\n",
               static_cast<long long>(result.steps), mapper.time_step_s, result.observed_cells,
               result.observed_cell_steps, result.tied_cell_steps, first_pass.bag_duration_s, seconds);
+  if (options.correction.enabled) {
+    std::printf("pose correction: %zu particles, %zu filter updates a pass (the map is scored at the corrected "
+                "poses)\n", options.correction.filter.particles, correction_updates);
+  }
   for (std::size_t k = 0; k < options.horizons_s.size(); ++k) {
     const double effective_s = static_cast<double>(options.horizons_steps[k]) * mapper.time_step_s;
     if (std::abs(effective_s - options.horizons_s[k]) > 1e-9 * std::max(1.0, options.horizons_s[k])) {

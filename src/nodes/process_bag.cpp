@@ -8,10 +8,13 @@
 #include <cstdio>
 #include <exception>
 #include <filesystem>
+#include <optional>
 #include <string>
 #include <vector>
 
 #include "bag_tools.h"
+#include "dynamic_occupancy_grid/core/corrected_mapping.h"
+#include "dynamic_occupancy_grid/core/file_io.h"
 #include "dynamic_occupancy_grid/core/layers.h"
 #include "dynamic_occupancy_grid/core/map_export.h"
 #include "dynamic_occupancy_grid/core/mapper.h"
@@ -32,6 +35,8 @@ struct Options {
   double snapshot_every_s = 0.0;  ///< 0: no snapshots
   double prediction_horizon_s = 60.0;
   double transition_scale = 0.1;
+  dog::bag_tools::PoseCorrectionOptions correction;
+  std::string trajectory_path;  ///< empty: out_dir/trajectory.tum (with pose correction)
 };
 
 Options parseArguments(int argc, char** argv) {
@@ -61,9 +66,13 @@ Options parseArguments(int argc, char** argv) {
       ("prediction-horizon", cl::number(&options.prediction_horizon_s, cl::between(0.0, 1.0e9))->value_name("S"),
        "the 'predicted' layer looks S seconds ahead (default 60)")
       ("transition-scale", cl::number(&options.transition_scale, cl::between(1.0e-6, 1.0))->value_name("P"),
-       "transition layers: P per step is written as 100 (default 0.1)");
+       "transition layers: P per step is written as 100 (default 0.1)")
+      ("trajectory", cl::nonEmpty(&options.trajectory_path, "a file name")->value_name("FILE"),
+       "pose correction: the best particle's trajectory (the laser's poses in the map frame at the filter's "
+       "updates) in TUM format, for evo (default DIR/trajectory.tum)");
   dog::bag_tools::addMappingOptions(line, &options.shared);
   dog::bag_tools::addEmOptions(line, &options.shared);
+  dog::bag_tools::addPoseCorrectionOptions(line, &options.correction);
   line.hidden().add_options()("bag", boost::program_options::value(&bags));
   line.positional("bag");
   line.parse(argc, argv);
@@ -73,7 +82,12 @@ Options parseArguments(int argc, char** argv) {
   if (no_learning) options.shared.mapper.learn_transitions = false;
   if (no_learn_sensor_model) options.shared.mapper.learn_sensor_model = false;
   dog::bag_tools::validateSharedOptions(line, &options.shared);
+  dog::bag_tools::validatePoseCorrectionOptions(line, options.shared, &options.correction);
+  if (!options.correction.enabled && !options.trajectory_path.empty()) line.fail("--trajectory needs --pose-correction rbpf");
   if (options.model_path.empty()) options.model_path = (std::filesystem::path(options.out_dir) / "model.dogm").string();
+  if (options.trajectory_path.empty()) {
+    options.trajectory_path = (std::filesystem::path(options.out_dir) / "trajectory.tum").string();
+  }
   return options;
 }
 
@@ -110,8 +124,26 @@ void exportLayers(const dog::core::Mapper& mapper, const Options& options, const
   }
 }
 
+// The trajectory as TUM text ("stamp x y z qx qy qz qw" per line, as evo reads it): the
+// laser's poses in the map frame, a rotation about z.
+std::string tumTrajectory(const std::vector<dog::core::TrajectoryNode>& trajectory) {
+  std::string text = "# timestamp x y z qx qy qz qw: the laser's pose in the map frame (process_bag --pose-correction rbpf)\n";
+  char line[256];
+  for (const dog::core::TrajectoryNode& node : trajectory) {
+    const double half = 0.5 * node.pose.yaw_rad;
+    std::snprintf(line, sizeof(line), "%.9f %.6f %.6f 0 0 0 %.9f %.9f\n", node.stamp_s, node.pose.x_m, node.pose.y_m,
+                  std::sin(half), std::cos(half));
+    text += line;
+  }
+  return text;
+}
+
 int run(const Options& options) {
   dog::core::Mapper mapper(options.shared.mapper);
+  std::optional<dog::core::CorrectedMapping> correction;
+  if (options.correction.enabled) {
+    correction.emplace(mapper, options.correction.filter, options.correction.learned_min_observed_steps);
+  }
   dog::ros_layer::BagScanSource source(options.shared.source);
   dog::core::SequenceBuilder recorder;
   if (options.offline_em) mapper.recordObservations(&recorder);
@@ -140,7 +172,7 @@ int run(const Options& options) {
         bar.show("reading", fraction);
         return true;
       },
-      snapshot);
+      snapshot, correction ? &*correction : nullptr);
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   const dog::ros_layer::BagScanStats& stats = mapping.source;
 
@@ -169,6 +201,18 @@ int run(const Options& options) {
                 options.out_dir.c_str());
   }
 
+  if (correction) {
+    const dog::core::PoseFilter& filter = correction->filter();
+    const std::vector<dog::core::TrajectoryNode> trajectory = correction->trajectory();
+    const std::filesystem::path directory = std::filesystem::path(options.trajectory_path).parent_path();
+    if (!directory.empty()) std::filesystem::create_directories(directory);
+    dog::core::writeFileAtomically(options.trajectory_path, tumTrajectory(trajectory));
+    const dog::core::Pose2D correction_now = correction->mapToOdometry();
+    std::printf("pose correction: %zu particles, %zu updates, %zu resamplings; map -> odom at the end (%.3f m, %.3f m, "
+                "%.4f rad); %zu poses -> %s\n",
+                filter.particles().size(), filter.updates(), filter.resamplings(), correction_now.x_m, correction_now.y_m,
+                correction_now.yaw_rad, trajectory.size(), options.trajectory_path.c_str());
+  }
   if (options.offline_em) dog::bag_tools::runOfflineEmAndApply(mapper, recorder, options.shared.em, bar);
 
   exportLayers(mapper, options, options.out_dir, true);

@@ -18,7 +18,6 @@
 #include <limits>
 #include <memory>
 #include <optional>
-#include <sstream>
 #include <stdexcept>
 #include <string>
 #include <system_error>
@@ -35,6 +34,7 @@
 #include <tf2_msgs/TFMessage.h>
 
 #include "bag_tools.h"
+#include "dynamic_occupancy_grid/ros/conversions.h"
 #include "dynamic_occupancy_grid/evaluation/simulator.h"
 
 namespace dog = dynamic_occupancy_grid;
@@ -68,28 +68,6 @@ struct Options {
   dog::core::OdometryNoise odometry_noise;  ///< none: /tf carries the true pose
   std::string out_path;
 };
-
-// "A1,A2,A3,A4": the odometry motion model's four alphas.
-dog::core::OdometryNoise parseOdometryNoise(const std::string& text) {
-  std::istringstream in(text);
-  std::vector<double> alphas;
-  std::string item;
-  while (std::getline(in, item, ',')) {
-    std::size_t used = 0;
-    double value = 0.0;
-    try {
-      value = std::stod(item, &used);
-    } catch (const std::exception&) {
-      used = 0;
-    }
-    if (used == 0 || used != item.size()) throw std::invalid_argument("'" + item + "' is not a number");
-    alphas.push_back(value);
-  }
-  if (alphas.size() != 4) throw std::invalid_argument("needs four comma-separated numbers, got '" + text + "'");
-  const dog::core::OdometryNoise noise{alphas[0], alphas[1], alphas[2], alphas[3]};
-  noise.validate();
-  return noise;
-}
 
 Options parseArguments(int argc, char** argv) {
   namespace cl = dog::command_line;
@@ -129,7 +107,7 @@ Options parseArguments(int argc, char** argv) {
       ("transition-scale", cl::number(&options.transition_scale, cl::between(1.0e-6, 1.0))->value_name("P"),
        "true transitions: P per step is written as 100, larger values too (default 0.1, as process_bag's layers)")
       ("odometry-noise",
-       cl::converted(parseOdometryNoise,
+       cl::converted(dog::bag_tools::toOdometryNoise,
                      [&options](const dog::core::OdometryNoise& noise) { options.odometry_noise = noise; })
            ->value_name("A1,A2,A3,A4"),
        "drifting odometry on /tf (odom -> base_link) and the true pose on /ground_truth_pose: the "
@@ -164,11 +142,7 @@ geometry_msgs::TransformStamped transform(const std::string& parent, const std::
   message.header.stamp = stamp;
   message.header.frame_id = parent;
   message.child_frame_id = child;
-  message.transform.translation.x = pose.x_m;
-  message.transform.translation.y = pose.y_m;
-  // A rotation about z by yaw.
-  message.transform.rotation.z = std::sin(pose.yaw_rad / 2.0);
-  message.transform.rotation.w = std::cos(pose.yaw_rad / 2.0);
+  message.transform = dog::ros_layer::toTransform(pose);
   return message;
 }
 

@@ -14,7 +14,11 @@ double secondsSince(std::chrono::steady_clock::time_point start) {
 }  // namespace
 
 BagMappingStats mapBag(BagScanSource& source, core::Mapper& mapper, bool continue_timeline,
-                       const BagReadProgress& progress, const std::function<void(const core::Scan&)>& after_scan) {
+                       const BagReadProgress& progress, const std::function<void(const core::Scan&)>& after_scan,
+                       core::CorrectedMapping* correction) {
+  if (correction != nullptr && (continue_timeline || &correction->mapper() != &mapper)) {
+    throw std::invalid_argument("mapBag: a pose correction needs its own mapper and one timeline");
+  }
   BagMappingStats stats;
   // Only an earlier bag's scans make a restart necessary; the first scan of all starts step 0.
   bool restart_clock = continue_timeline && mapper.clock().origin().has_value();
@@ -24,7 +28,17 @@ BagMappingStats mapBag(BagScanSource& source, core::Mapper& mapper, bool continu
           mapper.restartClockAt(scan.stamp_s);
           restart_clock = false;
         }
-        const core::ScanResult result = mapper.integrate(scan);
+        core::ScanResult result;
+        if (correction == nullptr) {
+          result = mapper.integrate(scan);
+        } else {
+          try {
+            result = correction->integrate(scan).mapped;
+          } catch (const std::invalid_argument& e) {
+            result.status = core::ScanStatus::kRejectedInvalid;
+            result.error = e.what();
+          }
+        }
         if (result.status != core::ScanStatus::kIntegrated) {
           ++stats.scans_rejected;
           stats.last_rejection = result.error;

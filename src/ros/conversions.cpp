@@ -33,6 +33,15 @@ bool toLaserPose(const geometry_msgs::Transform& fixed_from_laser, core::Pose2D*
   return true;
 }
 
+geometry_msgs::Transform toTransform(const core::Pose2D& pose) {
+  geometry_msgs::Transform transform;
+  transform.translation.x = pose.x_m;
+  transform.translation.y = pose.y_m;
+  transform.rotation.z = std::sin(pose.yaw_rad / 2.0);
+  transform.rotation.w = std::cos(pose.yaw_rad / 2.0);
+  return transform;
+}
+
 bool checkScanShape(const sensor_msgs::LaserScan& msg, std::string* error) {
   if (msg.ranges.size() < 2) return true;
   const double span = static_cast<double>(msg.angle_max) - msg.angle_min;

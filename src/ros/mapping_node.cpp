@@ -1,6 +1,8 @@
 #include "dynamic_occupancy_grid/ros/mapping_node.h"
 
 #include <dynamic_occupancy_grid/OfflineEmProgress.h>
+#include <geometry_msgs/TransformStamped.h>
+#include <std_msgs/Float64.h>
 #include <tf2/exceptions.h>
 
 #include <boost/bind/bind.hpp>
@@ -105,6 +107,7 @@ MappingNode::MappingNode(const ros::NodeHandle& nh, const ros::NodeHandle& priva
 }
 
 MappingNode::~MappingNode() {
+  if (correction_spinner_) correction_spinner_->stop();
   // No request is served once this returns (it waits for those being served).
   if (service_spinner_) service_spinner_->stop();
   services_.clear();
@@ -142,6 +145,7 @@ bool MappingNode::start() {
   } else if (parameters_.runsHmm()) {
     mapper_ = std::make_unique<core::Mapper>(parameters_.mapper);
   }
+  if (parameters_.pose_correction) restartCorrection();
   if (parameters_.runsMemory()) {
     core::MemoryModelConfig memory_config = parameters_.memory;
     if (mapper_) {
@@ -172,7 +176,7 @@ bool MappingNode::start() {
     scan_subscribers_.push_back(
         std::make_unique<message_filters::Subscriber<sensor_msgs::LaserScan>>(nh_, topic, parameters_.scan_queue_size));
     scan_filters_.push_back(std::make_unique<tf2_ros::MessageFilter<sensor_msgs::LaserScan>>(
-        *scan_subscribers_.back(), tf_buffer_, parameters_.fixed_frame,
+        *scan_subscribers_.back(), tf_buffer_, laserPoseFrame(),
         static_cast<std::uint32_t>(parameters_.scan_queue_size), nh_));
     scan_filters_.back()->registerCallback(boost::bind(&MappingNode::scanCallback, this, boost::placeholders::_1));
     scan_filters_.back()->registerFailureCallback(
@@ -182,6 +186,17 @@ bool MappingNode::start() {
         boost::bind(&MappingNode::scanArrived, this, boost::placeholders::_1, scan_subscribers_.size() - 1));
   }
   publish_timer_ = private_nh_.createTimer(ros::Duration(parameters_.publish_period_s), &MappingNode::publishTimer, this);
+  if (correction_) {
+    effective_sample_size_ = private_nh_.advertise<std_msgs::Float64>("effective_sample_size", 10);
+    pose_entropy_ = private_nh_.advertise<std_msgs::Float64>("pose_entropy", 10);
+    tf_broadcaster_ = std::make_unique<tf2_ros::TransformBroadcaster>();
+    ros::NodeHandle correction_nh(private_nh_);
+    correction_nh.setCallbackQueue(&correction_queue_);
+    correction_timer_ = correction_nh.createTimer(ros::Duration(parameters_.transform_publish_period_s),
+                                                  &MappingNode::publishCorrection, this);
+    correction_spinner_ = std::make_unique<ros::AsyncSpinner>(1, &correction_queue_);
+    correction_spinner_->start();
+  }
   startReconfigure();
   // The services from here on, on their own threads (scans and tf stay on nh_'s queue).
   service_spinner_ = std::make_unique<ros::AsyncSpinner>(kServiceThreads, &service_queue_);
@@ -198,6 +213,15 @@ bool MappingNode::start() {
              config.learn_sensor_model ? "learned online" : "fixed", mapper_->sensor().pHitGivenOcc(),
              mapper_->sensor().pHitGivenFree());
     logLearners(config);
+  }
+  if (correction_) {
+    const core::PoseFilterConfig& filter = correction_->filter().config();
+    ROS_INFO("pose correction: the laser's pose in '%s' is odometry, corrected by %zu particles (an update every "
+             "%.2f m or %.2f rad, odometry alphas %.3f %.3f %.3f %.3f); publishing %s -> %s every %.3f s",
+             parameters_.odom_frame.c_str(), filter.particles, filter.update_distance_m, filter.update_angle_rad,
+             filter.motion_noise.rot_from_rot, filter.motion_noise.rot_from_trans, filter.motion_noise.trans_from_trans,
+             filter.motion_noise.trans_from_rot, parameters_.fixed_frame.c_str(), parameters_.odom_frame.c_str(),
+             parameters_.transform_publish_period_s);
   }
   if (memory_) {
     ROS_INFO("mapping scans from%s in frame '%s' with the STM/LTM memory model: %.3f m cells, an update every "
@@ -287,7 +311,7 @@ void MappingNode::scanDropped(const sensor_msgs::LaserScan::ConstPtr& msg, tf2_r
     why = "its header.frame_id is empty";
   }
   ROS_WARN_THROTTLE(kWarnPeriodS, "dropping scan from frame '%s' stamped %.3f: %s (transform to '%s')",
-                    msg->header.frame_id.c_str(), msg->header.stamp.toSec(), why, parameters_.fixed_frame.c_str());
+                    msg->header.frame_id.c_str(), msg->header.stamp.toSec(), why, laserPoseFrame().c_str());
   countTfDrop(std::string("scan from frame '") + msg->header.frame_id + "': " + why);
 }
 
@@ -308,7 +332,8 @@ void MappingNode::warnIfNoTransform(const std::string& frame_id) {
   // a moment's grace for tf at start-up), naming both frames.
   if (frame_id.empty()) return;  // the filter drops it and says so
   std::string error;
-  const bool known = tf_buffer_.canTransform(parameters_.fixed_frame, frame_id, ros::Time(0), &error);
+  const std::string& target = laserPoseFrame();
+  const bool known = tf_buffer_.canTransform(target, frame_id, ros::Time(0), &error);
   const ros::WallTime now = ros::WallTime::now();
   std::lock_guard<std::mutex> lock(diagnostics_mutex_);
   if (known) {
@@ -320,14 +345,15 @@ void MappingNode::warnIfNoTransform(const std::string& frame_id) {
   const auto since = frames_without_transform_.emplace(frame_id, now).first->second;
   if ((now - since).toSec() < kMissingFrameGraceS) return;
   const bool frame_known = tf_buffer_._frameExists(frame_id);
-  const bool fixed_known = tf_buffer_._frameExists(parameters_.fixed_frame);
+  const bool fixed_known = tf_buffer_._frameExists(target);
+  const std::string parameter = parameters_.pose_correction ? "~odom_frame" : "~fixed_frame";
   const std::string why = !frame_known ? "tf has no frame '" + frame_id + "' (nothing publishes it)"
-                          : !fixed_known ? "tf has no frame '" + parameters_.fixed_frame + "' (is ~fixed_frame right?)"
+                          : !fixed_known ? "tf has no frame '" + target + "' (is " + parameter + " right?)"
                                          : "the two frames are not connected in tf";
   ROS_WARN_THROTTLE(kWarnPeriodS,
-                    "scans from frame '%s' get no transform to the fixed frame '%s' (for %.1f s now): %s; they wait "
+                    "scans from frame '%s' get no transform to the frame '%s' (for %.1f s now): %s; they wait "
                     "in the queue of %d scans and are dropped from it (tf: %s)",
-                    frame_id.c_str(), parameters_.fixed_frame.c_str(), (now - since).toSec(), why.c_str(),
+                    frame_id.c_str(), target.c_str(), (now - since).toSec(), why.c_str(),
                     parameters_.scan_queue_size, error.c_str());
   last_tf_error_ = "scans from frame '" + frame_id + "': " + why;
 }
@@ -355,7 +381,7 @@ void MappingNode::scanCallback(const sensor_msgs::LaserScan::ConstPtr& msg) {
   if (!checkScanShape(*msg, &error)) return drop(error);
   geometry_msgs::TransformStamped transform;
   try {
-    transform = tf_buffer_.lookupTransform(parameters_.fixed_frame, msg->header.frame_id, msg->header.stamp);
+    transform = tf_buffer_.lookupTransform(laserPoseFrame(), msg->header.frame_id, msg->header.stamp);
   } catch (const tf2::LookupException& e) {
     return drop_tf(std::string("unknown frame: ") + e.what());
   } catch (const tf2::ConnectivityException& e) {
@@ -398,10 +424,11 @@ void MappingNode::scanCallback(const sensor_msgs::LaserScan::ConstPtr& msg) {
                       *newest_stamp_s_ - scan.stamp_s,
                       static_cast<long long>(mapper_->lastAppliedStep().value_or(-1)));
     mapper_->restartClockAt(scan.stamp_s);
+    if (correction_) restartCorrection();
     newest_stamp_s_.reset();
     steady_since_restart_s_ = 0.0;
   }
-  const core::ScanResult result = mapper_->integrate(scan);
+  const core::ScanResult result = integrateHmm(scan);
   if (result.status != core::ScanStatus::kIntegrated) {
     ++(result.status == core::ScanStatus::kRejectedTimeBackwards ? scan_counts_.dropped_late
                                                                   : scan_counts_.dropped_invalid);
@@ -417,6 +444,66 @@ void MappingNode::scanCallback(const sensor_msgs::LaserScan::ConstPtr& msg) {
   if (result.cells_outside > 0) {
     ROS_WARN_THROTTLE(30.0, "beams reach beyond the map's bounds (fixed_bounds / max_map_size); those cells are not mapped");
   }
+}
+
+core::ScanResult MappingNode::integrateHmm(const core::Scan& scan) {
+  if (!correction_) return mapper_->integrate(scan);
+  core::CorrectedScan corrected;
+  try {
+    corrected = correction_->integrate(scan);
+  } catch (const std::invalid_argument& e) {
+    core::ScanResult refused;
+    refused.status = core::ScanStatus::kRejectedInvalid;
+    refused.error = std::string("pose correction: ") + e.what();
+    return refused;
+  }
+  if (corrected.update.updated) {
+    {
+      std::lock_guard<std::mutex> lock(correction_mutex_);
+      map_to_odom_ = correction_->mapToOdometry();
+    }
+    std_msgs::Float64 value;
+    last_effective_sample_size_ = corrected.update.effective_sample_size;
+    value.data = corrected.update.effective_sample_size;
+    effective_sample_size_.publish(value);
+    value.data = correction_->filter().poseEntropy();
+    pose_entropy_.publish(value);
+  }
+  return corrected.mapped;
+}
+
+const std::string& MappingNode::laserPoseFrame() const {
+  return parameters_.pose_correction ? parameters_.odom_frame : parameters_.fixed_frame;
+}
+
+void MappingNode::restartCorrection() {
+  core::Pose2D map_to_odom;
+  {
+    std::lock_guard<std::mutex> lock(correction_mutex_);
+    map_to_odom = map_to_odom_;
+  }
+  correction_.reset();  // it reads the mapper it was made on
+  last_effective_sample_size_ = 0.0;
+  correction_ = std::make_unique<core::CorrectedMapping>(*mapper_, parameters_.filter,
+                                                         parameters_.learned_min_observed_steps, map_to_odom);
+}
+
+void MappingNode::publishCorrection(const ros::TimerEvent&) {
+  geometry_msgs::TransformStamped message;
+  {
+    std::lock_guard<std::mutex> lock(correction_mutex_);
+    message.transform = toTransform(map_to_odom_);
+  }
+  // Stamped ahead, as gmapping does, so that a user of the map frame looking up the newest
+  // transform does not extrapolate between two broadcasts.
+  message.header.stamp = ros::Time::now() + ros::Duration(parameters_.transform_tolerance_s);
+  // A timer catching up with a clock that leapt (simulated time) fires several times at one
+  // time: tf would warn about each repeated stamp.
+  if (message.header.stamp <= last_correction_stamp_) return;
+  last_correction_stamp_ = message.header.stamp;
+  message.header.frame_id = parameters_.fixed_frame;
+  message.child_frame_id = parameters_.odom_frame;
+  tf_broadcaster_->sendTransform(message);
 }
 
 bool MappingNode::integrateMemory(const core::Scan& scan, const std::string& frame_id) {
@@ -538,6 +625,21 @@ void MappingNode::diagnoseMap(diagnostic_updater::DiagnosticStatusWrapper& statu
     status.add("sensor model p_hit_given_free", mapper_->sensor().pHitGivenFree());
     const core::SensorModelStats& sensor_stats = mapper_->sensorModelStats();
     status.add("sensor model learned from (beam ends)", sensor_stats.trials[0] + sensor_stats.trials[1]);
+    if (correction_) {
+      const core::PoseFilter& filter = correction_->filter();
+      const core::Pose2D map_to_odom = correction_->mapToOdometry();
+      status.add("pose correction", "rbpf");
+      status.add("pose correction particles", filter.particles().size());
+      status.add("pose correction updates", filter.updates());
+      status.add("pose correction resamplings", filter.resamplings());
+      if (filter.started()) {
+        status.addf("pose correction effective sample size (last update, before resampling)", "%.2f",
+                    last_effective_sample_size_);
+        status.addf("pose correction pose entropy", "%.3f", filter.poseEntropy());
+      }
+      status.addf("pose correction map -> odom", "x %.3f m, y %.3f m, yaw %.4f rad", map_to_odom.x_m, map_to_odom.y_m,
+                  map_to_odom.yaw_rad);
+    }
     if (!step) {
       status.summary(diagnostic_msgs::DiagnosticStatus::OK, "no step applied yet");
       status.add("last applied step", "none");
@@ -808,7 +910,9 @@ void MappingNode::publishHypotheses() {
 ros::Time MappingNode::memoryStamp() const { return memory_stamp_.value_or(ros::Time::now()); }
 
 void MappingNode::replaceMapper(std::unique_ptr<core::Mapper> mapper) {
+  correction_.reset();  // it reads the mapper being replaced
   mapper_ = std::move(mapper);
+  if (parameters_.pose_correction) restartCorrection();
   newest_stamp_s_.reset();
   steady_since_restart_s_.reset();
   if (mapper_->lastAppliedStep()) newest_stamp_s_ = mapper_->clock().stepStart(*mapper_->lastAppliedStep() + 1);
@@ -1191,6 +1295,19 @@ bool MappingNode::getStatus(GetStatus::Request&, GetStatus::Response& response) 
   if (step) {
     response.last_applied_step = *step;
     response.map_stamp = mapper_->clock().stepStart(*step + 1);
+  }
+  if (correction_) {
+    const core::PoseFilter& filter = correction_->filter();
+    const core::Pose2D map_to_odom = correction_->mapToOdometry();
+    response.pose_correction = true;
+    response.pose_correction_updates = filter.updates();
+    response.map_to_odom_x = map_to_odom.x_m;
+    response.map_to_odom_y = map_to_odom.y_m;
+    response.map_to_odom_yaw = map_to_odom.yaw_rad;
+    if (filter.started()) {
+      response.effective_sample_size = last_effective_sample_size_;
+      response.pose_entropy = filter.poseEntropy();
+    }
   }
   return true;
 }

@@ -4,6 +4,7 @@
 #include <ros/param.h>
 #include <xmlrpcpp/XmlRpcValue.h>
 
+#include "dynamic_occupancy_grid/core/corrected_mapping.h"
 #include "dynamic_occupancy_grid/ros/bag_offline_em.h"
 
 #include <algorithm>
@@ -13,6 +14,7 @@
 #include <set>
 #include <stdexcept>
 #include <string>
+#include <utility>
 
 namespace dynamic_occupancy_grid {
 namespace ros_layer {
@@ -150,6 +152,25 @@ std::string mapperParameterMessage(const std::string& message) {
   }
   if (starts_with("kinds ")) return "kinds/" + message.substr(std::string("kinds ").size());
   return message;
+}
+
+/// The pose filter's checks name its config fields ("PoseFilterConfig: update_distance_m
+/// must be ..."): the same message naming the parameter where one sets the field.
+std::string filterParameterMessage(const std::string& message) {
+  std::string text = message;
+  const std::string prefix = "PoseFilterConfig: ";
+  if (text.compare(0, prefix.size(), prefix) == 0) text = text.substr(prefix.size());
+  const std::string noise = "OdometryNoise:";
+  if (text.compare(0, noise.size(), noise) == 0) return "rbpf/odom_alpha1..4:" + text.substr(noise.size());
+  const std::pair<const char*, const char*> names[] = {
+      {"particles", "rbpf/particles"}, {"update_distance_m", "rbpf/linear_update"},
+      {"update_angle_rad", "rbpf/angular_update"}, {"resample_below", "rbpf/resample_threshold"},
+      {"likelihood_temperature", "rbpf/likelihood_temperature"}, {"max_range_m", "max_range"}};
+  for (const auto& [field, parameter] : names) {
+    const std::string name = field;
+    if (text.compare(0, name.size() + 1, name + " ") == 0) return std::string(parameter) + text.substr(name.size());
+  }
+  return text;
 }
 
 }  // namespace
@@ -317,7 +338,51 @@ bool readParameters(const ros::NodeHandle& private_nh, NodeParameters* parameter
   memory.max_free_range_m = m.max_free_range_m;
   memory.max_map_size_m = m.max_map_size_m;
 
+  // Pose correction: the pose filter (core/pose_filter.h) under gmapping's and amcl's names.
+  std::string pose_correction = "none";
+  read.text("pose_correction", &pose_correction);
+  if (pose_correction == "rbpf") {
+    p.pose_correction = true;
+  } else if (pose_correction != "none") {
+    read.fail("pose_correction", "must be \"none\" or \"rbpf\", got \"" + pose_correction + "\"");
+  }
+  read.text("odom_frame", &p.odom_frame);
+  core::PoseFilterConfig& f = p.filter;
+  int particles = static_cast<int>(f.particles);
+  read.integer("rbpf/particles", &particles, 1, 100000);
+  f.particles = static_cast<std::size_t>(particles);
+  f.motion_noise = {kDefaultOdometryAlpha, kDefaultOdometryAlpha, kDefaultOdometryAlpha, kDefaultOdometryAlpha};
+  read.number("rbpf/odom_alpha1", &f.motion_noise.rot_from_rot);
+  read.number("rbpf/odom_alpha2", &f.motion_noise.rot_from_trans);
+  read.number("rbpf/odom_alpha3", &f.motion_noise.trans_from_trans);
+  read.number("rbpf/odom_alpha4", &f.motion_noise.trans_from_rot);
+  read.number("rbpf/linear_update", &f.update_distance_m);
+  read.number("rbpf/angular_update", &f.update_angle_rad);
+  read.number("rbpf/resample_threshold", &f.resample_below);
+  read.number("rbpf/likelihood_temperature", &f.likelihood_temperature);
+  read.boolean("rbpf/scan_matching", &f.scan_matching);
+  int seed = static_cast<int>(f.seed);
+  read.integer("rbpf/seed", &seed, 0, std::numeric_limits<int>::max());
+  f.seed = static_cast<std::uint64_t>(seed);
+  int filter_threads = static_cast<int>(f.threads);
+  read.integer("rbpf/threads", &filter_threads, 0, 1024);
+  f.threads = static_cast<unsigned>(filter_threads);
+  int learned_min_observed = static_cast<int>(p.learned_min_observed_steps);
+  read.integer("rbpf/learned_min_observed_steps", &learned_min_observed, 0, std::numeric_limits<int>::max());
+  p.learned_min_observed_steps = static_cast<std::uint32_t>(learned_min_observed);
+  read.number("rbpf/transform_publish_period", &p.transform_publish_period_s);
+  read.number("rbpf/transform_tolerance", &p.transform_tolerance_s);
+  f = core::poseFilterConfigFor(m, f);
+
   read.require(!p.fixed_frame.empty(), "fixed_frame", "must not be empty");
+  read.require(!p.odom_frame.empty(), "odom_frame", "must not be empty");
+  read.require(!p.pose_correction || p.odom_frame != p.fixed_frame, "odom_frame",
+               "must differ from ~fixed_frame with ~pose_correction rbpf (the node publishes " + p.fixed_frame +
+                   " -> " + p.odom_frame + ")");
+  read.require(!p.pose_correction || p.model == MapModel::kHmm, "pose_correction",
+               "rbpf needs ~model hmm: the pose filter's transitions are the cell HMM's");
+  read.require(p.transform_publish_period_s > 0.0, "rbpf/transform_publish_period", "must be > 0 s");
+  read.require(p.transform_tolerance_s >= 0.0, "rbpf/transform_tolerance", "must be >= 0 s");
   read.require(!p.scan_topics.empty(), "scan_topics", "must list at least one topic");
   for (const std::string& topic : p.scan_topics) {
     std::string why;
@@ -351,6 +416,13 @@ bool readParameters(const ros::NodeHandle& private_nh, NodeParameters* parameter
     } catch (const std::invalid_argument& e) {
       *error = std::string("invalid parameter value (in ") + private_nh.getNamespace() +
                "): " + mapperParameterMessage(e.what());
+      return false;
+    }
+    try {
+      f.validate();
+    } catch (const std::invalid_argument& e) {
+      *error = std::string("invalid parameter value (in ") + private_nh.getNamespace() +
+               "): " + filterParameterMessage(e.what());
       return false;
     }
     try {

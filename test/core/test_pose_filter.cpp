@@ -2,10 +2,11 @@
 // core/particle_map.h, core/pose_filter.h): the odometry motion model's formulas, the
 // particle maps' closed-form cells against the core Mapper fed the same scans at the same
 // poses, copy-on-write tiles, a scan's evidence and its likelihood against sums written out
-// here, and the filter on a room with drifting odometry, where it must end nearer the
-// truth than odometry.
+// here, the filter on a room with drifting odometry, where it must end nearer the truth
+// than odometry, and mapping at the filter's corrected poses (core/corrected_mapping.h).
 
 #include "dynamic_occupancy_grid/core/pose_filter.h"
+#include "dynamic_occupancy_grid/core/corrected_mapping.h"
 
 #include <gtest/gtest.h>
 
@@ -121,6 +122,22 @@ TEST(MotionModel, NoiseHasTheModelsVariances) {
   EXPECT_NEAR(read.rot2_rad, -0.2 + 2.0 * std::sqrt(0.1 * 0.04 + 0.02 * 4.0), 1e-12);
   EXPECT_THROW((dog::OdometryNoise{-0.1, 0, 0, 0}.validate()), std::invalid_argument);
   EXPECT_THROW((dog::OdometryNoise{0, 0, std::nan(""), 0}.validate()), std::invalid_argument);
+}
+
+TEST(MotionModel, MovingBackwardsHasTheNoiseOfMovingForwards) {
+  // A laser facing back (or a robot in reverse) travels at pi to its heading: the rotations
+  // read from odometry are about pi, but nothing turned. The noise is that of the forward move.
+  const dog::OdometryNoise noise{0.3, 0.02, 0.05, 0.1};
+  const dog::OdometryMotion forward = dog::odometryMotion({0.0, 0.0, 0.0}, {0.5, 0.05, 0.1});
+  const dog::OdometryMotion backward = dog::odometryMotion({0.0, 0.0, 0.0}, {-0.5, -0.05, 0.1});
+  EXPECT_NEAR(std::abs(backward.rot1_rad), kPi - std::abs(forward.rot1_rad), 1e-12);
+  const std::array<double, 3> normals{1.0, -0.7, 0.4};
+  const dog::OdometryMotion f = dog::perturbMotion(forward, noise, normals);
+  const dog::OdometryMotion b = dog::perturbMotion(backward, noise, normals);
+  EXPECT_NEAR(b.rot1_rad - backward.rot1_rad, f.rot1_rad - forward.rot1_rad, 1e-12);
+  EXPECT_NEAR(b.trans_m - backward.trans_m, f.trans_m - forward.trans_m, 1e-12);
+  EXPECT_NEAR(b.rot2_rad - backward.rot2_rad, f.rot2_rad - forward.rot2_rad, 1e-12);
+  EXPECT_LT(std::abs(b.rot1_rad - backward.rot1_rad), 0.1);  // a half turn's noise would be 1.7 rad
 }
 
 TEST(Resampling, EffectiveSampleSize) {
@@ -468,6 +485,85 @@ TEST(PoseFilter, BadConfigsAreRefused) {
   dog::PoseFilter filter(dog::PoseFilterConfig{}, transitions);
   EXPECT_THROW(filter.bestIndex(), std::logic_error);
   EXPECT_THROW(filter.integrate(dog::Scan{}), std::invalid_argument);  // no ranges
+}
+
+// --- mapping with corrected poses (core/corrected_mapping.h) ---------------------------------
+
+TEST(CorrectedMapping, ConfigTakesTheMappersMapAndSensor) {
+  dog::MapperConfig mapper;
+  mapper.resolution_m = 0.02;
+  mapper.time_step_s = 0.5;
+  mapper.p_hit_given_occ = 0.8;
+  mapper.p_hit_given_free = 0.1;
+  mapper.max_free_range_m = 7.0;
+  dog::PoseFilterConfig filter;
+  filter.particles = 7;
+  const dog::PoseFilterConfig made = dog::poseFilterConfigFor(mapper, filter);
+  EXPECT_EQ(made.particles, 7u);
+  EXPECT_EQ(made.resolution_m, 0.02);
+  EXPECT_EQ(made.time_step_s, 0.5);
+  EXPECT_EQ(made.p_hit_given_occ, 0.8);
+  EXPECT_EQ(made.p_hit_given_free, 0.1);
+  EXPECT_EQ(made.max_free_range_m, 7.0);
+  EXPECT_NEAR(made.max_range_m, 20.0, 1e-12);  // 1000 cells, below the default 30 m
+  EXPECT_NO_THROW(made.validate());
+}
+
+TEST(CorrectedMapping, MapsEachScanAtTheFiltersCorrectedPose) {
+  // The drive of the filter's test through CorrectedMapping, started with a correction: each
+  // scan reaches the mapper at the correction (start composed with the filter's) times
+  // odometry, the same filter alone gives the same poses, and the trajectory is the
+  // filter's moved by the start correction.
+  const std::vector<Box> boxes = room();
+  dog::MapperConfig mapper_config;
+  mapper_config.resolution_m = 0.1;
+  dog::Mapper mapper(mapper_config);
+  dog::Mapper reference_learner(mapper_config);
+  dog::PoseFilterConfig config = dog::poseFilterConfigFor(mapper_config, driveConfig());
+  config.particles = 8;
+  const dog::Pose2D start{1.0, -2.0, 0.5};
+  dog::CorrectedMapping mapping(mapper, config, 3, start);
+  expectPose(mapping.mapToOdometry(), start, 0.0);
+  EXPECT_TRUE(mapping.trajectory().empty());
+  dog::PoseFilter reference(config, std::make_shared<dog::MapperTransitions>(reference_learner, 0.1, 3));
+  std::mt19937_64 rng(3);
+  dog::Pose2D odometry{2.0, 2.0, 0.0};
+  for (int i = 0; i < 30; ++i) {
+    odometry = dog::applyMotion(odometry, dog::OdometryMotion{0.05, 0.15, -0.02});
+    const dog::Pose2D truth = odometry;  // the room's scans from odometry's pose: no drift
+    dog::Scan scan = simulatedScan(boxes, truth, 0.5 * i, rng, 0.01);
+    const dog::CorrectedScan result = mapping.integrate(scan);
+    ASSERT_EQ(result.mapped.status, dog::ScanStatus::kIntegrated) << result.mapped.error;
+    const dog::PoseUpdate update = reference.integrate(scan);
+    EXPECT_EQ(result.update.updated, update.updated) << i;
+    const dog::Pose2D expected = dog::composePose(dog::composePose(start, reference.mapToOdometry()), odometry);
+    expectPose(result.corrected.laser_pose, expected, 1e-9);
+    expectPose(mapping.mapToOdometry(), dog::composePose(start, reference.mapToOdometry()), 1e-9);
+    dog::Scan corrected = scan;
+    corrected.laser_pose = result.corrected.laser_pose;
+    reference_learner.integrate(corrected);
+  }
+  EXPECT_GT(mapping.filter().updates(), 5u);
+  const std::vector<dog::TrajectoryNode> trajectory = mapping.trajectory();
+  const std::vector<dog::TrajectoryNode> filters = reference.bestTrajectory();
+  ASSERT_EQ(trajectory.size(), filters.size());
+  for (std::size_t i = 0; i < trajectory.size(); ++i) {
+    EXPECT_EQ(trajectory[i].stamp_s, filters[i].stamp_s);
+    expectPose(trajectory[i].pose, dog::composePose(start, filters[i].pose), 1e-9);
+  }
+  // The mapper holds the scans at the corrected poses: the same cells as the reference learner.
+  EXPECT_EQ(mapper.grid().bounds().width(), reference_learner.grid().bounds().width());
+  EXPECT_EQ(mapper.grid().bounds().height(), reference_learner.grid().bounds().height());
+}
+
+TEST(CorrectedMapping, AScanTheFilterRefusesChangesNothing) {
+  dog::MapperConfig mapper_config;
+  mapper_config.resolution_m = 0.1;
+  dog::Mapper mapper(mapper_config);
+  dog::CorrectedMapping mapping(mapper, dog::poseFilterConfigFor(mapper_config, driveConfig()), 3);
+  EXPECT_THROW(mapping.integrate(dog::Scan{}), std::invalid_argument);
+  EXPECT_FALSE(mapper.clock().origin().has_value());
+  EXPECT_FALSE(mapping.filter().started());
 }
 
 }  // namespace

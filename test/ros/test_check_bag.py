@@ -270,6 +270,22 @@ class TestCheckBag(unittest.TestCase):
         self.assertLess(one_second["dynamic_brier"], PARAMS["max_brier_ratio_neato"] * one_second["static_brier"],
                         one_second)
 
+    def test_pose_correction(self):
+        # --pose-correction rbpf: the scored map is built at the filter's corrected poses, the
+        # same in both passes (the labels come from the corrected scans too). On this bag the
+        # correction moves the poses (more cells observed) and the filter updates are said.
+        stdout, _, rows = self.run_once("neato_rbpf", NEATO_BAG, NEATO_ARGS + ["--pose-correction", "rbpf"])
+        match = re.search(r"pose correction: 30 particles, (\d+) filter updates a pass", stdout)
+        self.assertIsNotNone(match, stdout)
+        self.assertGreater(int(match.group(1)), 5)
+        plain = self.neato()[2]
+        self.assertEqual(len(rows), len(plain))
+        self.assertNotEqual(rows[0]["dynamic_brier"], plain[0]["dynamic_brier"])
+        for row in rows[:2]:
+            self.assertGreater(row["dynamic_accuracy"], 0.9, row)
+        self.assert_fails([STATIONARY_BAG, "--pose-correction", "rbpf"] + STATIONARY_ARGS, 2, "--laser-pose")
+        self.assert_fails([NEATO_BAG, "--pose-correction", "gmapping"], 2, "--pose-correction")
+
     def test_learning_changes_dynamic_model_only(self):
         # Labels come from the geometry, and the static map ignores transitions: with the
         # sensor model fixed and online learning off only the dynamic columns (and the map at

@@ -65,13 +65,19 @@ PARAMS = {
     "min_lane_seen": 0.95,          # of the lane cells
     "min_learned_ratio": 4.0,       # learned rates, dynamic over never-changing cells
     "timeout_s": 60.0,              # per tool run
+    "rbpf_steps": 120,              # process_bag --pose-correction rbpf: patrol_office steps
+    "rbpf_seed": 12,                # its world and run seed
+    "rbpf_odometry_noise": "0.02,0.001,0.01,0.005",
+    "rbpf_max_error_ratio": 0.5,    # corrected mean position error at most this share of odometry's
 }
 
 
 def run_tool(tool, args, preexec_fn=None):
     """(return code, stdout, stderr) of a tool run."""
+    # The sanitized run (test/sanitizers/run_sanitized.sh) scales the time its slower tools get.
+    timeout = PARAMS["timeout_s"] * float(os.environ.get("DOG_TEST_TIMEOUT_SCALE", "1"))
     result = subprocess.run([executable(tool)] + [str(a) for a in args], capture_output=True, text=True,
-                            errors="replace", timeout=PARAMS["timeout_s"], preexec_fn=preexec_fn)
+                            errors="replace", timeout=timeout, preexec_fn=preexec_fn)
     return result.returncode, result.stdout, result.stderr
 
 
@@ -427,6 +433,61 @@ class TestSimulate(unittest.TestCase):
             rc, _, stderr = run_tool("simulate", ["--odometry-noise", bad, "--out", os.path.join(self.tmp, "bad.bag")])
             self.assertEqual(rc, 2, stderr)
             self.assertIn("--odometry-noise", stderr)
+
+    def test_process_bag_pose_correction(self):
+        # process_bag --pose-correction rbpf on a patrol with drifting odometry: the corrected
+        # trajectory (TUM, the laser's poses in the map frame, which starts at odometry's first
+        # pose: the true one) against the truth, and odometry's against it.
+        bag = os.path.join(self.tmp, "patrol_drift.bag")
+        rc, _, stderr = run_tool("simulate", ["--scenario", "patrol_office", "--steps", PARAMS["rbpf_steps"],
+                                              "--world-seed", PARAMS["rbpf_seed"], "--seed", PARAMS["rbpf_seed"],
+                                              "--odometry-noise", PARAMS["rbpf_odometry_noise"], "--out", bag])
+        self.assertEqual(rc, 0, stderr)
+        out = os.path.join(self.tmp, "rbpf")
+        rc, stdout, stderr = run_tool("process_bag", [bag, "--resolution", "0.1", "--pose-correction", "rbpf",
+                                                      "--out", out])
+        self.assertEqual(rc, 0, f"stdout:\n{stdout}\nstderr:\n{stderr}")
+        self.assertIn("pose correction: 30 particles", stdout)
+        topics = read_bag(bag)
+        mount = topics["/tf_static"][0][0].transforms[0].transform.translation
+        truth = {m.header.stamp.to_nsec(): m.pose for m, _, _ in topics["/ground_truth_pose"]}
+        odometry = {m.transforms[0].header.stamp.to_nsec(): m.transforms[0].transform for m, _, _ in topics["/tf"]}
+
+        def laser(x, y, q):  # the laser's position on a base pose (the mount has no rotation)
+            yaw = 2.0 * math.atan2(q.z, q.w)
+            return (x + math.cos(yaw) * mount.x - math.sin(yaw) * mount.y,
+                    y + math.sin(yaw) * mount.x + math.cos(yaw) * mount.y)
+
+        rows = np.loadtxt(os.path.join(out, "trajectory.tum"), comments="#", ndmin=2)
+        self.assertEqual(rows.shape[1], 8)
+        self.assertGreater(len(rows), 50)
+        self.assertTrue(np.all(np.diff(rows[:, 0]) > 0), "stamps not increasing")
+        np.testing.assert_allclose(np.linalg.norm(rows[:, 4:8], axis=1), 1.0, atol=1e-6)
+        np.testing.assert_array_equal(rows[:, 3:6], 0.0)  # z, qx, qy: a planar pose
+        errors, odometry_errors = [], []
+        for row in rows:
+            stamp = int(round(row[0] * 1e9))
+            true = laser(truth[stamp].position.x, truth[stamp].position.y, truth[stamp].orientation)
+            odom = laser(odometry[stamp].translation.x, odometry[stamp].translation.y, odometry[stamp].rotation)
+            errors.append(math.hypot(row[1] - true[0], row[2] - true[1]))
+            odometry_errors.append(math.hypot(odom[0] - true[0], odom[1] - true[1]))
+        print(f"process_bag --pose-correction rbpf: laser position error mean {np.mean(errors):.3f} m, "
+              f"odometry {np.mean(odometry_errors):.3f} m, {len(rows)} filter updates")
+        self.assertGreater(np.mean(odometry_errors), 1.0, "too little drift to test anything")
+        self.assertLess(np.mean(errors), PARAMS["rbpf_max_error_ratio"] * np.mean(odometry_errors))
+        # The layers and the model are written as without correction.
+        for name in ("belief.pgm", "static_map.yaml", "model.dogm"):
+            self.assertTrue(os.path.isfile(os.path.join(out, name)), name)
+
+        # The options' checks.
+        for args in (["--pose-correction", "amcl"], ["--trajectory", "t.tum"],
+                     ["--pose-correction", "rbpf", "--laser-pose", "0,0,0"],
+                     ["--pose-correction", "rbpf", "--particles", "0"],
+                     ["--pose-correction", "rbpf", "--odometry-alphas", "0.1,0.1,-0.1,0.1"],
+                     ["--pose-correction", "rbpf", "--update-distance", "0"]):
+            rc, _, stderr = run_tool("process_bag", [bag, "--out", os.path.join(self.tmp, "bad")] + args)
+            self.assertEqual(rc, 2, f"{args}: {stderr}")
+            self.assertIn("usage: process_bag", stderr)
 
     # --- (c) errors ----------------------------------------------------------------------------
 

@@ -8,6 +8,7 @@
 #include <functional>
 #include <string>
 
+#include "dynamic_occupancy_grid/core/corrected_mapping.h"
 #include "dynamic_occupancy_grid/core/mapper.h"
 #include "dynamic_occupancy_grid/core/offline_em.h"
 #include "dynamic_occupancy_grid/ros/bag_scan_source.h"
@@ -30,11 +31,14 @@ struct BagMappingStats {
 /// (unless cancelled). With `continue_timeline` and a mapper that has seen scans before
 /// (an earlier bag), the mapper's clock is restarted at this bag's first scan
 /// (Mapper::restartClockAt), so bags recorded at any times continue one timeline.
-/// `after_scan` (optional) runs after each integrated scan, e.g. to write snapshots.
-/// Errors as BagScanSource::forEachScan.
+/// `after_scan` (optional) runs after each integrated scan, e.g. to write snapshots. With
+/// `correction` (on `mapper`), the scans' poses are read as odometry and the scans go
+/// through it (pose correction; not with continue_timeline); a scan its filter refuses
+/// counts as rejected. Errors as BagScanSource::forEachScan.
 BagMappingStats mapBag(BagScanSource& source, core::Mapper& mapper, bool continue_timeline,
                        const BagReadProgress& progress = {},
-                       const std::function<void(const core::Scan&)>& after_scan = {});
+                       const std::function<void(const core::Scan&)>& after_scan = {},
+                       core::CorrectedMapping* correction = nullptr);
 
 /// One line saying why no scan of a bag could be used (for error messages).
 std::string describeUnusableBag(const std::string& bag_path, const BagMappingStats& stats);

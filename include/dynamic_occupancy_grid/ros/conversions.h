@@ -17,6 +17,9 @@ namespace ros_layer {
 bool toLaserPose(const geometry_msgs::Transform& fixed_from_laser, core::Pose2D* pose,
                  bool* upside_down, std::string* error);
 
+/// A 2D pose as a transform: a rotation about z by its yaw, z = 0.
+geometry_msgs::Transform toTransform(const core::Pose2D& pose);
+
 /// Checks what the core cannot see: the number of ranges against angle_min/angle_max/
 /// angle_increment (one off is tolerated: drivers round differently). The core checks the
 /// rest (empty scan, range_min/range_max, non-finite angles). Returns false with a reason.

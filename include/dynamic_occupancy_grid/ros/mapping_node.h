@@ -25,6 +25,7 @@
 #include <std_srvs/Trigger.h>
 #include <tf2_ros/buffer.h>
 #include <tf2_ros/message_filter.h>
+#include <tf2_ros/transform_broadcaster.h>
 #include <tf2_ros/transform_listener.h>
 
 #include <boost/thread/recursive_mutex.hpp>
@@ -47,6 +48,7 @@
 #include "dynamic_occupancy_grid/PredictMap.h"
 #include "dynamic_occupancy_grid/RunOfflineEm.h"
 #include "dynamic_occupancy_grid/SaveModel.h"
+#include "dynamic_occupancy_grid/core/corrected_mapping.h"
 #include "dynamic_occupancy_grid/core/mapper.h"
 #include "dynamic_occupancy_grid/core/memory_model.h"
 #include "dynamic_occupancy_grid/ros/grid_messages.h"
@@ -135,6 +137,16 @@ class MappingNode {
   void publishHypotheses();
   /// Stamp of the memory model's outputs: the scan that completed the last update.
   ros::Time memoryStamp() const;
+  /// The frame the laser's pose is looked up in: ~odom_frame with pose correction, else
+  /// ~fixed_frame.
+  const std::string& laserPoseFrame() const;
+  /// The scan into the cell HMM, through the pose correction if on; caller holds mutex_.
+  core::ScanResult integrateHmm(const core::Scan& scan);
+  /// (Re)starts the pose correction on mapper_ (at start, a new mapper, time jumping back),
+  /// keeping the map -> odom transform in use; caller holds mutex_.
+  void restartCorrection();
+  /// ~fixed_frame -> ~odom_frame, the latest correction, stamped now + ~rbpf/transform_tolerance.
+  void publishCorrection(const ros::TimerEvent& event);
   /// Puts `mapper` in place of the live one (load, reset); caller holds mutex_.
   void replaceMapper(std::unique_ptr<core::Mapper> mapper);
   /// ~file_directory made absolute (created if missing) and the stale temporaries of
@@ -219,6 +231,11 @@ class MappingNode {
   bool hypotheses_need_publish_ = true;       ///< for the next subscriber of ~hypotheses
   core::CellBox memory_published_bounds_;
   ros::Time memory_last_full_publish_;
+  /// ~pose_correction rbpf: the pose filter on mapper_ (null without).
+  std::unique_ptr<core::CorrectedMapping> correction_;
+  ros::Publisher effective_sample_size_;  ///< ~effective_sample_size, at each filter update
+  ros::Publisher pose_entropy_;           ///< ~pose_entropy, at each filter update
+  double last_effective_sample_size_ = 0.0;  ///< of the last filter update, before resampling
 
   /// Held by the load_model request putting its model in place and telling
   /// dynamic_reconfigure (two loads at once end as the later one, everywhere).
@@ -228,6 +245,16 @@ class MappingNode {
   std::thread offline_em_thread_;
   std::atomic<bool> offline_em_running_{false};
   std::atomic<bool> offline_em_cancel_{false};
+
+  /// The map -> odom broadcast runs on a queue and thread of its own, so that tf keeps
+  /// flowing while a scan updates the particles (which holds mutex_ for a filter update).
+  std::mutex correction_mutex_;         ///< guards map_to_odom_ (never held with mutex_ waited for)
+  core::Pose2D map_to_odom_;            ///< the latest correction
+  std::unique_ptr<tf2_ros::TransformBroadcaster> tf_broadcaster_;
+  ros::Time last_correction_stamp_;     ///< of the last broadcast (the correction thread's own)
+  ros::CallbackQueue correction_queue_;
+  ros::Timer correction_timer_;         ///< on correction_queue_
+  std::unique_ptr<ros::AsyncSpinner> correction_spinner_;  ///< last: stopped first
 };
 
 }  // namespace ros_layer

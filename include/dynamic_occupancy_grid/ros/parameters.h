@@ -5,6 +5,7 @@
 
 #include <ros/node_handle.h>
 
+#include <cstdint>
 #include <string>
 #include <vector>
 
@@ -12,9 +13,14 @@
 #include "dynamic_occupancy_grid/core/mapper.h"
 #include "dynamic_occupancy_grid/core/memory_model.h"
 #include "dynamic_occupancy_grid/core/offline_em.h"
+#include "dynamic_occupancy_grid/core/pose_filter.h"
 
 namespace dynamic_occupancy_grid {
 namespace ros_layer {
+
+/// The pose filter's odometry noise by default (~rbpf/odom_alpha1..4; amcl's defaults are
+/// 0.2, made for worse odometry than most robots' calibrated wheels).
+constexpr double kDefaultOdometryAlpha = 0.05;
 
 /// ~learn_sensor_model's default: the node learns the sensor model (core::MapperConfig's
 /// own default is the fixed model).
@@ -50,6 +56,16 @@ struct NodeParameters {
   /// ~memory/*; its lattice, max_free_range and max_map_size are the mapper's.
   core::MemoryModelConfig memory;
   int max_published_hypotheses = 4;    ///< best hypotheses in ~hypotheses
+  /// ~pose_correction "rbpf": the laser's pose in ~odom_frame is odometry, corrected by the
+  /// pose filter (core/corrected_mapping.h), which publishes ~fixed_frame -> ~odom_frame;
+  /// "none" (false): tf's pose in ~fixed_frame is the truth.
+  bool pose_correction = false;
+  std::string odom_frame = "odom";
+  /// ~rbpf/*; the map's fields (resolution, time step, sensor model, ranges) are the mapper's.
+  core::PoseFilterConfig filter;
+  std::uint32_t learned_min_observed_steps = 30;  ///< ~rbpf/learned_min_observed_steps
+  double transform_publish_period_s = 0.05;       ///< ~rbpf/transform_publish_period
+  double transform_tolerance_s = 0.1;             ///< ~rbpf/transform_tolerance
   bool runsHmm() const { return model != MapModel::kMemory; }
   bool runsMemory() const { return model != MapModel::kHmm; }
 };

@@ -1,0 +1,63 @@
+#pragma once
+// Mapping with the laser's pose corrected by the pose filter (issue 19's node mode and
+// process_bag --pose-correction): each scan arrives with the laser's *odometry* pose, the
+// PoseFilter updates its particles on it, and the Mapper integrates the scan at the best
+// particle's pose of that moment. The filter's transitions are the ones that Mapper learns
+// (MapperTransitions), so the map the user sees is also the filter's learner.
+//
+// Frames: the map frame starts at odometry's at the first scan, shifted by a start
+// correction (the map -> odom transform in use when mapping restarts: a reset, a loaded
+// model, time jumping back), so that a restart does not move the map frame.
+//
+// ROS-free: the core's Mapper and PoseFilter.
+
+#include <cstdint>
+#include <memory>
+#include <vector>
+
+#include "dynamic_occupancy_grid/core/mapper.h"
+#include "dynamic_occupancy_grid/core/pose_filter.h"
+
+namespace dynamic_occupancy_grid {
+namespace core {
+
+/// `filter` with the fields that describe the map and its sensor taken from `mapper`
+/// (resolution, time step, sensor model, max_free_range) and max_range_m lowered to what
+/// the filter can walk at that resolution (1000 cells).
+PoseFilterConfig poseFilterConfigFor(const MapperConfig& mapper, PoseFilterConfig filter);
+
+/// What one scan did.
+struct CorrectedScan {
+  PoseUpdate update;  ///< the filter's
+  Scan corrected;     ///< the scan at the corrected laser pose, as the mapper was given it
+  ScanResult mapped;  ///< the mapper's
+};
+
+class CorrectedMapping {
+ public:
+  /// `mapper` must outlive this and be changed only through it (or while no scan is being
+  /// integrated). Throws std::invalid_argument for a bad filter config.
+  CorrectedMapping(Mapper& mapper, const PoseFilterConfig& filter, std::uint32_t learned_min_observed_steps,
+                   const Pose2D& start_correction = Pose2D{});
+
+  /// One scan whose laser_pose is the laser's odometry pose. Throws std::invalid_argument
+  /// (nothing changed) for a scan the filter refuses (scanFieldsError, a stamp before the
+  /// first scan's step).
+  CorrectedScan integrate(const Scan& odometry_scan);
+
+  /// map -> odom for the laser's poses: the start correction before the first scan.
+  Pose2D mapToOdometry() const;
+  /// The best particle's trajectory in the map frame (its poses at the filter's updates),
+  /// oldest first.
+  std::vector<TrajectoryNode> trajectory() const;
+  const PoseFilter& filter() const { return *filter_; }
+  const Mapper& mapper() const { return mapper_; }
+
+ private:
+  Mapper& mapper_;
+  std::unique_ptr<PoseFilter> filter_;
+  Pose2D start_correction_;
+};
+
+}  // namespace core
+}  // namespace dynamic_occupancy_grid

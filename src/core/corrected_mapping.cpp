@@ -1,0 +1,63 @@
+#include "dynamic_occupancy_grid/core/corrected_mapping.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include "dynamic_occupancy_grid/core/motion_model.h"
+#include "dynamic_occupancy_grid/core/particle_map.h"
+
+namespace dynamic_occupancy_grid {
+namespace core {
+
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+/// The longest beam the filter walks, in cells (PoseFilterConfig allows 1022).
+constexpr double kMaxFilterRangeCells = 1000.0;
+
+Pose2D wrapped(Pose2D pose) {
+  pose.yaw_rad = std::remainder(pose.yaw_rad, 2.0 * kPi);
+  return pose;
+}
+
+}  // namespace
+
+PoseFilterConfig poseFilterConfigFor(const MapperConfig& mapper, PoseFilterConfig filter) {
+  filter.resolution_m = mapper.resolution_m;
+  filter.time_step_s = mapper.time_step_s;
+  filter.p_hit_given_occ = mapper.p_hit_given_occ;
+  filter.p_hit_given_free = mapper.p_hit_given_free;
+  filter.max_free_range_m = mapper.max_free_range_m;
+  filter.max_range_m = std::min(filter.max_range_m, kMaxFilterRangeCells * mapper.resolution_m);
+  return filter;
+}
+
+CorrectedMapping::CorrectedMapping(Mapper& mapper, const PoseFilterConfig& filter,
+                                   std::uint32_t learned_min_observed_steps, const Pose2D& start_correction)
+    : mapper_(mapper),
+      filter_(std::make_unique<PoseFilter>(
+          filter, std::make_shared<MapperTransitions>(mapper, filter.resolution_m, learned_min_observed_steps))),
+      start_correction_(wrapped(start_correction)) {}
+
+CorrectedScan CorrectedMapping::integrate(const Scan& odometry_scan) {
+  CorrectedScan result;
+  result.update = filter_->integrate(odometry_scan);
+  result.corrected = odometry_scan;
+  result.corrected.laser_pose = wrapped(composePose(mapToOdometry(), odometry_scan.laser_pose));
+  result.mapped = mapper_.integrate(result.corrected);
+  return result;
+}
+
+Pose2D CorrectedMapping::mapToOdometry() const {
+  if (!filter_->started()) return start_correction_;
+  return wrapped(composePose(start_correction_, filter_->mapToOdometry()));
+}
+
+std::vector<TrajectoryNode> CorrectedMapping::trajectory() const {
+  std::vector<TrajectoryNode> trajectory = filter_->started() ? filter_->bestTrajectory() : std::vector<TrajectoryNode>{};
+  for (TrajectoryNode& node : trajectory) node.pose = wrapped(composePose(start_correction_, node.pose));
+  return trajectory;
+}
+
+}  // namespace core
+}  // namespace dynamic_occupancy_grid

@@ -1,0 +1,230 @@
+#!/usr/bin/env python3
+"""mapping_node with ~pose_correction rbpf (pose_correction.test).
+
+simulate writes a patrol with drifting odometry (odom -> base_link on /tf, the true pose on
+/ground_truth_pose). The test feeds its /tf_static, /tf and /scan to the node one scan at a
+time, in simulated time it drives itself, and after each scan (once the node has taken it:
+get_status) reads the node's correction map -> odom. The corrected laser position is that
+correction times odometry's laser pose; its mean error against the truth must be well below
+odometry's own. Then: the correction on /tf, ~effective_sample_size and ~pose_entropy at
+every filter update, the belief layer in the map frame, and the parameters' checks.
+"""
+
+import math
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+import unittest
+
+import rosbag
+import rospy
+import rostest
+import tf2_ros
+from nav_msgs.msg import OccupancyGrid
+from sensor_msgs.msg import LaserScan
+from std_msgs.msg import Float64
+from tf2_msgs.msg import TFMessage
+
+# This directory is on the path (the script's own): the other tests' helpers.
+from test_bag_tools import executable
+from wall_scene import DEFAULT_TIMEOUT, SimClock, TopicRecorder, assert_bad_parameters_stop_node
+
+import dynamic_occupancy_grid.srv as dog_srv
+
+PKG = 'dynamic_occupancy_grid'
+NODE = '/mapper'
+PARAMS = {
+    'steps': 120,
+    'world_seed': 11,
+    'seed': 11,
+    'odometry_noise': '0.02,0.001,0.01,0.005',
+    'max_error_ratio': 0.5,
+}
+
+
+def yaw_of(q):
+    return 2.0 * math.atan2(q.z, q.w)
+
+
+def compose(a, b):
+    """Pose b (x, y, yaw) given in the frame of pose a."""
+    c, s = math.cos(a[2]), math.sin(a[2])
+    return (a[0] + c * b[0] - s * b[1], a[1] + s * b[0] + c * b[1], a[2] + b[2])
+
+
+def read_run(bag_path):
+    """The bag's mount (base_link -> laser), and per scan in order: (scan, odometry transform
+    message, true base pose)."""
+    mount = None
+    odometry = {}
+    truth = {}
+    scans = []
+    with rosbag.Bag(bag_path) as bag:
+        for topic, msg, _ in bag.read_messages(topics=['/tf_static', '/tf', '/ground_truth_pose', '/scan']):
+            if topic == '/tf_static':
+                mount = msg
+            elif topic == '/tf':
+                odometry[msg.transforms[0].header.stamp] = msg
+            elif topic == '/ground_truth_pose':
+                p = msg.pose
+                truth[msg.header.stamp] = (p.position.x, p.position.y, yaw_of(p.orientation))
+            else:
+                scans.append(msg)
+    return mount, [(scan, odometry[scan.header.stamp], truth[scan.header.stamp]) for scan in scans]
+
+
+def pose_of(transform):
+    t = transform.transform
+    return (t.translation.x, t.translation.y, yaw_of(t.rotation))
+
+
+class PoseCorrectionNodeTest(unittest.TestCase):
+
+    @classmethod
+    def setUpClass(cls):
+        rospy.init_node('test_pose_correction_node')
+        for name in PARAMS:
+            PARAMS[name] = type(PARAMS[name])(rospy.get_param('~' + name, PARAMS[name]))
+        cls.tmp_dir = tempfile.mkdtemp(prefix='dog_pose_correction_')
+        bag_path = os.path.join(cls.tmp_dir, 'patrol.bag')
+        subprocess.run([executable('simulate'), '--scenario', 'patrol_office', '--steps', str(PARAMS['steps']),
+                        '--world-seed', str(PARAMS['world_seed']), '--seed', str(PARAMS['seed']),
+                        '--odometry-noise', PARAMS['odometry_noise'], '--out', bag_path],
+                       check=True, capture_output=True, timeout=120)
+        cls.mount, cls.records = read_run(bag_path)
+        start = cls.records[0][0].header.stamp.to_sec()
+        cls.clock = SimClock(start - 1.0)
+        cls.scans = rospy.Publisher('/scan', LaserScan, queue_size=1000)
+        cls.tf = rospy.Publisher('/tf', TFMessage, queue_size=1000)
+        cls.tf_static = rospy.Publisher('/tf_static', TFMessage, queue_size=10, latch=True)
+        cls.ess = TopicRecorder(NODE + '/effective_sample_size', Float64)
+        cls.entropy = TopicRecorder(NODE + '/pose_entropy', Float64)
+        cls.belief = TopicRecorder(NODE + '/belief', OccupancyGrid)
+        rospy.wait_for_service(NODE + '/get_status', 30.0)
+        cls.get_status = rospy.ServiceProxy(NODE + '/get_status', dog_srv.GetStatus)
+        deadline = time.time() + 30.0
+        while cls.scans.get_num_connections() == 0:
+            if time.time() > deadline:
+                raise AssertionError('the node never subscribed to /scan')
+            threading.Event().wait(0.05)
+        cls.tf_static.publish(cls.mount)
+        cls.errors, cls.odometry_errors, cls.statuses = cls.feed()
+
+    @classmethod
+    def tearDownClass(cls):
+        shutil.rmtree(cls.tmp_dir, ignore_errors=True)
+
+    @classmethod
+    def processed(cls):
+        status = cls.get_status()
+        return status, status.scans_integrated + status.scans_dropped_tf + status.scans_dropped_invalid + \
+            status.scans_dropped_late
+
+    @classmethod
+    def feed(cls):
+        """Publishes every scan after its odometry, the clock at its stamp; after each,
+        waits (wall time, the clock standing still) until the node has taken it and reads
+        the correction. Returns the corrected and odometry's laser position errors and the
+        statuses."""
+        mount = pose_of(cls.mount.transforms[0])
+        _, base = cls.processed()
+        errors, odometry_errors, statuses = [], [], []
+        for i, (scan, odometry, truth) in enumerate(cls.records):
+            cls.clock.set(scan.header.stamp.to_sec())
+            cls.tf.publish(odometry)
+            cls.scans.publish(scan)
+            deadline = time.time() + DEFAULT_TIMEOUT
+            while True:
+                status, count = cls.processed()
+                if count >= base + i + 1:
+                    break
+                if time.time() > deadline:
+                    raise AssertionError('the node took %d of %d scans: %s' % (count - base, i + 1, status))
+                threading.Event().wait(0.002)
+            statuses.append(status)
+            laser_odometry = compose(pose_of(odometry.transforms[0]), mount)
+            corrected = compose((status.map_to_odom_x, status.map_to_odom_y, status.map_to_odom_yaw), laser_odometry)
+            true_laser = compose(truth, mount)
+            errors.append(math.hypot(corrected[0] - true_laser[0], corrected[1] - true_laser[1]))
+            odometry_errors.append(math.hypot(laser_odometry[0] - true_laser[0], laser_odometry[1] - true_laser[1]))
+        return errors, odometry_errors, statuses
+
+    def test_00_every_scan_integrated(self):
+        last = self.statuses[-1]
+        self.assertEqual(last.scans_integrated, len(self.records), last)
+        self.assertTrue(last.pose_correction)
+
+    def test_01_corrected_poses_beat_odometry(self):
+        mean = sum(self.errors) / len(self.errors)
+        odometry_mean = sum(self.odometry_errors) / len(self.odometry_errors)
+        print('pose correction: laser position error mean %.3f m (max %.3f), odometry %.3f m (max %.3f), %d scans, '
+              '%d filter updates' % (mean, max(self.errors), odometry_mean, max(self.odometry_errors), len(self.errors),
+                                     self.statuses[-1].pose_correction_updates))
+        self.assertGreater(odometry_mean, 1.0, 'the run has too little drift to test anything')
+        self.assertLess(mean, PARAMS['max_error_ratio'] * odometry_mean)
+
+    def test_02_filter_topics_at_each_update(self):
+        updates = self.statuses[-1].pose_correction_updates
+        self.assertGreater(updates, 10)
+        for recorder in (self.ess, self.entropy):
+            self.assertIsNotNone(recorder.wait_for(lambda _: len(recorder.snapshot()) >= updates,
+                                                   clock=self.clock, tick=0.0), recorder.topic)
+            self.assertEqual(len(recorder.snapshot()), updates, recorder.topic)
+        for msg in self.ess.snapshot():
+            self.assertTrue(1.0 - 1e-9 <= msg.data <= 30.0 + 1e-9, msg.data)
+        for msg in self.entropy.snapshot():
+            self.assertTrue(math.isfinite(msg.data), msg.data)
+        last = self.statuses[-1]
+        self.assertAlmostEqual(last.effective_sample_size, self.ess.latest().data, places=9)
+        self.assertAlmostEqual(last.pose_entropy, self.entropy.latest().data, places=9)
+
+    def test_03_correction_on_tf(self):
+        """The newest map -> odom on /tf is the correction the node reports (the clock moves
+        on, so that its broadcast timer runs)."""
+        buffer = tf2_ros.Buffer()
+        listener = tf2_ros.TransformListener(buffer)
+        last = self.statuses[-1]
+        deadline = time.time() + DEFAULT_TIMEOUT
+        transform = None
+        while time.time() < deadline:
+            self.clock.advance(0.05)
+            try:
+                transform = buffer.lookup_transform('map', 'odom', rospy.Time(0))
+                if transform.header.stamp.to_sec() > self.clock.now:  # stamped ahead (transform_tolerance)
+                    break
+            except (tf2_ros.LookupException, tf2_ros.ConnectivityException, tf2_ros.ExtrapolationException):
+                pass
+            threading.Event().wait(0.02)
+        del listener
+        self.assertIsNotNone(transform, 'no map -> odom on /tf')
+        x, y, yaw = pose_of(transform)
+        self.assertAlmostEqual(x, last.map_to_odom_x, places=6)
+        self.assertAlmostEqual(y, last.map_to_odom_y, places=6)
+        self.assertAlmostEqual(math.remainder(yaw - last.map_to_odom_yaw, 2 * math.pi), 0.0, places=6)
+
+    def test_04_layers_in_map_frame(self):
+        grid = self.belief.wait_for(lambda msg: msg.header.stamp.to_sec() >= self.records[-1][0].header.stamp.to_sec() - 2,
+                                    clock=self.clock, tick=0.05)
+        self.assertIsNotNone(grid, 'no belief layer')
+        self.assertEqual(grid.header.frame_id, 'map')
+        self.assertGreater(sum(1 for v in grid.data if v >= 0), 1000)
+
+    def test_05_bad_parameters(self):
+        assert_bad_parameters_stop_node(self, [
+            ('pose_correction', '_pose_correction:=amcl'),
+            ('odom_frame', '_pose_correction:=rbpf _odom_frame:=map'),
+            ('pose_correction', '_pose_correction:=rbpf _model:=both'),
+            ('rbpf/particles', '_pose_correction:=rbpf _rbpf/particles:=0'),
+            ('rbpf/linear_update', '_pose_correction:=rbpf _rbpf/linear_update:=0.0'),
+            ('rbpf/odom_alpha1..4', '_pose_correction:=rbpf _rbpf/odom_alpha3:=-0.1'),
+            ('rbpf/transform_publish_period', '_pose_correction:=rbpf _rbpf/transform_publish_period:=0.0'),
+            ('rbpf/likelihood_temperature', '_pose_correction:=rbpf _rbpf/likelihood_temperature:=0.5'),
+        ], 'bad_pose_correction')
+
+
+if __name__ == '__main__':
+    rostest.rosrun(PKG, 'pose_correction', PoseCorrectionNodeTest, sys.argv)
