@@ -40,23 +40,25 @@ CorrectedMapping::CorrectedMapping(Mapper& mapper, const PoseFilterConfig& filte
       start_correction_(wrapped(start_correction)) {}
 
 CorrectedScan CorrectedMapping::integrate(const Scan& odometry_scan) {
+  // The filter sees odometry moved by the start correction, so that its frame is the map
+  // frame: the particles' cells are the Mapper's (MapperTransitions reads them there).
+  Scan shifted = odometry_scan;
+  shifted.laser_pose = wrapped(composePose(start_correction_, odometry_scan.laser_pose));
   CorrectedScan result;
-  result.update = filter_->integrate(odometry_scan);
+  result.update = filter_->integrate(shifted);
   result.corrected = odometry_scan;
-  result.corrected.laser_pose = wrapped(composePose(mapToOdometry(), odometry_scan.laser_pose));
+  result.corrected.laser_pose = wrapped(composePose(filter_->mapToOdometry(), shifted.laser_pose));
   result.mapped = mapper_.integrate(result.corrected);
   return result;
 }
 
 Pose2D CorrectedMapping::mapToOdometry() const {
   if (!filter_->started()) return start_correction_;
-  return wrapped(composePose(start_correction_, filter_->mapToOdometry()));
+  return wrapped(composePose(filter_->mapToOdometry(), start_correction_));
 }
 
 std::vector<TrajectoryNode> CorrectedMapping::trajectory() const {
-  std::vector<TrajectoryNode> trajectory = filter_->started() ? filter_->bestTrajectory() : std::vector<TrajectoryNode>{};
-  for (TrajectoryNode& node : trajectory) node.pose = wrapped(composePose(start_correction_, node.pose));
-  return trajectory;
+  return filter_->started() ? filter_->bestTrajectory() : std::vector<TrajectoryNode>{};
 }
 
 }  // namespace core

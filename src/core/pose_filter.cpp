@@ -262,7 +262,6 @@ void PoseFilter::updateParticle(Particle& particle, const Scan& scan, const std:
     }
   }
   log_likelihood += std::log(product);
-  mapEvidence(particle.map, evidence, step);
   particle.log_weight += log_likelihood / config_.likelihood_temperature;
   particle.pose = pose;
   particle.trajectory = std::make_shared<const TrajectoryNode>(TrajectoryNode{scan.stamp_s, pose, particle.trajectory});
@@ -322,29 +321,73 @@ PoseUpdate PoseFilter::integrate(const Scan& scan) {
   ++updates_;
   result.updated = true;
   result.effective_sample_size = effectiveSampleSize();
+  std::vector<std::size_t> ancestors(particles_.size());
+  for (std::size_t i = 0; i < ancestors.size(); ++i) ancestors[i] = i;
+  if (result.effective_sample_size < config_.resample_below * static_cast<double>(particles_.size())) {
+    ancestors = resample();
+    result.resampled = true;
+  }
+  mapScan(scan, ancestors, step);
   std::vector<const ParticleMap*> maps;
   for (const Particle& particle : particles_) maps.push_back(&particle.map);
   result.map_bytes = ParticleMap::distinctTileBytes(maps);
-  if (result.effective_sample_size < config_.resample_below * static_cast<double>(particles_.size())) {
-    resample();
-    result.resampled = true;
-  }
   return result;
 }
 
-void PoseFilter::resample() {
+void PoseFilter::mapScan(const Scan& scan, const std::vector<std::size_t>& ancestors, std::int64_t step) {
+  // The first copy of each ancestor maps the scan; the others let go of their map first (so
+  // that the tiles it writes are shared with fewer maps, and copied only if another
+  // ancestor's map still holds them), then take the updated one.
+  std::vector<std::size_t> writers;
+  std::vector<std::size_t> writer_of(particles_.size());
+  for (std::size_t i = 0; i < particles_.size(); ++i) {
+    std::size_t j = 0;
+    while (j < writers.size() && ancestors[writers[j]] != ancestors[i]) ++j;
+    if (j == writers.size()) {
+      writers.push_back(i);
+    } else {
+      particles_[i].map = ParticleMap{};
+    }
+    writer_of[i] = writers[j];
+  }
+  runRepetitions(writers.size(), config_.threads,
+                 [&](std::size_t k) {
+                   Particle& particle = particles_[writers[k]];
+                   mapEvidence(particle.map,
+                               scanEvidence(scan, particle.pose, config_.resolution_m, config_.max_free_range_m,
+                                            config_.max_range_m),
+                               step);
+                 },
+                 nullptr);
+  for (std::size_t i = 0; i < particles_.size(); ++i) {
+    if (writer_of[i] != i) particles_[i].map = particles_[writer_of[i]].map;
+  }
+}
+
+std::vector<std::size_t> PoseFilter::resample() {
   std::uniform_real_distribution<double> uniform(0.0, 1.0);
   const std::vector<std::size_t> copies = residualResample(weights(), particles_.size(), [&] { return uniform(rng_); });
   std::vector<Particle> next;
+  std::vector<std::size_t> ancestors;
   next.reserve(particles_.size());
+  ancestors.reserve(particles_.size());
+  // The weights are equal afterwards, and bestIndex() takes the first of equals: the copies
+  // of the best particle (which has floor(N w) >= 1 of them, its w being >= 1/N) come first.
+  const std::size_t best = bestIndex();
+  std::vector<std::size_t> order{best};
   for (std::size_t i = 0; i < particles_.size(); ++i) {
+    if (i != best) order.push_back(i);
+  }
+  for (const std::size_t i : order) {
     for (std::size_t k = 0; k < copies[i]; ++k) {
       next.push_back(particles_[i]);  // the map's tiles are shared, not copied
       next.back().log_weight = 0.0;
+      ancestors.push_back(i);
     }
   }
   particles_ = std::move(next);
   ++resamplings_;
+  return ancestors;
 }
 
 std::vector<double> PoseFilter::weights() const {

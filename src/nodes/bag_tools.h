@@ -156,7 +156,7 @@ inline void addPoseCorrectionOptions(command_line::CommandLine& line, PoseCorrec
       ("update-angle", cl::number(&filter.update_angle_rad, cl::above(0.0))->value_name("RAD"),
        "pose correction: ... or turned RAD radians (default 0.5)")
       ("filter-seed",
-       cl::number(&filter.seed, cl::between<std::uint64_t>(0, std::numeric_limits<long>::max()))->value_name("N"),
+       cl::number(&filter.seed, cl::between<std::uint64_t>(0, std::numeric_limits<int>::max()))->value_name("N"),
        "pose correction: the particles' random seed (default 1)");
 }
 

@@ -457,6 +457,7 @@ void checkAndReport(dog::ros_layer::BagScanSource& source, const Options& option
   // mapper is deterministic) for the end-of-run report.
   dog::core::Mapper final_map(mapper);
   std::size_t correction_updates = 0;
+  std::size_t correction_refused = 0;  // over both passes
   const dog::core::ScanReplay replay = [&](const dog::core::ScanConsumer& consumer) {
     ++pass;
     const std::string phase = "pass " + std::to_string(pass);
@@ -472,12 +473,12 @@ void checkAndReport(dog::ros_layer::BagScanSource& source, const Options& option
     if (options.correction.enabled) {
       correction.emplace(learner, options.correction.filter, options.correction.learned_min_observed_steps);
     }
-    const dog::core::ScanConsumer corrected = [&use, &correction](const dog::core::Scan& scan) {
+    const dog::core::ScanConsumer corrected = [&use, &correction, &correction_refused](const dog::core::Scan& scan) {
       dog::core::CorrectedScan result;
       try {
         result = correction->integrate(scan);
       } catch (const std::invalid_argument&) {
-        use(scan);  // refused by the filter: the map refuses it too, and counts it
+        ++correction_refused;  // no corrected pose: not scored either
         return;
       }
       use(result.corrected);
@@ -523,7 +524,8 @@ void checkAndReport(dog::ros_layer::BagScanSource& source, const Options& option
               result.observed_cell_steps, result.tied_cell_steps, first_pass.bag_duration_s, seconds);
   if (options.correction.enabled) {
     std::printf("pose correction: %zu particles, %zu filter updates a pass (the map is scored at the corrected "
-                "poses)\n", options.correction.filter.particles, correction_updates);
+                "poses), %zu scans refused by the filter\n",
+                options.correction.filter.particles, correction_updates, correction_refused / 2);
   }
   for (std::size_t k = 0; k < options.horizons_s.size(); ++k) {
     const double effective_s = static_cast<double>(options.horizons_steps[k]) * mapper.time_step_s;

@@ -21,6 +21,7 @@
 #include "dynamic_occupancy_grid/core/model_io.h"
 #include "dynamic_occupancy_grid/ros/bag_offline_em.h"
 #include "dynamic_occupancy_grid/ros/bag_scan_source.h"
+#include "dynamic_occupancy_grid/ros/conversions.h"
 #include "dynamic_occupancy_grid/ros/parameters.h"
 
 namespace dog = dynamic_occupancy_grid;
@@ -130,9 +131,9 @@ std::string tumTrajectory(const std::vector<dog::core::TrajectoryNode>& trajecto
   std::string text = "# timestamp x y z qx qy qz qw: the laser's pose in the map frame (process_bag --pose-correction rbpf)\n";
   char line[256];
   for (const dog::core::TrajectoryNode& node : trajectory) {
-    const double half = 0.5 * node.pose.yaw_rad;
+    const geometry_msgs::Quaternion rotation = dog::ros_layer::toTransform(node.pose).rotation;
     std::snprintf(line, sizeof(line), "%.9f %.6f %.6f 0 0 0 %.9f %.9f\n", node.stamp_s, node.pose.x_m, node.pose.y_m,
-                  std::sin(half), std::cos(half));
+                  rotation.z, rotation.w);
     text += line;
   }
   return text;

@@ -484,8 +484,12 @@ void MappingNode::restartCorrection() {
   }
   correction_.reset();  // it reads the mapper it was made on
   last_effective_sample_size_ = 0.0;
-  correction_ = std::make_unique<core::CorrectedMapping>(*mapper_, parameters_.filter,
-                                                         parameters_.learned_min_observed_steps, map_to_odom);
+  // The map's lattice, time step and sensor model are the live mapper's (a loaded model's
+  // may differ from the parameters'); a PoseFilterConfig made from a valid MapperConfig and
+  // the checked ~rbpf/* is valid.
+  correction_ = std::make_unique<core::CorrectedMapping>(
+      *mapper_, core::poseFilterConfigFor(mapper_->config(), parameters_.filter), parameters_.learned_min_observed_steps,
+      map_to_odom);
 }
 
 void MappingNode::publishCorrection(const ros::TimerEvent&) {
@@ -498,8 +502,8 @@ void MappingNode::publishCorrection(const ros::TimerEvent&) {
   // transform does not extrapolate between two broadcasts.
   message.header.stamp = ros::Time::now() + ros::Duration(parameters_.transform_tolerance_s);
   // A timer catching up with a clock that leapt (simulated time) fires several times at one
-  // time: tf would warn about each repeated stamp.
-  if (message.header.stamp <= last_correction_stamp_) return;
+  // time: tf would warn about each repeated stamp. (Time going back is broadcast.)
+  if (message.header.stamp == last_correction_stamp_) return;
   last_correction_stamp_ = message.header.stamp;
   message.header.frame_id = parameters_.fixed_frame;
   message.child_frame_id = parameters_.odom_frame;
@@ -1301,6 +1305,7 @@ bool MappingNode::getStatus(GetStatus::Request&, GetStatus::Response& response) 
     const core::Pose2D map_to_odom = correction_->mapToOdometry();
     response.pose_correction = true;
     response.pose_correction_updates = filter.updates();
+    response.pose_correction_resamplings = filter.resamplings();
     response.map_to_odom_x = map_to_odom.x_m;
     response.map_to_odom_y = map_to_odom.y_m;
     response.map_to_odom_yaw = map_to_odom.yaw_rad;

@@ -165,7 +165,7 @@ std::string filterParameterMessage(const std::string& message) {
   const std::pair<const char*, const char*> names[] = {
       {"particles", "rbpf/particles"}, {"update_distance_m", "rbpf/linear_update"},
       {"update_angle_rad", "rbpf/angular_update"}, {"resample_below", "rbpf/resample_threshold"},
-      {"likelihood_temperature", "rbpf/likelihood_temperature"}, {"max_range_m", "max_range"}};
+      {"likelihood_temperature", "rbpf/likelihood_temperature"}};
   for (const auto& [field, parameter] : names) {
     const std::string name = field;
     if (text.compare(0, name.size() + 1, name + " ") == 0) return std::string(parameter) + text.substr(name.size());
@@ -381,8 +381,12 @@ bool readParameters(const ros::NodeHandle& private_nh, NodeParameters* parameter
                    " -> " + p.odom_frame + ")");
   read.require(!p.pose_correction || p.model == MapModel::kHmm, "pose_correction",
                "rbpf needs ~model hmm: the pose filter's transitions are the cell HMM's");
-  read.require(p.transform_publish_period_s > 0.0, "rbpf/transform_publish_period", "must be > 0 s");
-  read.require(p.transform_tolerance_s >= 0.0, "rbpf/transform_tolerance", "must be >= 0 s");
+  read.require(p.transform_publish_period_s > 0.0 && p.transform_publish_period_s <= 3600.0,
+               "rbpf/transform_publish_period", "must be in (0, 3600] s");
+  read.require(p.transform_tolerance_s >= 0.0 && p.transform_tolerance_s <= 60.0, "rbpf/transform_tolerance",
+               "must be in [0, 60] s");
+  read.require(!p.pose_correction || p.scan_topics.size() == 1, "scan_topics",
+               "must list one topic with ~pose_correction rbpf: the filter follows one laser's odometry");
   read.require(!p.scan_topics.empty(), "scan_topics", "must list at least one topic");
   for (const std::string& topic : p.scan_topics) {
     std::string why;

@@ -510,35 +510,39 @@ TEST(CorrectedMapping, ConfigTakesTheMappersMapAndSensor) {
 }
 
 TEST(CorrectedMapping, MapsEachScanAtTheFiltersCorrectedPose) {
-  // The drive of the filter's test through CorrectedMapping, started with a correction: each
-  // scan reaches the mapper at the correction (start composed with the filter's) times
-  // odometry, the same filter alone gives the same poses, and the trajectory is the
-  // filter's moved by the start correction.
+  // A drive through CorrectedMapping started with a correction S, against the same filter
+  // run alone on odometry moved by S (its frame is then the map frame) with a learner fed
+  // the corrected scans: the same corrections, poses, trajectory and map, cell for cell.
+  // The learner's transitions matter (one observed step makes a cell learned), so a filter
+  // reading them at other cells than the map's would part from the reference.
   const std::vector<Box> boxes = room();
   dog::MapperConfig mapper_config;
   mapper_config.resolution_m = 0.1;
+  mapper_config.prior_transitions = {0.05, 0.05};
   dog::Mapper mapper(mapper_config);
   dog::Mapper reference_learner(mapper_config);
   dog::PoseFilterConfig config = dog::poseFilterConfigFor(mapper_config, driveConfig());
   config.particles = 8;
   const dog::Pose2D start{1.0, -2.0, 0.5};
-  dog::CorrectedMapping mapping(mapper, config, 3, start);
+  dog::CorrectedMapping mapping(mapper, config, 1, start);
   expectPose(mapping.mapToOdometry(), start, 0.0);
   EXPECT_TRUE(mapping.trajectory().empty());
-  dog::PoseFilter reference(config, std::make_shared<dog::MapperTransitions>(reference_learner, 0.1, 3));
+  dog::PoseFilter reference(config, std::make_shared<dog::MapperTransitions>(reference_learner, 0.1, 1));
   std::mt19937_64 rng(3);
-  dog::Pose2D odometry{2.0, 2.0, 0.0};
+  dog::Pose2D truth{2.0, 2.0, 0.0};  // in the room
   for (int i = 0; i < 30; ++i) {
-    odometry = dog::applyMotion(odometry, dog::OdometryMotion{0.05, 0.15, -0.02});
-    const dog::Pose2D truth = odometry;  // the room's scans from odometry's pose: no drift
+    truth = dog::applyMotion(truth, dog::OdometryMotion{0.05, 0.15, -0.02});
     dog::Scan scan = simulatedScan(boxes, truth, 0.5 * i, rng, 0.01);
+    scan.laser_pose = dog::relativePose(start, truth);  // odometry: the truth seen from S
     const dog::CorrectedScan result = mapping.integrate(scan);
     ASSERT_EQ(result.mapped.status, dog::ScanStatus::kIntegrated) << result.mapped.error;
-    const dog::PoseUpdate update = reference.integrate(scan);
+    dog::Scan shifted = scan;
+    shifted.laser_pose = truth;  // S times odometry
+    const dog::PoseUpdate update = reference.integrate(shifted);
     EXPECT_EQ(result.update.updated, update.updated) << i;
-    const dog::Pose2D expected = dog::composePose(dog::composePose(start, reference.mapToOdometry()), odometry);
+    const dog::Pose2D expected = dog::composePose(reference.mapToOdometry(), truth);
     expectPose(result.corrected.laser_pose, expected, 1e-9);
-    expectPose(mapping.mapToOdometry(), dog::composePose(start, reference.mapToOdometry()), 1e-9);
+    expectPose(mapping.mapToOdometry(), dog::composePose(reference.mapToOdometry(), start), 1e-9);
     dog::Scan corrected = scan;
     corrected.laser_pose = result.corrected.laser_pose;
     reference_learner.integrate(corrected);
@@ -549,11 +553,52 @@ TEST(CorrectedMapping, MapsEachScanAtTheFiltersCorrectedPose) {
   ASSERT_EQ(trajectory.size(), filters.size());
   for (std::size_t i = 0; i < trajectory.size(); ++i) {
     EXPECT_EQ(trajectory[i].stamp_s, filters[i].stamp_s);
-    expectPose(trajectory[i].pose, dog::composePose(start, filters[i].pose), 1e-9);
+    expectPose(trajectory[i].pose, filters[i].pose, 1e-9);
   }
-  // The mapper holds the scans at the corrected poses: the same cells as the reference learner.
-  EXPECT_EQ(mapper.grid().bounds().width(), reference_learner.grid().bounds().width());
-  EXPECT_EQ(mapper.grid().bounds().height(), reference_learner.grid().bounds().height());
+  mapper.finishStep();
+  reference_learner.finishStep();
+  const dog::CellBox box = mapper.grid().bounds();
+  const dog::CellBox reference_box = reference_learner.grid().bounds();
+  EXPECT_EQ(box.min_x, reference_box.min_x);
+  EXPECT_EQ(box.min_y, reference_box.min_y);
+  EXPECT_EQ(box.width(), reference_box.width());
+  EXPECT_EQ(box.height(), reference_box.height());
+  std::size_t compared = 0;
+  for (std::int32_t y = box.min_y; y <= box.max_y; ++y) {
+    for (std::int32_t x = box.min_x; x <= box.max_x; ++x) {
+      const auto cell = mapper.grid().cell(x, y);
+      if (!cell || cell->last_step == dog::kNeverObserved) continue;
+      ASSERT_EQ(mapper.beliefAt(x, y, 20), reference_learner.beliefAt(x, y, 20)) << x << ", " << y;
+      ++compared;
+    }
+  }
+  EXPECT_GT(compared, 1000u);
+}
+
+TEST(PoseFilter, BestAfterResamplingIsTheBestBefore) {
+  // One update, resampled or not: the same draws before resampling, so the best particle
+  // after resampling has the pose of the one with the highest weight without it.
+  const std::vector<Box> boxes = room();
+  dog::PoseFilterConfig kept = driveConfig();
+  kept.particles = 12;
+  kept.resample_below = 0.0;
+  dog::PoseFilterConfig resampled = kept;
+  resampled.resample_below = 1.0;
+  const auto transitions = std::make_shared<dog::UniformTransitions>(dog::TransitionParams{0.0, 0.0});
+  dog::PoseFilter a(kept, transitions);
+  dog::PoseFilter b(resampled, transitions);
+  std::mt19937_64 rng(11);
+  const dog::Scan first = simulatedScan(boxes, {2.0, 2.0, 0.0}, 0.0, rng, 0.01);
+  dog::Scan second = simulatedScan(boxes, {2.6, 2.1, 0.1}, 1.0, rng, 0.01);
+  second.laser_pose = {2.5, 2.0, 0.0};  // odometry a little off
+  for (dog::PoseFilter* filter : {&a, &b}) {
+    filter->integrate(first);
+    ASSERT_TRUE(filter->integrate(second).updated);
+  }
+  EXPECT_EQ(b.resamplings(), 1u);
+  EXPECT_EQ(a.resamplings(), 0u);
+  expectPose(b.best().pose, a.best().pose, 0.0);
+  expectPose(b.mapToOdometry(), a.mapToOdometry(), 0.0);
 }
 
 TEST(CorrectedMapping, AScanTheFilterRefusesChangesNothing) {

@@ -27,6 +27,7 @@ import tf2_ros
 from nav_msgs.msg import OccupancyGrid
 from sensor_msgs.msg import LaserScan
 from std_msgs.msg import Float64
+from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 
 # This directory is on the path (the script's own): the other tests' helpers.
@@ -201,6 +202,7 @@ class PoseCorrectionNodeTest(unittest.TestCase):
             threading.Event().wait(0.02)
         del listener
         self.assertIsNotNone(transform, 'no map -> odom on /tf')
+        self.assertGreater(transform.header.stamp.to_sec(), self.clock.now, 'map -> odom not stamped ahead')
         x, y, yaw = pose_of(transform)
         self.assertAlmostEqual(x, last.map_to_odom_x, places=6)
         self.assertAlmostEqual(y, last.map_to_odom_y, places=6)
@@ -223,7 +225,26 @@ class PoseCorrectionNodeTest(unittest.TestCase):
             ('rbpf/odom_alpha1..4', '_pose_correction:=rbpf _rbpf/odom_alpha3:=-0.1'),
             ('rbpf/transform_publish_period', '_pose_correction:=rbpf _rbpf/transform_publish_period:=0.0'),
             ('rbpf/likelihood_temperature', '_pose_correction:=rbpf _rbpf/likelihood_temperature:=0.5'),
+            ('rbpf/transform_tolerance', '_pose_correction:=rbpf _rbpf/transform_tolerance:=1e10'),
         ], 'bad_pose_correction')
+        # A list cannot be given on the command line: on the parameter server first.
+        rospy.set_param('/bad_scan_topics_0/scan_topics', ['scan_a', 'scan_b'])
+        assert_bad_parameters_stop_node(self, [(('scan_topics', 'one topic'), '_pose_correction:=rbpf')],
+                                        'bad_scan_topics')
+
+    def test_06_reset_keeps_the_map_frame(self):
+        """~reset starts an empty map and a new filter where the correction stands."""
+        before = self.get_status()
+        self.assertGreater(before.pose_correction_updates, 0)
+        self.assertGreater(before.pose_correction_resamplings, 0)
+        self.assertLessEqual(before.pose_correction_resamplings, before.pose_correction_updates)
+        rospy.wait_for_service(NODE + '/reset', 10.0)
+        self.assertTrue(rospy.ServiceProxy(NODE + '/reset', Trigger)().success)
+        after = self.get_status()
+        self.assertEqual(after.pose_correction_updates, 0)
+        self.assertEqual(after.last_applied_step, -1)
+        for field in ('map_to_odom_x', 'map_to_odom_y', 'map_to_odom_yaw'):
+            self.assertEqual(getattr(after, field), getattr(before, field), field)
 
 
 if __name__ == '__main__':

@@ -480,14 +480,17 @@ class TestSimulate(unittest.TestCase):
             self.assertTrue(os.path.isfile(os.path.join(out, name)), name)
 
         # The options' checks.
-        for args in (["--pose-correction", "amcl"], ["--trajectory", "t.tum"],
-                     ["--pose-correction", "rbpf", "--laser-pose", "0,0,0"],
-                     ["--pose-correction", "rbpf", "--particles", "0"],
-                     ["--pose-correction", "rbpf", "--odometry-alphas", "0.1,0.1,-0.1,0.1"],
-                     ["--pose-correction", "rbpf", "--update-distance", "0"]):
+        for args, named in ((["--pose-correction", "amcl"], "--pose-correction"),
+                            (["--trajectory", "t.tum"], "--trajectory"),
+                            (["--pose-correction", "rbpf", "--laser-pose", "0,0,0"], "--laser-pose"),
+                            (["--pose-correction", "rbpf", "--particles", "0"], "--particles"),
+                            (["--pose-correction", "rbpf", "--odometry-alphas", "0.1,0.1,-0.1,0.1"],
+                             "--odometry-alphas"),
+                            (["--pose-correction", "rbpf", "--update-distance", "0"], "--update-distance")):
             rc, _, stderr = run_tool("process_bag", [bag, "--out", os.path.join(self.tmp, "bad")] + args)
             self.assertEqual(rc, 2, f"{args}: {stderr}")
             self.assertIn("usage: process_bag", stderr)
+            self.assertIn(named, stderr.split("usage:")[0], stderr)
 
     # --- (c) errors ----------------------------------------------------------------------------
 

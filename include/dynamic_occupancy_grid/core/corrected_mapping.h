@@ -7,7 +7,9 @@
 //
 // Frames: the map frame starts at odometry's at the first scan, shifted by a start
 // correction (the map -> odom transform in use when mapping restarts: a reset, a loaded
-// model, time jumping back), so that a restart does not move the map frame.
+// model, time jumping back), so that a restart does not move the map frame. The filter is
+// given odometry moved by the start correction: its frame is the map frame, and its cells
+// are the Mapper's.
 //
 // ROS-free: the core's Mapper and PoseFilter.
 

@@ -15,9 +15,12 @@
 //      cell's predicted p(occ) (the RBPF's exact incremental weight under the package's
 //      sensor model); cells the particle has never seen count as explained
 //      (PoseFilterConfig::unknown_cells_as_prior says why);
-//   3. map: each cell the scan reaches takes one filter step with its evidence;
-//   4. resampling (Liu's residual resampling) when N_eff = 1 / sum w^2 falls below
-//      resample_below * N. Maps are copied by their tile pointers (particle_map.h).
+//   3. resampling (Liu's residual resampling) when N_eff = 1 / sum w^2 falls below
+//      resample_below * N. Maps are copied by their tile pointers (particle_map.h);
+//   4. map: each cell the scan reaches takes one filter step with its evidence from the
+//      particle's pose. After resampling, the copies of one particle have one pose and one
+//      map: that map is updated once and shared (gmapping also maps after resampling), so
+//      only the distinct survivors' maps copy the tiles the scan writes.
 // A door the model predicts open (or a parked car predicted gone) is no evidence against a
 // particle that sees it open: that is where a dynamic map keeps particles where a static
 // one pulls them away.
@@ -107,8 +110,8 @@ struct PoseUpdate {
   bool updated = false;   ///< false: odometry had not moved enough (the scan is not used)
   bool resampled = false;
   double effective_sample_size = 0.0;  ///< before resampling
-  /// Bytes of the particles' maps after the update, before resampling (each tile shared by
-  /// several particles once): the filter's peak.
+  /// Bytes of the particles' maps after the update (each tile shared by several particles
+  /// once): the filter's peak, but for the tile being copied.
   std::size_t map_bytes = 0;
 };
 
@@ -147,7 +150,8 @@ class PoseFilter {
   const PoseFilterConfig& config() const { return config_; }
   const std::vector<Particle>& particles() const { return particles_; }
   bool started() const { return last_odometry_.has_value(); }
-  /// The particle with the highest weight (the first of equals). Requires started().
+  /// The particle with the highest weight (the first of equals; after resampling, a copy of
+  /// the particle that had the highest weight before). Requires started().
   std::size_t bestIndex() const;
   const Particle& best() const { return particles_[bestIndex()]; }
   /// The particles' normalised weights.
@@ -169,12 +173,17 @@ class PoseFilter {
   /// `beams`: the ends of the scan's beams that take part in matching.
   Pose2D matchPose(const Particle& particle, const std::vector<LaserPoint>& beams, const Pose2D& start,
                    std::int64_t step) const;
-  /// Moves, weighs and maps one particle.
+  /// Moves and weighs one particle (its map is updated after resampling: mapScan).
   void updateParticle(Particle& particle, const Scan& scan, const std::vector<LaserPoint>& match_beams,
                       const OdometryMotion& motion, const std::array<double, 3>& normals, std::int64_t step) const;
+  /// Maps `scan` in every particle's map from its pose; `ancestors[i]` the particle that
+  /// particle i was copied from at resampling (the copies of one share pose and map: one
+  /// update, shared).
+  void mapScan(const Scan& scan, const std::vector<std::size_t>& ancestors, std::int64_t step);
   /// One filter step of every cell of `evidence` in `map`.
   void mapEvidence(ParticleMap& map, const std::vector<CellEvidence>& evidence, std::int64_t step) const;
-  void resample();
+  /// Returns each new particle's index before resampling; the best particle's copies first.
+  std::vector<std::size_t> resample();
 
   PoseFilterConfig config_;
   std::shared_ptr<const TransitionSource> transitions_;

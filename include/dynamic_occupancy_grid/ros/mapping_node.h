@@ -1,5 +1,6 @@
 #pragma once
-// The mapping node: LaserScans (through tf2_ros::MessageFilter on the fixed frame) into a
+// The mapping node: LaserScans (through tf2_ros::MessageFilter on the fixed frame; on the
+// odom frame with ~pose_correction rbpf, corrected by core::CorrectedMapping) into a
 // core::Mapper (the cell HMM) and/or a core::MemoryModel (Morris et al.'s STM/LTM, ~model),
 // the map layers out as latched OccupancyGrids plus their updates, the memory model's map
 // hypotheses, and the services; its health on /diagnostics (diagnostic_updater) and the
@@ -13,6 +14,9 @@
 // or stuck request (a big file, a slow disk, a file another process holds) never delays a
 // scan, and one stuck request leaves the other services answering. Everything they share
 // is under mutex_, held only for the in-memory part of a request (never for file I/O).
+// With ~pose_correction rbpf the map -> odom broadcast runs on a queue and thread of its
+// own and reads only the correction, under correction_mutex_ (taken inside mutex_, never
+// the other way).
 
 #include <diagnostic_updater/diagnostic_updater.h>
 #include <diagnostic_updater/publisher.h>
