@@ -51,6 +51,7 @@ add_library(dynamic_occupancy_grid_evaluation
   ${DOG_ROOT}/src/evaluation/mrf_experiment.cpp
   ${DOG_ROOT}/src/evaluation/learning_experiment.cpp
   ${DOG_ROOT}/src/evaluation/murphy_corridor.cpp
+  ${DOG_ROOT}/src/evaluation/murphy_doors.cpp
   ${DOG_ROOT}/src/evaluation/pose_correction.cpp
   ${DOG_ROOT}/src/evaluation/murphy_corridor_report.cpp
   ${DOG_ROOT}/src/evaluation/prediction_check.cpp

@@ -25,6 +25,9 @@ From OUT_DIR:
                              -> murphy_corridor_fig4.png (Fig. 4(a-b): the RBPF's position and map)
     murphy_corridor_errors.csv
                              -> murphy_corridor_tv.png (each estimator's distance to exact Bayes)
+    murphy_doors_maps.csv    -> murphy_doors.png (the 2D world with doors: where each robot
+                                stood, the entropy-driven one and the random one, and the
+                                maps they learned, in a typical run)
 From --layers DIR: <layer>.pgm + <layer>.yaml (map_server files) -> <layer>.png and
 layers.png (all of them, in metres).
 
@@ -45,7 +48,7 @@ import matplotlib
 
 matplotlib.use("Agg")  # files only: no display needed
 import matplotlib.pyplot as plt  # noqa: E402 (after the backend is chosen)
-from matplotlib.colors import LogNorm  # noqa: E402
+from matplotlib.colors import ListedColormap, LogNorm  # noqa: E402
 
 # The evaluation's methods (evaluation/evaluation.h) and baselines, each with one colour in every plot.
 ACCURACY_METHODS = (("static", "static"), ("static_unclamped", "static (unclamped)"), ("online", "online"),
@@ -501,6 +504,54 @@ def show_corridor(axes, grid, title, light_is_one, truth=None):
     axes.set_title(title, fontsize=10)
 
 
+def read_doors(path):
+    """murphy_doors_maps.csv as grids (rows = y, bottom row first): the layout (0 free,
+    1 wall, 2 door) and per policy the visits and the final p(occ)."""
+    table = read_table(path, ("cell",), ("run", "x", "y", "entropy_visits", "entropy_p_occ", "random_visits",
+                                         "random_p_occ"))
+    width = int(table["x"].max()) + 1
+    height = int(table["y"].max()) + 1
+    if len(table["cell"]) != width * height:
+        raise InputError(f"{path}: {len(table['cell'])} rows for a {width} x {height} grid")
+    grids = {name: np.full((height, width), np.nan) for name in
+             ("layout", "entropy_visits", "entropy_p_occ", "random_visits", "random_p_occ")}
+    kinds = {"free": 0.0, "wall": 1.0, "door": 2.0}
+    for i, kind in enumerate(table["cell"]):
+        if kind not in kinds:
+            raise InputError(f"{path}: line {i + 2}: cell is '{kind}', not free, wall or door")
+        x, y = int(table["x"][i]), int(table["y"][i])
+        grids["layout"][y, x] = kinds[kind]
+        for name in ("entropy_visits", "entropy_p_occ", "random_visits", "random_p_occ"):
+            grids[name][y, x] = table[name][i]
+    grids["run"] = int(table["run"][0])
+    return grids
+
+
+def plot_doors(out_dir, grids):
+    """Murphy's 2D world with doors: the layout, where each robot stood (log scale) with the
+    doors ringed, and the map each learned."""
+    figure, axes = plt.subplots(2, 3, figsize=(13, 7))
+    doors_y, doors_x = np.nonzero(grids["layout"] == 2.0)
+    axes[0][0].imshow(grids["layout"], cmap=ListedColormap(["white", "black", "#ff7f0e"]),
+                      vmin=-0.5, vmax=2.5, origin="lower", interpolation="nearest")
+    axes[0][0].set_title("the world: walls, free space, doors (orange)", fontsize=10)
+    axes[1][0].axis("off")
+    for row, policy in enumerate(("entropy", "random")):
+        visits = grids[policy + "_visits"]
+        shown = axes[row][1].imshow(np.log10(1.0 + visits), cmap="viridis", origin="lower", interpolation="nearest")
+        axes[row][1].plot(doors_x, doors_y, "o", markerfacecolor="none", markeredgecolor="#ff7f0e", markersize=12)
+        axes[row][1].set_title(f"{policy}: where the robot stood (log10(1 + steps))", fontsize=10)
+        figure.colorbar(shown, ax=axes[row][1], fraction=0.04)
+        shown = axes[row][2].imshow(grids[policy + "_p_occ"], cmap="gray_r", vmin=0.0, vmax=1.0, origin="lower",
+                                    interpolation="nearest")
+        axes[row][2].set_title(f"{policy}: the learned map at the end, p(occ)", fontsize=10)
+        figure.colorbar(shown, ax=axes[row][2], fraction=0.04)
+    figure.suptitle(f"Murphy 1999: the 2D world with doors, run {grids['run']} (the entropy robot's median door "
+                    "accuracy; evaluation/murphy_doors.h)")
+    figure.tight_layout()
+    save(figure, os.path.join(out_dir, "murphy_doors.png"))
+
+
 def plot_murphy(out_dir, murphy):
     """Murphy 1999, Figs. 2-4, and the distance of each estimator to exact Bayes."""
     if "fig2_maps" in murphy and "fig2_cells" in murphy:
@@ -572,7 +623,7 @@ def plot_murphy(out_dir, murphy):
 def read_evaluation(out_dir):
     """The CSV files of `out_dir` that exist: (accuracy by scenario, parameter error table or
     None, path planning table or None, MRF RMSE table or None, MRF maps or None, Murphy's
-    corridor tables by name); a note for each missing one."""
+    corridor tables by name, Murphy's doors grids or None); a note for each missing one."""
     if not os.path.isdir(out_dir):
         raise InputError(f"{out_dir}: no such directory")
     accuracy = {}
@@ -605,15 +656,22 @@ def read_evaluation(out_dir):
     else:
         print(f"note: mrf_maps.png skipped: no {path}")
     murphy = read_murphy(out_dir)
+    doors = None
+    path = os.path.join(out_dir, "murphy_doors_maps.csv")
+    if os.path.exists(path):
+        doors = read_doors(path)
+    else:
+        print(f"note: murphy_doors.png skipped: no {path}")
     if not accuracy and not murphy and all(table is None for table in (parameter_error, path_planning, mrf_rmse,
-                                                                        mrf_maps)):
+                                                                        mrf_maps, doors)):
         raise InputError(f"{out_dir}: none of the evaluation's CSV files (accuracy_<scenario>.csv, "
-                         "parameter_error.csv, path_planning.csv, mrf_rmse.csv, mrf_maps.csv, murphy_corridor_*.csv)")
-    return accuracy, parameter_error, path_planning, mrf_rmse, mrf_maps, murphy
+                         "parameter_error.csv, path_planning.csv, mrf_rmse.csv, mrf_maps.csv, murphy_corridor_*.csv, "
+                         "murphy_doors_maps.csv)")
+    return accuracy, parameter_error, path_planning, mrf_rmse, mrf_maps, murphy, doors
 
 
 def plot_evaluation(out_dir, evaluation):
-    accuracy, parameter_error, path_planning, mrf_rmse, mrf_maps, murphy = evaluation
+    accuracy, parameter_error, path_planning, mrf_rmse, mrf_maps, murphy, doors = evaluation
     plot_accuracy(out_dir, accuracy)
     if parameter_error is not None:
         plot_parameter_error(out_dir, parameter_error)
@@ -624,6 +682,8 @@ def plot_evaluation(out_dir, evaluation):
     if mrf_maps is not None:
         plot_mrf_maps(out_dir, mrf_maps)
     plot_murphy(out_dir, murphy)
+    if doors is not None:
+        plot_doors(out_dir, doors)
 
 
 def show_map(axes, layer, title):

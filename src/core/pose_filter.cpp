@@ -2,7 +2,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <limits>
 #include <stdexcept>
 #include <string>
 
@@ -391,16 +390,10 @@ std::vector<std::size_t> PoseFilter::resample() {
 }
 
 std::vector<double> PoseFilter::weights() const {
-  double top = -std::numeric_limits<double>::infinity();
-  for (const Particle& particle : particles_) top = std::max(top, particle.log_weight);
-  std::vector<double> weights(particles_.size());
-  double total = 0.0;
-  for (std::size_t i = 0; i < particles_.size(); ++i) {
-    weights[i] = std::exp(particles_[i].log_weight - top);
-    total += weights[i];
-  }
-  for (double& w : weights) w /= total;
-  return weights;
+  std::vector<double> log_weights;
+  log_weights.reserve(particles_.size());
+  for (const Particle& particle : particles_) log_weights.push_back(particle.log_weight);
+  return normalisedWeights(log_weights);
 }
 
 double PoseFilter::effectiveSampleSize() const { return core::effectiveSampleSize(weights()); }

@@ -1,6 +1,8 @@
 #include "dynamic_occupancy_grid/core/resampling.h"
 
+#include <algorithm>
 #include <cmath>
+#include <limits>
 #include <stdexcept>
 
 namespace dynamic_occupancy_grid {
@@ -51,6 +53,19 @@ std::vector<std::size_t> residualResample(const std::vector<double>& weights, st
     ++copies[pick];
   }
   return copies;
+}
+
+std::vector<double> normalisedWeights(const std::vector<double>& log_weights) {
+  double top = -std::numeric_limits<double>::infinity();
+  for (const double w : log_weights) top = std::max(top, w);
+  std::vector<double> weights(log_weights.size());
+  double total = 0.0;
+  for (std::size_t i = 0; i < weights.size(); ++i) {
+    weights[i] = std::exp(log_weights[i] - top);
+    total += weights[i];
+  }
+  for (double& w : weights) w /= total;
+  return weights;
 }
 
 double effectiveSampleSize(const std::vector<double>& weights) {

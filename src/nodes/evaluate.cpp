@@ -1,5 +1,5 @@
 // evaluate: the papers' experiments on simulated changing worlds (evaluation/evaluation.h,
-// evaluation/path_planning.h, evaluation/mrf_experiment.h, evaluation/murphy_corridor.h), written as CSV tables and a summary into one directory;
+// evaluation/path_planning.h, evaluation/mrf_experiment.h, evaluation/murphy_corridor.h, evaluation/murphy_doors.h), written as CSV tables and a summary into one directory;
 // scripts/plot_evaluation.py turns them into the papers' figures.
 #include <algorithm>
 #include <array>
@@ -31,6 +31,7 @@
 #include "dynamic_occupancy_grid/evaluation/memory_experiment.h"
 #include "dynamic_occupancy_grid/evaluation/mrf_experiment.h"
 #include "dynamic_occupancy_grid/evaluation/murphy_corridor.h"
+#include "dynamic_occupancy_grid/evaluation/murphy_doors.h"
 #include "dynamic_occupancy_grid/evaluation/pose_correction.h"
 #include "dynamic_occupancy_grid/evaluation/path_planning.h"
 
@@ -51,6 +52,7 @@ struct Options {
   int learning_repetitions = 4;
   bool learning_ablations = false;
   int murphy_repetitions = 100;
+  int murphy_doors_runs = 10;
   int pose_correction_runs = 0;
   std::uint64_t seed = 1;
   unsigned threads = 0;
@@ -121,6 +123,9 @@ Options parseOptions(int argc, char** argv) {
       ("murphy-repetitions", cl::number(&options.murphy_repetitions, repetitions)->value_name("N"),
        "seeds of Murphy's 1D corridor (docs/murphy_corridor.md: exact Bayes, online and offline EM, the RBPF; "
        "default 100, about a second; 0 skips it)")
+      ("murphy-doors-runs", cl::number(&options.murphy_doors_runs, repetitions)->value_name("N"),
+       "runs of Murphy's 2D world with doors (docs/murphy_corridor.md: the RBPF learning the map, the robot that "
+       "chooses its moves by entropy against one that moves at random; default 10, a few seconds; 0 skips it)")
       ("pose-correction-runs", cl::number(&options.pose_correction_runs, repetitions)->value_name("N"),
        "runs of the pose filter's comparison on patrol_office with drifting odometry (docs/pose_correction.md: known "
        "pose, odometry, the RBPF with a static, learned and true-transition map; 30 particles, 400 steps, about a "
@@ -135,11 +140,11 @@ Options parseOptions(int argc, char** argv) {
   if (options.learning_repetitions == 0) options.learning_scenarios.clear();
   if (options.scenarios.empty() && options.path_repetitions == 0 && options.mrf_repetitions == 0 &&
       options.memory_repetitions == 0 && options.learning_scenarios.empty() && options.murphy_repetitions == 0 &&
-      options.pose_correction_runs == 0) {
+      options.murphy_doors_runs == 0 && options.pose_correction_runs == 0) {
     line.fail("nothing to run: no scenarios (--scenarios none), no path planning (--path-repetitions 0), no "
               "MRF experiment (--mrf-repetitions 0), no memory experiment (--memory-repetitions 0), no "
-              "learning experiment (--learning-scenarios none), no corridor (--murphy-repetitions 0) and no pose "
-              "correction (--pose-correction-runs 0)");
+              "learning experiment (--learning-scenarios none), no corridor (--murphy-repetitions 0), no doors "
+              "world (--murphy-doors-runs 0) and no pose correction (--pose-correction-runs 0)");
   }
   return options;
 }
@@ -1027,6 +1032,20 @@ int main(int argc, char** argv) {
       for (const auto& [name, csv] : core::murphyCsvTables(result)) core::writeFileAtomically(options.out + "/" + name, csv);
       std::vector<core::MurphyTarget> targets;
       summary << core::formatMurphySummary(config, result, &targets);
+      for (const core::MurphyTarget& target : targets) checks.push_back({target.target, target.measured, target.met});
+    }
+
+    if (options.murphy_doors_runs > 0) {
+      core::DoorsExperimentConfig config;
+      config.runs = options.murphy_doors_runs;
+      config.world.seed = options.seed;
+      config.threads = options.threads;
+      std::cerr << "evaluate: Murphy's 2D world with doors, " << config.runs << " runs ..." << std::flush;
+      const core::DoorsExperimentResult result = core::runDoorsExperiment(config);
+      std::cerr << " " << fixed(result.seconds, 1) << " s\n";
+      for (const auto& [name, csv] : core::doorsCsvTables(result)) core::writeFileAtomically(options.out + "/" + name, csv);
+      std::vector<core::MurphyTarget> targets;
+      summary << core::formatDoorsSummary(config, result, &targets);
       for (const core::MurphyTarget& target : targets) checks.push_back({target.target, target.measured, target.met});
     }
 

@@ -15,7 +15,8 @@ PLOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "scr
 METHODS = ["static", "static_unclamped", "online", "offline", "oracle"]
 SMALL = ["--scenarios", "dynamic_5_5,redraw_100", "--repetitions", "2", "--path-repetitions", "2",
          "--path-runs", "4", "--mrf-repetitions", "2", "--memory-repetitions", "2", "--threads", "2",
-         "--learning-scenarios", "dynamic_25_25", "--learning-repetitions", "1", "--murphy-repetitions", "3"]
+         "--learning-scenarios", "dynamic_25_25", "--learning-repetitions", "1", "--murphy-repetitions", "3",
+         "--murphy-doors-runs", "2"]
 MRF_WORLD = (46, 32)  # the mrf_squares scenario's cells (evaluation/simulator.cpp)
 # The MRF experiment's learners: the online ones (cell EM without and with the empirical-Bayes
 # prior, kinds of cells), and with the two offline EMs.
@@ -255,7 +256,8 @@ class EvaluateTool(unittest.TestCase):
         self.assertEqual(run.returncode, 0, run.stderr)
         for name in ["accuracy_dynamic_5_5.png", "accuracy_redraw_100.png", "parameter_error.png",
                      "path_planning.png", "mrf_rmse.png", "mrf_maps.png", "murphy_corridor_fig2.png",
-                     "murphy_corridor_fig3.png", "murphy_corridor_fig4.png", "murphy_corridor_tv.png"]:
+                     "murphy_corridor_fig3.png", "murphy_corridor_fig4.png", "murphy_corridor_tv.png",
+                     "murphy_doors.png"]:
             with open(os.path.join(self.out, name), "rb") as file:
                 self.assertEqual(file.read(8), b"\x89PNG\r\n\x1a\n", name)
 
@@ -327,10 +329,32 @@ class EvaluateTool(unittest.TestCase):
         self.assertLess(summary.index("## Murphy's 1D corridor"), summary.index("## Targets"))
         self.assertIn("| Murphy: online EM lost on the way back", summary)
 
+    def test_murphy_doors_tables_and_summary(self):
+        with open(os.path.join(self.out, "murphy_doors_runs.csv")) as file:
+            rows = list(csv.DictReader(file))
+        self.assertEqual([(row["run"], row["policy"]) for row in rows],
+                         [("0", "entropy"), ("0", "random"), ("1", "entropy"), ("1", "random")])
+        for row in rows:
+            for key in ("door_accuracy", "near_door_share", "localisation", "static_accuracy"):
+                self.assertTrue(0.0 <= float(row[key]) <= 1.0, (key, row))
+            self.assertGreaterEqual(float(row["door_staleness_steps"]), 0.0)
+        with open(os.path.join(self.out, "murphy_doors_maps.csv")) as file:
+            cells = list(csv.DictReader(file))
+        self.assertEqual(len(cells), 15 * 11)
+        self.assertEqual(sum(1 for cell in cells if cell["cell"] == "door"), 4)
+        # Each policy's robot stood somewhere 2000 times (the default steps), never on a wall.
+        for policy in ("entropy", "random"):
+            self.assertEqual(sum(int(cell[policy + "_visits"]) for cell in cells), 2000)
+            self.assertEqual(sum(int(cell[policy + "_visits"]) for cell in cells if cell["cell"] == "wall"), 0)
+        with open(os.path.join(self.out, "summary.md")) as file:
+            summary = file.read()
+        self.assertIn("## Murphy's 2D world with doors", summary)
+        self.assertIn("| Murphy's doors: the entropy-driven robot keeps the doors more current", summary)
+
     def test_learning_ablations_add_the_kinds_variants(self):
         ablations = os.path.join(self.tmp.name, "ablations")
         rc, _, stderr = evaluate(["--out", ablations, "--scenarios", "none", "--path-repetitions", "0",
-                                  "--mrf-repetitions", "0", "--memory-repetitions", "0", "--murphy-repetitions", "0",
+                                  "--mrf-repetitions", "0", "--memory-repetitions", "0", "--murphy-repetitions", "0", "--murphy-doors-runs", "0",
                                   "--learning-scenarios", "dynamic_5_5", "--learning-repetitions", "1",
                                   "--learning-ablations", "--threads", "1"])
         self.assertEqual(rc, 0, stderr)
@@ -345,7 +369,7 @@ class EvaluateTool(unittest.TestCase):
         again = os.path.join(self.tmp.name, "murphy_again")
         rc, _, stderr = evaluate(["--out", again, "--scenarios", "none", "--path-repetitions", "0",
                                   "--mrf-repetitions", "0", "--memory-repetitions", "0", "--learning-scenarios", "none",
-                                  "--murphy-repetitions", "3", "--threads", "1"])
+                                  "--murphy-repetitions", "3", "--murphy-doors-runs", "0", "--threads", "1"])
         self.assertEqual(rc, 0, stderr)
         names = ["murphy_corridor_errors.csv", "murphy_corridor_fig2_cells.csv", "murphy_corridor_fig2_maps.csv",
                  "murphy_corridor_fig3_position.csv", "murphy_corridor_fig4_rbpf.csv", "murphy_corridor_particles.csv"]
@@ -358,7 +382,7 @@ class EvaluateTool(unittest.TestCase):
         again = os.path.join(self.tmp.name, "again")
         rc, _, stderr = evaluate(["--out", again, "--scenarios", "dynamic_5_5", "--repetitions", "2",
                                   "--path-repetitions", "0", "--mrf-repetitions", "0", "--memory-repetitions", "0",
-                                  "--learning-repetitions", "0", "--murphy-repetitions", "0", "--threads", "1"])
+                                  "--learning-repetitions", "0", "--murphy-repetitions", "0", "--murphy-doors-runs", "0", "--threads", "1"])
         self.assertEqual(rc, 0, stderr)
         with open(os.path.join(self.out, "accuracy_dynamic_5_5.csv")) as a, \
                 open(os.path.join(again, "accuracy_dynamic_5_5.csv")) as b:
@@ -373,7 +397,7 @@ class EvaluateTool(unittest.TestCase):
         again = os.path.join(self.tmp.name, "mrf_again")
         rc, _, stderr = evaluate(["--out", again, "--scenarios", "none", "--path-repetitions", "0",
                                   "--mrf-repetitions", "2", "--memory-repetitions", "0", "--learning-scenarios", "none",
-                                  "--murphy-repetitions", "0", "--threads", "1"])
+                                  "--murphy-repetitions", "0", "--murphy-doors-runs", "0", "--threads", "1"])
         self.assertEqual(rc, 0, stderr)
         self.assertEqual(sorted(os.listdir(again)), ["mrf_iterations.csv", "mrf_maps.csv", "mrf_online.csv",
                                                      "mrf_rmse.csv", "mrf_rmse_by_kind.csv", "mrf_rmse_changing.csv",
@@ -393,7 +417,7 @@ class EvaluateTool(unittest.TestCase):
         again = os.path.join(self.tmp.name, "mrf_t5")
         rc, _, stderr = evaluate(["--out", again, "--scenarios", "none", "--path-repetitions", "0",
                                   "--mrf-repetitions", "2", "--mrf-temperature", "5", "--memory-repetitions", "0",
-                                  "--learning-scenarios", "none", "--murphy-repetitions", "0", "--threads", "2"])
+                                  "--learning-scenarios", "none", "--murphy-repetitions", "0", "--murphy-doors-runs", "0", "--threads", "2"])
         self.assertEqual(rc, 0, stderr)
         with open(os.path.join(again, "summary.md")) as file:
             self.assertIn("with the MRF prior at T = 5.", file.read())
@@ -409,7 +433,7 @@ class EvaluateTool(unittest.TestCase):
         again = os.path.join(self.tmp.name, "memory_again")
         rc, _, stderr = evaluate(["--out", again, "--scenarios", "none", "--path-repetitions", "0",
                                   "--mrf-repetitions", "0", "--memory-repetitions", "2", "--learning-scenarios", "none",
-                                  "--murphy-repetitions", "0", "--threads", "1"])
+                                  "--murphy-repetitions", "0", "--murphy-doors-runs", "0", "--threads", "1"])
         self.assertEqual(rc, 0, stderr)
         self.assertEqual(sorted(os.listdir(again)), ["memory_navigation.csv", "summary.md"])
         tables = []
@@ -446,7 +470,7 @@ class EvaluateTool(unittest.TestCase):
                      ["--scenarios", "dynamic_5_5,dynamic_5_5"],
                      ["--scenarios", "dividers"], ["--memory-repetitions", "-1"],
                      ["--scenarios", "none", "--path-repetitions", "0", "--mrf-repetitions", "0",
-                      "--memory-repetitions", "0", "--learning-scenarios", "none", "--murphy-repetitions", "0"],
+                      "--memory-repetitions", "0", "--learning-scenarios", "none", "--murphy-repetitions", "0", "--murphy-doors-runs", "0"],
                      ["--murphy-repetitions", "-1"], ["--murphy-repetitions", "x"],
                      ["--learning-scenarios", "nope"], ["--learning-repetitions", "-1"],
                      ["--learning-scenarios", "patrol,patrol"],

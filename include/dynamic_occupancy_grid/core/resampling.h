@@ -18,6 +18,10 @@ namespace core {
 std::vector<std::size_t> residualResample(const std::vector<double>& weights, std::size_t count,
                                           const std::function<double()>& uniform01);
 
+/// exp(log_weights), normalised to sum 1: the largest is subtracted first, so that weights
+/// far below 1 in linear terms do not all underflow. Requires a finite largest log weight.
+std::vector<double> normalisedWeights(const std::vector<double>& log_weights);
+
 /// Kish's effective sample size (sum w)^2 / sum w^2 of non-negative weights (0 if all are 0).
 double effectiveSampleSize(const std::vector<double>& weights);
 
