@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 #include "dynamic_occupancy_grid/core/motion_model.h"
 #include "dynamic_occupancy_grid/core/particle_map.h"
@@ -55,6 +56,26 @@ CorrectedScan CorrectedMapping::integrate(const Scan& odometry_scan) {
 Pose2D CorrectedMapping::mapToOdometry() const {
   if (!filter_->started()) return start_correction_;
   return wrapped(composePose(filter_->mapToOdometry(), start_correction_));
+}
+
+ParticleBelief CorrectedMapping::bestParticleBelief() const {
+  ParticleBelief belief;
+  if (!filter_->started()) return belief;
+  const ParticleMap& map = filter_->best().map;
+  belief.cells = map.bounds();
+  if (belief.cells.empty()) return belief;
+  const std::int64_t step = filter_->lastUpdateStep();
+  const double unknown = filter_->config().unknown_p_occ;
+  belief.values.reserve(static_cast<std::size_t>(belief.cells.width() * belief.cells.height()));
+  ParticleMap::Reader reader(map);
+  for (std::int32_t y = belief.cells.min_y; y <= belief.cells.max_y; ++y) {
+    for (std::int32_t x = belief.cells.min_x; x <= belief.cells.max_x; ++x) {
+      belief.values.push_back(reader.lastStep(x, y) == kNeverObserved
+                                  ? std::numeric_limits<float>::quiet_NaN()
+                                  : static_cast<float>(reader.predicted(x, y, step, filter_->transitions(), unknown)));
+    }
+  }
+  return belief;
 }
 
 std::vector<TrajectoryNode> CorrectedMapping::trajectory() const {

@@ -189,6 +189,13 @@ bool MappingNode::start() {
   if (correction_) {
     effective_sample_size_ = private_nh_.advertise<std_msgs::Float64>("effective_sample_size", 10);
     pose_entropy_ = private_nh_.advertise<std_msgs::Float64>("pose_entropy", 10);
+    best_particle_belief_ = private_nh_.advertise<nav_msgs::OccupancyGrid>(
+        "best_particle_belief", 1,
+        [this](const ros::SingleSubscriberPublisher&) {
+          std::lock_guard<std::mutex> lock(mutex_);
+          publishBestParticle(true);
+        },
+        ros::SubscriberStatusCallback(), ros::VoidConstPtr(), true);
     tf_broadcaster_ = std::make_unique<tf2_ros::TransformBroadcaster>();
     ros::NodeHandle correction_nh(private_nh_);
     correction_nh.setCallbackQueue(&correction_queue_);
@@ -484,6 +491,7 @@ void MappingNode::restartCorrection() {
   }
   correction_.reset();  // it reads the mapper it was made on
   last_effective_sample_size_ = 0.0;
+  best_particle_published_updates_ = 0;
   // The map's lattice, time step and sensor model are the live mapper's (a loaded model's
   // may differ from the parameters'); a PoseFilterConfig made from a valid MapperConfig and
   // the checked ~rbpf/* is valid.
@@ -813,6 +821,25 @@ void MappingNode::publishTimer(const ros::TimerEvent&) {
     if (clocks_agree && now_s >= step_end_s + parameters_.max_scan_latency_s) mapper_->finishStep();
   }
   publishLayers(false);
+  if (correction_) publishBestParticle(false);
+}
+
+void MappingNode::publishBestParticle(bool force) {
+  const std::size_t updates = correction_->filter().updates();
+  if (updates == 0 || best_particle_belief_.getNumSubscribers() == 0) return;
+  if (!force && updates == best_particle_published_updates_) return;
+  best_particle_published_updates_ = updates;
+  const core::ParticleBelief belief = correction_->bestParticleBelief();
+  const double resolution = correction_->filter().config().resolution_m;
+  std::vector<std::int8_t> occupancy;
+  core::toOccupancyValues(belief.values, 1.0f, &occupancy);
+  const core::MapWindow window{resolution, belief.cells.min_x * resolution, belief.cells.min_y * resolution,
+                               belief.cells};
+  const double step_end_s = correction_->mapper().clock().origin()
+                                ? correction_->mapper().clock().stepStart(correction_->filter().lastUpdateStep() + 1)
+                                : ros::Time::now().toSec();
+  best_particle_belief_.publish(
+      toOccupancyGrid(window, std::move(occupancy), parameters_.fixed_frame, toRosTime(step_end_s)));
 }
 
 void MappingNode::publishLayers(bool force_full) {

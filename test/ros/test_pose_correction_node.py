@@ -214,6 +214,33 @@ class PoseCorrectionNodeTest(unittest.TestCase):
         self.assertIsNotNone(grid, 'no belief layer')
         self.assertEqual(grid.header.frame_id, 'map')
         self.assertGreater(sum(1 for v in grid.data if v >= 0), 1000)
+        # The best particle's own map: the same world in the same frame, so where both know a
+        # cell they mostly agree (the particle's map is its own trajectory's, the node's the
+        # poses as the scans came).
+        best = TopicRecorder(NODE + '/best_particle_belief', OccupancyGrid).wait_for(clock=self.clock, tick=0.0)
+        self.assertIsNotNone(best, 'no best_particle_belief')
+        self.assertEqual(best.header.frame_id, 'map')
+        self.assertAlmostEqual(best.info.resolution, grid.info.resolution, places=6)
+        agree = known = 0
+        for row in range(best.info.height):
+            for column in range(best.info.width):
+                value = best.data[row * best.info.width + column]
+                if value < 0:
+                    continue
+                x = best.info.origin.position.x + (column + 0.5) * best.info.resolution
+                y = best.info.origin.position.y + (row + 0.5) * best.info.resolution
+                gx = int(math.floor((x - grid.info.origin.position.x) / grid.info.resolution))
+                gy = int(math.floor((y - grid.info.origin.position.y) / grid.info.resolution))
+                if not (0 <= gx < grid.info.width and 0 <= gy < grid.info.height):
+                    continue
+                other = grid.data[gy * grid.info.width + gx]
+                if other < 0 or other == 50 or value == 50:
+                    continue
+                known += 1
+                agree += (value > 50) == (other > 50)
+        print('best particle belief: %d cells known to both maps, %.3f agree' % (known, agree / max(known, 1)))
+        self.assertGreater(known, 1000)
+        self.assertGreater(agree / known, 0.9)
 
     def test_05_bad_parameters(self):
         assert_bad_parameters_stop_node(self, [

@@ -28,6 +28,14 @@ namespace core {
 /// the filter can walk at that resolution (1000 cells).
 PoseFilterConfig poseFilterConfigFor(const MapperConfig& mapper, PoseFilterConfig filter);
 
+/// A particle's own map as values: p(occ) per cell of `cells`, row by row from the lowest
+/// row; NaN where the particle has never observed the cell. Cell (x, y) covers
+/// [x r, (x + 1) r) x [y r, (y + 1) r) of the map frame.
+struct ParticleBelief {
+  CellBox cells;
+  std::vector<float> values;
+};
+
 /// What one scan did.
 struct CorrectedScan {
   PoseUpdate update;  ///< the filter's
@@ -52,6 +60,10 @@ class CorrectedMapping {
   /// The best particle's trajectory in the map frame (its poses at the filter's updates),
   /// oldest first.
   std::vector<TrajectoryNode> trajectory() const;
+  /// The best particle's own map predicted to the filter's last update, over its tiles (a
+  /// later resampling may pick another particle: the Mapper holds the scans as they came).
+  /// Empty before the first scan.
+  ParticleBelief bestParticleBelief() const;
   const PoseFilter& filter() const { return *filter_; }
   const Mapper& mapper() const { return mapper_; }
 

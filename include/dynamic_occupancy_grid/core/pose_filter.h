@@ -167,6 +167,8 @@ class PoseFilter {
   std::vector<TrajectoryNode> bestTrajectory() const;
   const TransitionSource& transitions() const { return *transitions_; }
   std::size_t updates() const { return updates_; }
+  /// The step of the last update (0 before the first scan's).
+  std::int64_t lastUpdateStep() const { return last_step_; }
   std::size_t resamplings() const { return resamplings_; }
 
  private:
