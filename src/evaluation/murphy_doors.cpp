@@ -21,6 +21,10 @@ namespace {
 constexpr std::array<std::array<int, 2>, 4> kMoves{{{1, 0}, {0, 1}, {-1, 0}, {0, -1}}};  // E, N, W, S
 constexpr int kValueIterations = 60;
 constexpr double kExploration = 0.1;  ///< the entropy policy's share of random moves
+/// H(L) is normalised by log of this many cells (and capped at 1): a cloud spread evenly over
+/// ten cells is lost. Normalised over the whole grid (log 165), a cloud over ten cells was
+/// H = 0.45, and the reward kept sending a robot that was losing itself to uncertain cells.
+constexpr double kLostCells = 10.0;
 
 double binaryEntropy(double p) {  // normalised: bits
   if (p <= 0.0 || p >= 1.0) return 0.0;
@@ -164,14 +168,14 @@ class DoorsRunner {
     if (policy_ == DoorsPolicy::kRandom) return static_cast<int>(robot_rng_.below(4));
     const std::vector<double> weights = normalisedWeights();
     const std::vector<double> map = mixtureMap(weights);
-    // H(L): the particles' distribution over cells, normalised by log(cells).
+    // H(L): the particles' distribution over cells, normalised by log(kLostCells).
     std::vector<double> location(layout_.cells.size(), 0.0);
     for (std::size_t j = 0; j < particles_.size(); ++j) location[static_cast<std::size_t>(particles_[j].cell)] += weights[j];
     double h_location = 0.0;
     for (const double p : location) {
       if (p > 0.0) h_location -= p * std::log(p);
     }
-    h_location /= std::log(static_cast<double>(location.size()));
+    h_location = std::min(1.0, h_location / std::log(kLostCells));
     // The reward of standing on a cell: that of the four cells seen from it.
     std::vector<double> reward(layout_.cells.size(), 0.0);
     for (std::size_t i = 0; i < reward.size(); ++i) {

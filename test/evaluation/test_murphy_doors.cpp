@@ -62,8 +62,9 @@ TEST(MurphyDoors, NearlyPerfectSensorsLearnTheMapAndKnowWhereTheRobotIs) {
 TEST(MurphyDoors, TheEntropyRobotKeepsTheDoorsCurrent) {
   // Murphy: "after learning the map, the robot spends its time visiting each of the doors".
   // Against a random walk in the same worlds, the defaults' ten runs (seeds 1-10, the ones the
-  // defaults were chosen on; 11-20 are reported in docs/murphy_corridor.md): on average the
-  // doors' states known more often, seen more recently, the robot more often next to one.
+  // defaults were chosen on; the held-out seeds 21-30 are reported in docs/murphy_corridor.md):
+  // on average the doors' states known more often, seen more recently, the robot more often
+  // next to one.
   const dog::DoorsExperimentConfig config;
   const dog::DoorsExperimentResult result = dog::runDoorsExperiment(config);
   ASSERT_EQ(result.entropy.size(), 10u);

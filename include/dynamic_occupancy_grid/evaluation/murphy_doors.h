@@ -24,9 +24,11 @@
 //   and free space never; the map's states are learned, from an unknown (p = 0.5) start,
 //   the grid's edge known to be wall (as the corridor's ends are);
 // - the policy: value iteration on the mixture map (cells with p(occ) < 0.5 passable); the
-//   reward of a cell is that of the four cells seen from it; the action maximises the value
-//   averaged over the particles' cells (QMDP), and one step in ten is random (a robot that
-//   took one place for another otherwise pushes at a wall for ever, its beliefs unchanged).
+//   reward of a cell is that of the four cells seen from it; H(L) is normalised by log 10
+//   (capped at 1: a cloud over ten cells is lost), not by log of the grid's cells; the action
+//   maximises the value averaged over the particles' cells (QMDP), and one step in ten is
+//   random (a robot that took one place for another otherwise pushes at a wall for ever, its
+//   beliefs unchanged).
 //
 // ROS-free: standard library and the core only.
 
