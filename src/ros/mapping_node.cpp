@@ -358,9 +358,9 @@ void MappingNode::warnIfNoTransform(const std::string& frame_id) {
                           : !fixed_known ? "tf has no frame '" + target + "' (is " + parameter + " right?)"
                                          : "the two frames are not connected in tf";
   ROS_WARN_THROTTLE(kWarnPeriodS,
-                    "scans from frame '%s' get no transform to the frame '%s' (for %.1f s now): %s; they wait "
+                    "scans from frame '%s' get no transform to the %s '%s' (for %.1f s now): %s; they wait "
                     "in the queue of %d scans and are dropped from it (tf: %s)",
-                    frame_id.c_str(), target.c_str(), (now - since).toSec(), why.c_str(),
+                    frame_id.c_str(), parameters_.pose_correction ? "odom frame" : "fixed frame", target.c_str(), (now - since).toSec(), why.c_str(),
                     parameters_.scan_queue_size, error.c_str());
   last_tf_error_ = "scans from frame '" + frame_id + "': " + why;
 }
