@@ -509,10 +509,13 @@ def read_doors(path):
     1 wall, 2 door) and per policy the visits and the final p(occ)."""
     table = read_table(path, ("cell",), ("run", "x", "y", "entropy_visits", "entropy_p_occ", "random_visits",
                                          "random_p_occ"))
-    width = int(table["x"].max()) + 1
-    height = int(table["y"].max()) + 1
-    if len(table["cell"]) != width * height:
-        raise InputError(f"{path}: {len(table['cell'])} rows for a {width} x {height} grid")
+    x, y = table["x"], table["y"]
+    if not (np.all(x == np.round(x)) and np.all(y == np.round(y)) and x.min() >= 0 and y.min() >= 0):
+        raise InputError(f"{path}: x and y must be cell indices (whole numbers >= 0)")
+    width, height = int(x.max()) + 1, int(y.max()) + 1
+    index = y.astype(int) * width + x.astype(int)
+    if index.size != width * height or np.unique(index).size != index.size:
+        raise InputError(f"{path}: expected one row per cell of a {width} x {height} grid, got {index.size} rows")
     grids = {name: np.full((height, width), np.nan) for name in
              ("layout", "entropy_visits", "entropy_p_occ", "random_visits", "random_p_occ")}
     kinds = {"free": 0.0, "wall": 1.0, "door": 2.0}

@@ -39,7 +39,8 @@ ALL_FIGURES = tuple(f"accuracy_{s}.png" for s in ACCURACY_SCENARIOS) + (
     "fig4.png", "fig5.png", "parameter_error.png", "path_planning.png", "mrf_rmse.png", "mrf_maps.png")
 MURPHY_FIGURES = ("murphy_corridor_fig2.png", "murphy_corridor_fig3.png", "murphy_corridor_fig4.png",
                   "murphy_corridor_tv.png")
-ALL_FIGURES += MURPHY_FIGURES
+ALL_FIGURES += MURPHY_FIGURES + ("murphy_doors.png",)
+DOORS_HEADER = "run,x,y,cell,entropy_visits,entropy_p_occ,random_visits,random_p_occ"
 MURPHY_ESTIMATORS = ("exact", "dead_reckoning", "online_em", "offline_em", "rbpf", "rbpf_optimal")
 MRF_RMSE_HEADER = ("repetition,world_seed,run_seed,method,sparse_cells,sparse_p_occ_given_free_rmse,"
                    "sparse_p_free_given_occ_rmse,well_observed_cells,well_observed_p_occ_given_free_rmse,"
@@ -149,6 +150,18 @@ def write_murphy(directory, steps=5, cells=4):
                     file.write(f"{variant},{estimator},{t},{tv},0.02,{0.9 - 0.1 * index},{map_error},0.2,3\n")
 
 
+def write_doors(directory, width=7, height=5):
+    """murphy_doors_maps.csv: a walled box with one door in the middle."""
+    with open(os.path.join(directory, "murphy_doors_maps.csv"), "w") as file:
+        file.write(DOORS_HEADER + "\n")
+        for y in range(height):
+            for x in range(width):
+                border = x in (0, width - 1) or y in (0, height - 1)
+                cell = "door" if (x, y) == (width // 2, height // 2) else "wall" if border else "free"
+                visits = 0 if cell == "wall" else x * y
+                file.write(f"3,{x},{y},{cell},{visits},{1.0 if border else 0.1},{visits // 2},0.5\n")
+
+
 def write_all(directory):
     for scenario in ACCURACY_SCENARIOS:
         # The parking lot long enough for a few of its 108-step hours.
@@ -158,6 +171,7 @@ def write_all(directory):
     write_mrf_rmse(directory)
     write_mrf_maps(directory)
     write_murphy(directory)
+    write_doors(directory)
 
 
 def write_layer(directory, name, width=40, height=30, resolution=0.05, origin=(-1.0, 2.0)):
@@ -300,6 +314,12 @@ class TestPlotEvaluation(unittest.TestCase):
             ],
             "murphy_corridor_fig2_maps.csv": [
                 "t,map,labels,probability\n1,0,00,0.5\n1,2,01,0.5\n",             # map 1 missing
+            ],
+            "murphy_doors_maps.csv": [
+                DOORS_HEADER + "\n3,0,0,wall,0,1,0,1\n3,0,0,wall,0,1,0,1\n",           # a cell twice
+                DOORS_HEADER + "\n3,0,0,wall,0,1,0,1\n3,1,1,wall,0,1,0,1\n",           # cells missing
+                DOORS_HEADER + "\n3,0,0,lava,0,1,0,1\n",                               # not a kind of cell
+                DOORS_HEADER + "\n3,0.5,0,wall,0,1,0,1\n",                             # not a cell
             ],
             "mrf_maps.csv": [
                 MRF_MAPS_HEADER + "\n0,0,1,0,0,0.1,0.1,0.1,0.1\n0,0,1,0,0,0.1,0.1,0.1,0.1\n",  # a cell twice
