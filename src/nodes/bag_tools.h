@@ -157,7 +157,19 @@ inline void addPoseCorrectionOptions(command_line::CommandLine& line, PoseCorrec
        "pose correction: ... or turned RAD radians (default 0.5)")
       ("filter-seed",
        cl::number(&filter.seed, cl::between<std::uint64_t>(0, std::numeric_limits<int>::max()))->value_name("N"),
-       "pose correction: the particles' random seed (default 1)");
+       "pose correction: the particles' random seed (default 1)")
+      ("resample-threshold", cl::number(&filter.resample_below, cl::between(0.0, 1.0))->value_name("R"),
+       "pose correction: resample when N_eff < R x particles (default 0.5)")
+      ("likelihood-temperature", cl::number(&filter.likelihood_temperature, cl::atLeast(1.0))->value_name("T"),
+       "pose correction: a scan's log-likelihood is divided by T in the weights (default 1)")
+      ("no-scan-matching", boost::program_options::bool_switch()->notifier([&filter](bool off) {
+         if (off) filter.scan_matching = false;
+       }),
+       "pose correction: the proposal is the motion model alone")
+      ("learned-min-observed-steps",
+       cl::number(&options->learned_min_observed_steps, cl::between<std::uint32_t>(0, 1000000))->value_name("N"),
+       "pose correction: the filter uses a cell's learned transitions once it was observed in N steps (default "
+       "30)");
 }
 
 /// Checks the options addPoseCorrectionOptions read against the parsed `shared` ones (call
