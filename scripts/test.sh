@@ -95,6 +95,16 @@ for path in sorted(glob.glob(os.path.join(sys.argv[1], "**", "*.xml"), recursive
             skipped += 1
         else:
             passed += 1
+    # Errors outside any testcase (a Python test whose setUpClass raised: rosunit writes a
+    # suite with errors="1" and no testcase) count too, one failure each.
+    for suite in root.iter("testsuite"):
+        declared = sum(int(suite.get(key, "0") or 0) for key in ("errors", "failures"))
+        inside = sum(1 for case in suite.findall("testcase")
+                     if case.find("failure") is not None or case.find("error") is not None)
+        if declared > inside:
+            failed += declared - inside
+            failures.append(f"{os.path.basename(path)}: {suite.get('name', '')}: {declared - inside} error(s) outside "
+                            "any testcase (setUpClass?)")
 for line in failures:
     print("FAILED:", line)
 if passed + failed == 0:
