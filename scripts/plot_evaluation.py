@@ -177,9 +177,10 @@ def read_mrf_rmse(path):
     return table
 
 
-def read_mrf_maps(path):
-    """mrf_maps.csv as {column: 2D array indexed [y, x]}; learned values NaN where empty."""
-    table = read_table(path, number_columns=MRF_MAP_NUMBERS, may_be_empty=MRF_MAP_LEARNED)
+def grid_cells(path, table):
+    """(width, height, flat index per row) of a table with one row per cell of a grid
+    (columns x and y); raises InputError unless x, y are whole numbers >= 0 and every cell
+    appears once."""
     x, y = table["x"], table["y"]
     if not (np.all(x == np.round(x)) and np.all(y == np.round(y)) and x.min() >= 0 and y.min() >= 0):
         raise InputError(f"{path}: x and y must be cell indices (whole numbers >= 0)")
@@ -187,6 +188,13 @@ def read_mrf_maps(path):
     index = y.astype(int) * width + x.astype(int)
     if index.size != width * height or np.unique(index).size != index.size:
         raise InputError(f"{path}: expected one row per cell of a {width} x {height} grid, got {index.size} rows")
+    return width, height, index
+
+
+def read_mrf_maps(path):
+    """mrf_maps.csv as {column: 2D array indexed [y, x]}; learned values NaN where empty."""
+    table = read_table(path, number_columns=MRF_MAP_NUMBERS, may_be_empty=MRF_MAP_LEARNED)
+    width, height, index = grid_cells(path, table)
     grids = {}
     for name in MRF_MAP_NUMBERS[2:]:
         grid = np.full(width * height, math.nan)
@@ -509,13 +517,7 @@ def read_doors(path):
     1 wall, 2 door) and per policy the visits and the final p(occ)."""
     table = read_table(path, ("cell",), ("run", "x", "y", "entropy_visits", "entropy_p_occ", "random_visits",
                                          "random_p_occ"))
-    x, y = table["x"], table["y"]
-    if not (np.all(x == np.round(x)) and np.all(y == np.round(y)) and x.min() >= 0 and y.min() >= 0):
-        raise InputError(f"{path}: x and y must be cell indices (whole numbers >= 0)")
-    width, height = int(x.max()) + 1, int(y.max()) + 1
-    index = y.astype(int) * width + x.astype(int)
-    if index.size != width * height or np.unique(index).size != index.size:
-        raise InputError(f"{path}: expected one row per cell of a {width} x {height} grid, got {index.size} rows")
+    width, height, _ = grid_cells(path, table)
     grids = {name: np.full((height, width), np.nan) for name in
              ("layout", "entropy_visits", "entropy_p_occ", "random_visits", "random_p_occ")}
     kinds = {"free": 0.0, "wall": 1.0, "door": 2.0}
