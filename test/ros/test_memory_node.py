@@ -27,6 +27,7 @@ from nav_msgs.msg import OccupancyGrid
 from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 
+import dynamic_occupancy_grid.srv as dog_srv
 from dynamic_occupancy_grid.msg import MapHypotheses
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
@@ -141,16 +142,38 @@ class TestMemoryNode(unittest.TestCase):
             cls.clock.set(stamp)
             tf_publisher.publish(TFMessage(transforms=[wall_scene.laser_transform(stamp, x=pose[0], y=pose[1])]))
             scan_publisher.publish(wall_scene.make_scan(stamp, ranges=ray_cast(pose, objects)))
+            # Both nodes take the scan with the clock standing still, then the clock runs so
+            # that their publish timers send what the update changed.
+            cls.wait_taken(k + 1)
             if k == 0:
                 continue
             cls.stamps.append(stamp)
             done = cls.record[MEMORY, 'hypotheses'].wait_for(lambda m, k=k: m.updates == k, clock=cls.clock)
             if done is None:
-                raise AssertionError('%s published no hypotheses after update %d (scan %d); got updates %s' % (
-                    MEMORY, k - 1, k, [m.updates for m in cls.record[MEMORY, 'hypotheses'].snapshot()]))
+                raise AssertionError('%s published no hypotheses after update %d (scan %d); got updates %s; %s' % (
+                    MEMORY, k - 1, k, [m.updates for m in cls.record[MEMORY, 'hypotheses'].snapshot()],
+                    cls.statuses()))
         done = cls.record[BOTH, 'hypotheses'].wait_for(lambda m: m.updates == UPDATES, clock=cls.clock)
         if done is None:
             raise AssertionError('%s did not make %d memory updates' % (BOTH, UPDATES))
+
+    @classmethod
+    def statuses(cls):
+        return {node: rospy.ServiceProxy(node + '/get_status', dog_srv.GetStatus)() for node in (MEMORY, BOTH)}
+
+    @classmethod
+    def wait_taken(cls, count):
+        """Waits (wall time) until each node has integrated, dropped or refused `count` scans."""
+        deadline = time.time() + wall_scene.DEFAULT_TIMEOUT
+        while True:
+            statuses = cls.statuses()
+            taken = [s.scans_integrated + s.scans_dropped_tf + s.scans_dropped_invalid + s.scans_dropped_late +
+                     s.scans_refused_by_memory for s in statuses.values()]
+            if min(taken) >= count:
+                return
+            if time.time() > deadline:
+                raise AssertionError('the nodes took %s of %d scans: %s' % (taken, count, statuses))
+            threading.Event().wait(0.005)
 
     def grid_after(self, node, store, update):
         """~ltm or ~stm of `node` after `update` (0-based), from its full grids and updates."""

@@ -107,10 +107,13 @@ class PoseCorrectionNodeTest(unittest.TestCase):
         cls.belief = TopicRecorder(NODE + '/belief', OccupancyGrid)
         rospy.wait_for_service(NODE + '/get_status', 30.0)
         cls.get_status = rospy.ServiceProxy(NODE + '/get_status', dog_srv.GetStatus)
+        # /tf is not latched: a transform published before the node's subscription is
+        # connected is lost, and the scan of its stamp then waits in the tf2 filter for ever
+        # (a sanitized run in CI lost the first one). Wait for both connections.
         deadline = time.time() + 30.0
-        while cls.scans.get_num_connections() == 0:
+        while cls.scans.get_num_connections() == 0 or cls.tf.get_num_connections() == 0:
             if time.time() > deadline:
-                raise AssertionError('the node never subscribed to /scan')
+                raise AssertionError('the node never subscribed to /scan and /tf')
             threading.Event().wait(0.05)
         cls.tf_static.publish(cls.mount)
         cls.errors, cls.odometry_errors, cls.statuses = cls.feed()
