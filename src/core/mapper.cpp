@@ -265,9 +265,12 @@ void Mapper::applyGatheredStep() {
 
 void Mapper::applyCellStep(CellGrid::Tile& tile, int i, std::int32_t step) {
   const std::uint64_t record = tile.scan_record[i];
-  const std::uint32_t hits = ScanRecord::hits(record);
-  const std::uint32_t misses = ScanRecord::misses(record);
   tile.scan_record[i] = record & ScanRecord::kMarkMask;
+  applyCellEvidence(tile, i, step, ScanRecord::hits(record), ScanRecord::misses(record));
+}
+
+void Mapper::applyCellEvidence(CellGrid::Tile& tile, int i, std::int32_t step, std::uint32_t hits,
+                               std::uint32_t misses) {
   const double evidence = sensor_.logLikelihoodRatio(hits, misses);
   const bool kinds = config_.learner == TransitionLearner::kKinds;
   const bool observed_before = tile.last_step[i] != kNeverObserved;
@@ -503,6 +506,45 @@ double Mapper::beliefAt(std::int32_t x, std::int32_t y, std::int64_t step) const
   if (!state) return std::numeric_limits<double>::quiet_NaN();
   const TransitionParams params{state->p_occ_given_free, state->p_free_given_occ};
   return predictOccupancy(state->p_occ, params, step - state->last_step);
+}
+
+void Mapper::replayObservations(const ObservationSequences& sequences) {
+  if (gathering_step_) throw std::logic_error("replayObservations: the mapper is gathering a step");
+  if (config_.learn_transitions || config_.learn_sensor_model) {
+    throw std::logic_error("replayObservations: needs learn_transitions and learn_sensor_model off");
+  }
+  // Checked before anything changes.
+  const std::int64_t first_allowed = last_applied_step_ ? *last_applied_step_ + 1 : 0;
+  std::optional<std::int64_t> newest = last_applied_step_;
+  CellBox box;
+  for (std::size_t c = 0; c < sequences.cellCount(); ++c) {
+    const CellXY xy = sequences.cell(c);
+    const auto where = [&xy] { return "(" + std::to_string(xy.x) + ", " + std::to_string(xy.y) + ")"; };
+    if (!grid_.insideLimits(xy.x, xy.y)) {
+      throw std::invalid_argument("replayObservations: cell " + where() + " is outside the map's limits");
+    }
+    if (sequences.begin(c)->step < first_allowed) {
+      throw std::invalid_argument("replayObservations: cell " + where() + " has an observation in step " +
+                                  std::to_string(sequences.begin(c)->step) + ", already applied");
+    }
+    const CellGrid::Tile* tile = grid_.findTile(xy.x, xy.y);
+    if (tile != nullptr && tile->last_step[CellGrid::offsetOf(xy.x, xy.y)] >= sequences.begin(c)->step) {
+      throw std::invalid_argument("replayObservations: cell " + where() + " was observed in a later step");
+    }
+    newest = std::max<std::int64_t>(newest.value_or(0), sequences.end(c)[-1].step);
+    box.include(xy.x, xy.y);
+  }
+  grid_.reserve(box);
+  for (std::size_t c = 0; c < sequences.cellCount(); ++c) {
+    const CellXY xy = sequences.cell(c);
+    CellGrid::Tile& tile = *grid_.tileForWriting(xy.x, xy.y);
+    tile_versions_.bump(tile.tile_x, tile.tile_y);
+    const int i = CellGrid::offsetOf(xy.x, xy.y);
+    for (const StepObservation* o = sequences.begin(c); o != sequences.end(c); ++o) {
+      applyCellEvidence(tile, i, o->step, o->hits, o->misses);
+    }
+  }
+  last_applied_step_ = newest;
 }
 
 void Mapper::restartClockAt(double stamp_s) {

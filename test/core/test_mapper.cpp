@@ -21,6 +21,7 @@
 #include <cmath>
 #include <cstdint>
 #include <cstring>
+#include <functional>
 #include <limits>
 #include <map>
 #include <optional>
@@ -31,6 +32,7 @@
 #include <vector>
 
 #include "dynamic_occupancy_grid/core/layers.h"
+#include "dynamic_occupancy_grid/core/model_io.h"
 
 namespace dog = dynamic_occupancy_grid::core;
 
@@ -2093,4 +2095,118 @@ TEST(MapperKinds, RestoredCellsMustHoldAKindPosteriorAndLeaveOnlineEmsPoolAlone)
   state.em_stats.fill(0.3f);
   EXPECT_THROW(mapper.restoreCell(2, 1, state), std::invalid_argument);
   EXPECT_FALSE(mapper.grid().cell(2, 1).has_value());
+}
+
+namespace {
+
+// Observations of `sequences` whose cell satisfies `keep`, in the same per-cell order.
+dog::ObservationSequences subset(const dog::ObservationSequences& sequences,
+                                 const std::function<bool(const dog::CellXY&)>& keep) {
+  dog::SequenceBuilder builder;
+  for (std::size_t c = 0; c < sequences.cellCount(); ++c) {
+    const dog::CellXY xy = sequences.cell(c);
+    if (!keep(xy)) continue;
+    for (const dog::StepObservation* o = sequences.begin(c); o != sequences.end(c); ++o) {
+      builder.add(xy.x, xy.y, o->step, o->hits, o->misses);
+    }
+  }
+  return builder.build();
+}
+
+// A laser driving through a random scene for `steps` steps (one to three scans a step, some
+// steps without a scan), recording every applied cell step.
+dog::ObservationSequences driveAndRecord(dog::Mapper& mapper, int steps) {
+  dog::SequenceBuilder recorder;
+  mapper.recordObservations(&recorder);
+  std::mt19937 random(11);
+  std::uniform_real_distribution<float> range(0.3f, 6.0f);
+  double stamp = 0.25;
+  for (int s = 0; s < steps; ++s) {
+    const int scans = static_cast<int>(random() % 4);  // 0..3
+    for (int k = 0; k < scans; ++k) {
+      std::vector<float> ranges(90);
+      for (float& r : ranges) r = random() % 10 == 0 ? 30.0f : range(random);  // some no-returns
+      dog::Scan scan = makeScan(stamp + 0.2 * k, ranges, 0.01 * s, -kPi, 2.0 * kPi / 90.0, 0.1, 20.0,
+                                kLaserX + 0.05 * s, kLaserY + 0.5 * std::sin(0.1 * s));
+      EXPECT_EQ(mapper.integrate(scan).status, dog::ScanStatus::kIntegrated);
+    }
+    stamp += 1.0;
+  }
+  mapper.finishStep();
+  mapper.recordObservations(nullptr);
+  return recorder.build();
+}
+
+// Cells of `parts` restored into one mapper with `reference`'s time.
+std::string mergedModel(const dog::MapperConfig& config, const dog::Mapper& reference,
+                        const std::vector<const dog::Mapper*>& parts) {
+  dog::Mapper merged(config);
+  merged.restoreTime(reference.clock().origin(), reference.lastAppliedStep());
+  for (const dog::Mapper* part : parts) {
+    part->grid().forEachTile([&](const dog::CellGrid::Tile& tile) {
+      for (int i = 0; i < dog::CellGrid::kTileCells; ++i) {
+        if (tile.last_step[i] == dog::kNeverObserved) continue;
+        merged.restoreCell(tile.cellX(i), tile.cellY(i), *part->grid().cell(tile.cellX(i), tile.cellY(i)));
+      }
+    });
+  }
+  return dog::serializeModel(merged);
+}
+
+}  // namespace
+
+// Sharded offline EM (scripts/dask_offline_em.py) rebuilds a map's cells from their
+// recorded observations in separate mappers and merges them: the model must be the one the
+// scans made, bit for bit, with either learner, before and after offline EM.
+TEST(MapperReplay, CellsRebuiltFromRecordedObservationsInTwoMappersMergeIntoTheSameModel) {
+  for (const dog::TransitionLearner learner : {dog::TransitionLearner::kKinds, dog::TransitionLearner::kCellEm}) {
+    dog::MapperConfig config = testConfig();
+    config.learner = learner;
+    config.static_clamp = dog::LogOddsClamp{-2.0, 3.5};
+    dog::Mapper scanned(config);
+    const dog::ObservationSequences all = driveAndRecord(scanned, 120);
+    ASSERT_GT(all.cellCount(), 500u);
+    const auto even_tile = [](const dog::CellXY& xy) { return ((xy.x >> 6) + (xy.y >> 6)) % 2 == 0; };
+    const dog::ObservationSequences first = subset(all, even_tile);
+    const dog::ObservationSequences second = subset(all, [&](const dog::CellXY& xy) { return !even_tile(xy); });
+    ASSERT_GT(first.cellCount(), 0u);
+    ASSERT_GT(second.cellCount(), 0u);
+    dog::Mapper part1(config);
+    dog::Mapper part2(config);
+    part1.replayObservations(first);
+    part2.replayObservations(second);
+    EXPECT_EQ(mergedModel(config, scanned, {&part1, &part2}), dog::serializeModel(scanned));
+
+    // Offline EM per part (cells are independent without the MRF and sensor learning).
+    dog::OfflineEmConfig em;
+    em.max_iterations = 20;
+    scanned.applyOfflineEm(all, dog::runOfflineEm(all, scanned.sensor(), em), true);
+    part1.applyOfflineEm(first, dog::runOfflineEm(first, part1.sensor(), em), true);
+    part2.applyOfflineEm(second, dog::runOfflineEm(second, part2.sensor(), em), true);
+    EXPECT_EQ(mergedModel(config, scanned, {&part1, &part2}), dog::serializeModel(scanned));
+  }
+}
+
+TEST(MapperReplay, RefusesLearningMappersAndStepsAlreadyAppliedWithoutChangingTheMap) {
+  dog::Mapper scanned(testConfig());
+  const dog::ObservationSequences all = driveAndRecord(scanned, 20);
+  dog::MapperConfig learning = testConfig();
+  learning.learn_transitions = true;
+  dog::Mapper learner(learning);
+  EXPECT_THROW(learner.replayObservations(all), std::logic_error);
+  dog::MapperConfig sensor_learning = testConfig();
+  sensor_learning.learn_sensor_model = true;
+  dog::Mapper sensor_learner(sensor_learning);
+  EXPECT_THROW(sensor_learner.replayObservations(all), std::logic_error);
+
+  dog::Mapper replayed(testConfig());
+  replayed.replayObservations(all);
+  EXPECT_EQ(replayed.lastAppliedStep(), scanned.lastAppliedStep());
+  const std::string before = dog::serializeModel(replayed);
+  EXPECT_THROW(replayed.replayObservations(all), std::invalid_argument);  // every step applied already
+  EXPECT_EQ(dog::serializeModel(replayed), before);
+  dog::SequenceBuilder outside;
+  outside.add(std::numeric_limits<std::int32_t>::max() - 1, 0, 1000, 1, 0);
+  EXPECT_THROW(replayed.replayObservations(outside.build()), std::invalid_argument);
+  EXPECT_EQ(dog::serializeModel(replayed), before);
 }

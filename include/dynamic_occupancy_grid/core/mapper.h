@@ -161,6 +161,18 @@ class Mapper {
   /// applied one. The map is kept; unobserved time between the two is not counted.
   void restartClockAt(double stamp_s);
 
+  /// Applies recorded evidence (sequences recorded by recordObservations with this mapper's
+  /// configuration, steps in this mapper's time) as if the scans behind it were integrated
+  /// again: each cell's observations, in order, through the step the scans went through, and
+  /// the mapper's last applied step becomes the newest step among them (at least the old
+  /// one). Cells are independent here, so a map's cells can be rebuilt in separate mappers
+  /// (sharded offline EM, scripts/dask_offline_em.py) and merged bit for bit. Needs a mapper
+  /// that gathers no step and learns nothing online (learn_transitions and
+  /// learn_sensor_model off: those couple the cells); throws std::logic_error otherwise,
+  /// std::invalid_argument (the map unchanged) for an observation in a step already
+  /// applied or a cell outside the map's limits.
+  void replayObservations(const ObservationSequences& sequences);
+
   /// Uses an offline EM result (sequences recorded with this mapper's geometry) for the
   /// cells it covers that this map has observed: their transitions become the learned ones,
   /// and the online statistics restart from them with the weight of the steps the result
@@ -239,8 +251,11 @@ class Mapper {
     std::array<std::uint64_t, CellGrid::kTileCells / 64> cells;
   };
   void addTouched(CellGrid::Tile& tile, int offset);
-  /// One touched cell's step: the filter or the learner, the static baseline, the record.
+  /// One touched cell's step: its gathered counts to applyCellEvidence.
   void applyCellStep(CellGrid::Tile& tile, int i, std::int32_t step);
+  /// One cell's step with `hits` and `misses`: the filter or the learner, the static
+  /// baseline, the record.
+  void applyCellEvidence(CellGrid::Tile& tile, int i, std::int32_t step, std::uint32_t hits, std::uint32_t misses);
 
   MapperConfig config_;
   ObservationModel sensor_;
