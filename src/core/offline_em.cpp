@@ -583,11 +583,12 @@ OfflineEmResult runOfflineEmMrf(const ObservationSequences& sequences, const Obs
 }
 
 // Per-cell EM with a fixed sensor model, each cell from (*start)[cell] (or the config's
-// initial_params); `emission` gets the sensor model's E-step at the cells' final
-// transitions, summed in chunk order (the same for any number of threads).
+// initial_params); with learn_sensor_model, result.sensor_*_sum get the sensor model's
+// E-step at the cells' final transitions, summed exactly (the same for any number of
+// threads and any split of the cells).
 OfflineEmResult runPerCellEm(const ObservationSequences& sequences, const ObservationModel& sensor,
                              const OfflineEmConfig& config, const std::vector<TransitionParams>* start,
-                             const OfflineEmProgress& progress, ForwardBackwardResult& emission) {
+                             const OfflineEmProgress& progress) {
   const std::size_t cells = sequences.cellCount();
   const auto iterations_max = static_cast<std::size_t>(config.max_iterations);
   OfflineEmResult result;
@@ -601,7 +602,11 @@ OfflineEmResult runPerCellEm(const ObservationSequences& sequences, const Observ
   const std::size_t chunks = (cells + chunk_cells - 1) / chunk_cells;
   std::vector<std::vector<double>> chunk_objective(chunks);
   std::vector<std::size_t> chunk_converged(chunks, 0);
-  std::vector<ForwardBackwardResult> chunk_emission(chunks);
+  struct EmissionSums {
+    std::array<FixedPointSum, 2> trials;
+    std::array<FixedPointSum, 2> hits;
+  };
+  std::vector<EmissionSums> chunk_emission(chunks);
   std::atomic<std::size_t> next_chunk{0};
   std::atomic<bool> cancelled{false};
   std::mutex progress_mutex;
@@ -644,8 +649,8 @@ OfflineEmResult runPerCellEm(const ObservationSequences& sequences, const Observ
       result.final_step[cell] = (end - 1)->step;
       result.iterations[cell] = static_cast<std::uint16_t>(iteration);
       for (int state = 0; state < 2; ++state) {
-        chunk_emission[chunk].expected_trials[state] += pass.expected_trials[state];
-        chunk_emission[chunk].expected_hits[state] += pass.expected_hits[state];
+        chunk_emission[chunk].trials[state].add(pass.expected_trials[state]);
+        chunk_emission[chunk].hits[state].add(pass.expected_hits[state]);
       }
       if (converged) ++chunk_converged[chunk];
       if (scratch.objective.size() > objective_sum.size()) {
@@ -691,14 +696,64 @@ OfflineEmResult runPerCellEm(const ObservationSequences& sequences, const Observ
     if (sum.empty()) continue;  // not run (cancelled)
     for (std::size_t k = 0; k < entries; ++k) result.objective[k] += sum[std::min(k, sum.size() - 1)];
     for (int state = 0; state < 2; ++state) {
-      emission.expected_trials[state] += chunk_emission[chunk].expected_trials[state];
-      emission.expected_hits[state] += chunk_emission[chunk].expected_hits[state];
+      result.sensor_trials_sum[state].add(chunk_emission[chunk].trials[state]);
+      result.sensor_hits_sum[state].add(chunk_emission[chunk].hits[state]);
     }
+  }
+  for (int state = 0; state < 2; ++state) {
+    result.sensor_trials[state] = result.sensor_trials_sum[state].value();
+    result.sensor_hits[state] = result.sensor_hits_sum[state].value();
   }
   return result;
 }
 
 }  // namespace
+
+void FixedPointSum::add(double value) {
+  if (!(value >= 0.0) || !(value < 0x1p90)) {
+    throw std::invalid_argument("FixedPointSum: cannot add " + std::to_string(value));
+  }
+  units_ += static_cast<Units>(std::nearbyint(std::ldexp(value, 32)));
+}
+
+double FixedPointSum::value() const { return std::ldexp(static_cast<double>(units_), -32); }
+
+FixedPointSum FixedPointSum::fromHalves(std::uint64_t high, std::uint64_t low) {
+  FixedPointSum sum;
+  sum.units_ = (static_cast<Units>(high) << 64) | low;
+  return sum;
+}
+
+OfflineEmResult runOfflineEmRound(const ObservationSequences& sequences, const ObservationModel& sensor,
+                                  const OfflineEmConfig& config, const std::vector<TransitionParams>& start,
+                                  const OfflineEmProgress& progress) {
+  config.validate();
+  if (!config.learn_sensor_model) throw std::invalid_argument("runOfflineEmRound needs learn_sensor_model");
+  if (!start.empty() && start.size() != sequences.cellCount()) {
+    throw std::invalid_argument("runOfflineEmRound: " + std::to_string(start.size()) + " start values for " +
+                                std::to_string(sequences.cellCount()) + " cells");
+  }
+  OfflineEmResult result = runPerCellEm(sequences, sensor, config, start.empty() ? nullptr : &start, progress);
+  result.p_hit_given_occ = sensor.pHitGivenOcc();
+  result.p_hit_given_free = sensor.pHitGivenFree();
+  return result;
+}
+
+std::optional<ObservationModel> nextSensorModel(const std::array<FixedPointSum, 2>& trials,
+                                                const std::array<FixedPointSum, 2>& hits,
+                                                const ObservationModel& used, const OfflineEmConfig& config) {
+  const double lo = config.sensor_model_p_min;
+  const auto rate = [&](int state, double fallback) {
+    const double n = trials[state].value();
+    return n > 0.0 ? std::clamp(hits[state].value() / n, lo, 1.0 - lo) : fallback;
+  };
+  const double occ = rate(0, used.pHitGivenOcc());
+  const double free = rate(1, used.pHitGivenFree());
+  if (occ < free + 0.05) return std::nullopt;  // a hit must stay evidence for "occupied"
+  const double moved = std::max(std::abs(occ - used.pHitGivenOcc()), std::abs(free - used.pHitGivenFree()));
+  if (moved <= 1e-4) return std::nullopt;
+  return ObservationModel(occ, free);
+}
 
 OfflineEmResult runOfflineEm(const ObservationSequences& sequences, const ObservationModel& sensor,
                              const OfflineEmConfig& config, const OfflineEmProgress& progress) {
@@ -709,9 +764,8 @@ OfflineEmResult runOfflineEm(const ObservationSequences& sequences, const Observ
     result.p_hit_given_free = sensor.pHitGivenFree();
     return result;
   }
-  ForwardBackwardResult emission;
   if (!config.learn_sensor_model) {
-    OfflineEmResult result = runPerCellEm(sequences, sensor, config, nullptr, progress, emission);
+    OfflineEmResult result = runPerCellEm(sequences, sensor, config, nullptr, progress);
     result.p_hit_given_occ = sensor.pHitGivenOcc();
     result.p_hit_given_free = sensor.pHitGivenFree();
     return result;
@@ -726,28 +780,15 @@ OfflineEmResult runOfflineEm(const ObservationSequences& sequences, const Observ
     const OfflineEmProgress round_progress = [&](std::size_t done, std::size_t total) {
       return !progress || progress(round * total + done, rounds * total);
     };
-    emission = ForwardBackwardResult{};
     const std::vector<TransitionParams> start = round == 0 ? std::vector<TransitionParams>{} : result.params;
     const int rounds_before = result.sensor_model_rounds;
-    result = runPerCellEm(sequences, current, config, round == 0 ? nullptr : &start, round_progress, emission);
+    result = runOfflineEmRound(sequences, current, config, start, round_progress);
     result.sensor_model_rounds = round == 0 ? 1 : rounds_before + 1;
-    result.p_hit_given_occ = current.pHitGivenOcc();
-    result.p_hit_given_free = current.pHitGivenFree();
-    result.sensor_trials = emission.expected_trials;
-    result.sensor_hits = emission.expected_hits;
     if (result.cancelled || cells == 0) break;
-    const double lo = config.sensor_model_p_min;
-    const auto rate = [&](int state, double fallback) {
-      return emission.expected_trials[state] > 0.0
-                 ? std::clamp(emission.expected_hits[state] / emission.expected_trials[state], lo, 1.0 - lo)
-                 : fallback;
-    };
-    const double occ = rate(0, current.pHitGivenOcc());
-    const double free = rate(1, current.pHitGivenFree());
-    if (occ < free + 0.05) break;  // a hit must stay evidence for "occupied"
-    const double moved = std::max(std::abs(occ - current.pHitGivenOcc()), std::abs(free - current.pHitGivenFree()));
-    if (moved <= 1e-4) break;
-    if (round + 1 < rounds) current = ObservationModel(occ, free);
+    const std::optional<ObservationModel> next =
+        nextSensorModel(result.sensor_trials_sum, result.sensor_hits_sum, current, config);
+    if (!next) break;
+    if (round + 1 < rounds) current = *next;
   }
   return result;
 }

@@ -15,11 +15,13 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <array>
 #include <atomic>
 #include <cmath>
 #include <cstdint>
 #include <cstring>
 #include <limits>
+#include <optional>
 #include <random>
 #include <sstream>
 #include <stdexcept>
@@ -1450,4 +1452,93 @@ TEST(OfflineEmSensorModel, RecoversTheSimulatedSensorFromAWrongStart) {
   // Not with the MRF.
   config.mrf_temperature = 50.0;
   EXPECT_THROW(config.validate(), std::invalid_argument);
+}
+
+TEST(OfflineEmFixedPointSum, IsExactInAnyOrderAndSurvivesItsHalves) {
+  std::mt19937_64 rng(99);
+  std::uniform_real_distribution<double> value(0.0, 1e6);
+  std::vector<double> values(5000);
+  for (double& v : values) v = value(rng) * (rng() % 7 == 0 ? 1e-9 : 1.0);
+  dog::FixedPointSum forward;
+  for (const double v : values) forward.add(v);
+  std::shuffle(values.begin(), values.end(), rng);
+  dog::FixedPointSum first_half;
+  dog::FixedPointSum second_half;
+  for (std::size_t i = 0; i < values.size(); ++i) (i % 3 == 0 ? first_half : second_half).add(values[i]);
+  second_half.add(first_half);
+  EXPECT_TRUE(second_half == forward);
+  const dog::FixedPointSum copy = dog::FixedPointSum::fromHalves(forward.high(), forward.low());
+  EXPECT_TRUE(copy == forward);
+  EXPECT_EQ(bits(copy.value()), bits(forward.value()));
+  LD reference = 0.0L;
+  for (const double v : values) reference += static_cast<LD>(v);
+  EXPECT_NEAR(forward.value(), static_cast<double>(reference), 1e-9 * static_cast<double>(values.size()));
+  dog::FixedPointSum bad;
+  EXPECT_THROW(bad.add(-1.0), std::invalid_argument);
+  EXPECT_THROW(bad.add(std::numeric_limits<double>::quiet_NaN()), std::invalid_argument);
+  EXPECT_THROW(bad.add(std::numeric_limits<double>::infinity()), std::invalid_argument);
+}
+
+// Sharded offline EM learns the sensor model in rounds over blocks of cells, adding the
+// blocks' exact sums between rounds: it must give runOfflineEm's result bit for bit.
+TEST(OfflineEmSensorModel, RoundsOverTwoPartsOfTheCellsGiveTheWholeRunBitForBit) {
+  std::mt19937_64 rng(4343);
+  const dog::ObservationModel truth(0.9, 0.06);
+  std::vector<Sequence> cells;
+  for (int i = 0; i < 400; ++i) {
+    const dog::TransitionParams cell_truth = i % 2 == 0 ? params(0.0005, 0.002) : params(0.05, 0.1);
+    cells.push_back(simulateCell(rng, cell_truth, truth, 300, 0.5, 3));
+  }
+  std::vector<Sequence> part_cells[2];
+  for (std::size_t i = 0; i < cells.size(); ++i) part_cells[i % 5 == 0 ? 0 : 1].push_back(cells[i]);
+  const dog::ObservationSequences whole_sequences = buildSequences(cells);
+  const dog::ObservationSequences parts[2] = {buildSequences(part_cells[0]), buildSequences(part_cells[1])};
+  dog::OfflineEmConfig config;
+  config.learn_sensor_model = true;
+  config.prior_weight = 2.0;
+  const dog::ObservationModel start(0.7, 0.2);
+  const dog::OfflineEmResult whole = dog::runOfflineEm(whole_sequences, start, config);
+  ASSERT_GT(whole.sensor_model_rounds, 2);
+
+  dog::ObservationModel current = start;
+  dog::OfflineEmResult results[2];
+  int rounds = 0;
+  for (int round = 0; round < config.sensor_model_rounds; ++round) {
+    std::array<dog::FixedPointSum, 2> trials{};
+    std::array<dog::FixedPointSum, 2> hits{};
+    for (int p = 0; p < 2; ++p) {
+      results[p] = dog::runOfflineEmRound(parts[p], current, config, round == 0 ? std::vector<dog::TransitionParams>{}
+                                                                               : results[p].params);
+      for (int state = 0; state < 2; ++state) {
+        trials[state].add(results[p].sensor_trials_sum[state]);
+        hits[state].add(results[p].sensor_hits_sum[state]);
+      }
+    }
+    ++rounds;
+    if (round + 1 == config.sensor_model_rounds) break;
+    const std::optional<dog::ObservationModel> next = dog::nextSensorModel(trials, hits, current, config);
+    if (!next) {
+      for (int state = 0; state < 2; ++state) {
+        EXPECT_TRUE(trials[state] == whole.sensor_trials_sum[state]);
+        EXPECT_TRUE(hits[state] == whole.sensor_hits_sum[state]);
+      }
+      break;
+    }
+    current = *next;
+  }
+  EXPECT_EQ(rounds, whole.sensor_model_rounds);
+  EXPECT_EQ(bits(current.pHitGivenOcc()), bits(whole.p_hit_given_occ));
+  EXPECT_EQ(bits(current.pHitGivenFree()), bits(whole.p_hit_given_free));
+  std::size_t next_in_part[2] = {0, 0};
+  for (std::size_t i = 0; i < cells.size(); ++i) {
+    const int p = i % 5 == 0 ? 0 : 1;
+    const std::size_t k = next_in_part[p]++;
+    EXPECT_EQ(bits(results[p].params[k].p_occ_given_free), bits(whole.params[i].p_occ_given_free)) << i;
+    EXPECT_EQ(bits(results[p].params[k].p_free_given_occ), bits(whole.params[i].p_free_given_occ)) << i;
+    EXPECT_EQ(bits(results[p].final_p_occ[k]), bits(whole.final_p_occ[i])) << i;
+  }
+  EXPECT_THROW(dog::runOfflineEmRound(parts[0], start, config, std::vector<dog::TransitionParams>(3)),
+               std::invalid_argument);
+  config.learn_sensor_model = false;
+  EXPECT_THROW(dog::runOfflineEmRound(parts[0], start, config, {}), std::invalid_argument);
 }

@@ -14,6 +14,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <functional>
+#include <optional>
 #include <unordered_map>
 #include <vector>
 
@@ -77,6 +78,28 @@ class SequenceBuilder {
 
 /// Expected transition counts E[N(i -> j) | z] of one cell (index 0 = occ, 1 = free).
 using TransitionCounts = std::array<std::array<double, 2>, 2>;
+
+/// A sum of non-negative numbers kept exactly, in fixed point (units of 2^-32 in 128 bits):
+/// the total does not depend on the order of the additions, so sums over parts of the
+/// cells (threads, or the blocks of sharded offline EM, docs/sharded_em.md) add up to the
+/// whole's bit for bit. Each added value is rounded to the nearest unit (2.3e-10).
+class FixedPointSum {
+ public:
+  /// Adds `value`: finite, >= 0 and below 2^90; anything else throws std::invalid_argument.
+  void add(double value);
+  void add(const FixedPointSum& other) { units_ += other.units_; }
+  /// The sum, rounded to the nearest double.
+  double value() const;
+  /// The count of units as two 64-bit halves, and back (for files).
+  std::uint64_t high() const { return static_cast<std::uint64_t>(units_ >> 64); }
+  std::uint64_t low() const { return static_cast<std::uint64_t>(units_); }
+  static FixedPointSum fromHalves(std::uint64_t high, std::uint64_t low);
+  bool operator==(const FixedPointSum& other) const { return units_ == other.units_; }
+
+ private:
+  __extension__ typedef unsigned __int128 Units;
+  Units units_ = 0;
+};
 
 /// One forward–backward pass over one cell's sequence with fixed parameters.
 struct ForwardBackwardResult {
@@ -171,6 +194,10 @@ struct OfflineEmResult {
   /// (expected beam ends and hits per state, 0 = occ); all zero without.
   std::array<double, 2> sensor_trials{};
   std::array<double, 2> sensor_hits{};
+  /// The same sums exactly (sensor_trials[s] == sensor_trials_sum[s].value()): sums over
+  /// parts of the cells add up to the whole's.
+  std::array<FixedPointSum, 2> sensor_trials_sum{};
+  std::array<FixedPointSum, 2> sensor_hits_sum{};
 };
 
 /// Called now and then (from a worker thread, never concurrently) with cells done / total;
@@ -181,6 +208,26 @@ using OfflineEmProgress = std::function<bool(std::size_t cells_done, std::size_t
 /// for any number of threads. Throws std::invalid_argument for a bad config.
 OfflineEmResult runOfflineEm(const ObservationSequences& sequences, const ObservationModel& sensor,
                              const OfflineEmConfig& config, const OfflineEmProgress& progress = {});
+
+/// One round of learn_sensor_model's coordinate ascent, the step runOfflineEm repeats:
+/// per-cell EM with the sensor model fixed at `sensor`, cell c starting from start[c]
+/// (empty `start`: config.initial_params), and the sensor model's E-step at the cells'
+/// final transitions in result.sensor_*_sum (and sensor_trials, sensor_hits). The cells are
+/// independent: the rounds of parts of the cells give the whole's cells and, added up, its
+/// sums (sharded offline EM). Needs config.learn_sensor_model; throws std::invalid_argument
+/// for a bad config or a `start` of another size.
+OfflineEmResult runOfflineEmRound(const ObservationSequences& sequences, const ObservationModel& sensor,
+                                  const OfflineEmConfig& config, const std::vector<TransitionParams>& start,
+                                  const OfflineEmProgress& progress = {});
+
+/// The emission M-step after a round: from the round's sums over all cells, the sensor
+/// model the next round uses (each state's expected hits over its expected beam ends, in
+/// [sensor_model_p_min, 1 - sensor_model_p_min]); std::nullopt when the rounds stop there:
+/// a hit would no longer be evidence for "occupied" (p_hit_given_occ < p_hit_given_free +
+/// 0.05), or neither probability moved by more than 1e-4 from `used`, the round's model.
+std::optional<ObservationModel> nextSensorModel(const std::array<FixedPointSum, 2>& trials,
+                                                const std::array<FixedPointSum, 2>& hits,
+                                                const ObservationModel& used, const OfflineEmConfig& config);
 
 /// The M-step of one cell from its expected counts: row-normalised counts (plus the prior's
 /// pseudo-counts), or one symmetric p_c, clamped to [p_min, p_max]. A from-state without
