@@ -17,13 +17,14 @@ workspace=${DOG_WORKSPACE:-$HOME/dog_ws}
 export PATH=/usr/bin:/bin:$PATH
 
 # Packages: build, tests (gtest, rostest, python message modules, pomegranate for the
-# cross-check, clang with libFuzzer and its sanitizer runtimes for test/fuzz), benchmarks
+# cross-check, clang with libFuzzer and its sanitizer runtimes for test/fuzz, Dask for
+# scripts/dask_offline_em.py), benchmarks
 # (Google Benchmark; OctoMap as the peer of issue 6, optional in CMake; Debian/Ubuntu names
 # on both branches, like libbenchmark-dev), demo (rviz under Xvfb, tf2 tools).
 common_packages=(
   build-essential cmake libeigen3-dev libgtest-dev googletest libbenchmark-dev liboctomap-dev
   zlib1g-dev libboost-program-options-dev clang
-  python3-numpy python3-matplotlib python3-pomegranate xvfb
+  python3-numpy python3-matplotlib python3-pomegranate xvfb python3-distributed python3-dask
 )
 debian_ros_packages=(
   catkin python3-catkin-pkg ros-core-dev ros-message-generation ros-message-runtime
