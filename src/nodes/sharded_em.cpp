@@ -23,6 +23,7 @@
 // File formats: docs/sharded_em.md.
 
 #include <algorithm>
+#include <array>
 #include <cinttypes>
 #include <cmath>
 #include <cstdint>
@@ -32,7 +33,6 @@
 #include <filesystem>
 #include <limits>
 #include <map>
-#include <array>
 #include <memory>
 #include <optional>
 #include <sstream>
@@ -160,7 +160,9 @@ class KeyValues {
 
 void put(std::string* out, const void* data, std::size_t size) { out->append(static_cast<const char*>(data), size); }
 
-std::string encodeShard(std::uint64_t config, const std::vector<std::pair<dog::core::CellXY, std::vector<dog::core::StepObservation>>>& cells) {
+using BlockCells = std::vector<std::pair<dog::core::CellXY, std::vector<dog::core::StepObservation>>>;
+
+std::string encodeShard(std::uint64_t config, const BlockCells& cells) {
   std::string out(kShardMagic, sizeof(kShardMagic));
   put(&out, &config, 8);
   const std::uint64_t count = cells.size();
@@ -263,9 +265,7 @@ int extract(const Options& options) {
 
   // Per block, its cells with their observations.
   const dog::core::ObservationSequences sequences = recorder.build();
-  std::map<std::pair<std::int32_t, std::int32_t>,
-           std::vector<std::pair<dog::core::CellXY, std::vector<dog::core::StepObservation>>>>
-      blocks;
+  std::map<std::pair<std::int32_t, std::int32_t>, BlockCells> blocks;
   const int shift = __builtin_ctz(static_cast<unsigned>(options.block_cells));
   for (std::size_t c = 0; c < sequences.cellCount(); ++c) {
     const dog::core::CellXY xy = sequences.cell(c);
@@ -337,7 +337,9 @@ int plan(const Options& options) {
     extracted.anchor(stamps.front(), anchor);
     timeline.anchor(stamps.front(), offset);
     bool same = true;
-    for (const double stamp : stamps) same = same && timeline.stepOf(stamp) == extracted.stepOf(stamp) - anchor + offset;
+    for (const double stamp : stamps) {
+      same = same && timeline.stepOf(stamp) == extracted.stepOf(stamp) - anchor + offset;
+    }
     if (!same) {
       // Its steps would round differently on the timeline: extracted again right there.
       redo.emplace_back(i, offset);
@@ -410,12 +412,18 @@ const char* const kSumNames[4] = {"trials_occ", "trials_free", "hits_occ", "hits
 
 using Sums = std::array<dog::core::FixedPointSum, 4>;  // trials occ, free; hits occ, free
 
-std::string roundPath(const Options& options, const std::string& name) { return options.work_dir + "/rounds/" + name; }
-std::string partsPath(const Options& options, const std::string& name) { return options.work_dir + "/parts/" + name; }
+std::string roundPath(const Options& options, const std::string& name) {
+  return options.work_dir + "/rounds/" + name;
+}
+std::string partsPath(const Options& options, const std::string& name) {
+  return options.work_dir + "/parts/" + name;
+}
 
 std::string encodeSums(const Sums& sums) {
   std::string text = std::string(kSumsHeader) + "\n";
-  for (int k = 0; k < 4; ++k) text += std::string(kSumNames[k]) + " " + hex(sums[k].high()) + " " + hex(sums[k].low()) + "\n";
+  for (int k = 0; k < 4; ++k) {
+    text += std::string(kSumNames[k]) + " " + hex(sums[k].high()) + " " + hex(sums[k].low()) + "\n";
+  }
   return text;
 }
 
@@ -646,8 +654,8 @@ Options parseArguments(int argc, char** argv) {
        "extract: the bag's place in the timeline (0 = first)")
       ("anchor-step", cl::number(&options.anchor_step, cl::between<std::int64_t>(0, 2000000000))->value_name("K"),
        "extract: the bag's first scan starts step K (what plan asks for in plan.redo; default 0)")
-      ("block-cells", cl::number(&options.block_cells, cl::between(64, 1 << 20))->value_name("N"),
-       "side of a block in cells, a power of two >= 64 (default 1024)")
+      ("block-cells", cl::number(&options.block_cells, cl::between(8, 1 << 20))->value_name("N"),
+       "side of a block in cells, a power of two >= 8 (default 1024); smaller blocks, smaller EM tasks")
       ("bags", cl::number(&options.bags, cl::between(1, 1000000000))->value_name("N"), "plan: the number of bags")
       ("block", cl::nonEmpty(&options.block, "a block name")->value_name("NAME"),
        "em: the block (block_X_Y, as extract names its shard files)")
@@ -676,7 +684,8 @@ Options parseArguments(int argc, char** argv) {
     arguments(0);
     if (options.block.empty()) line.fail("em needs --block");
     if (options.shared.em.learn_sensor_model != (options.round >= 0)) {
-      line.fail(options.round >= 0 ? "--round is for --em-learn-sensor-model" : "--em-learn-sensor-model needs --round");
+      line.fail(options.round >= 0 ? "--round is for --em-learn-sensor-model"
+                                   : "--em-learn-sensor-model needs --round");
     }
   } else if (options.command == "assemble") {
     arguments(0);

@@ -5,7 +5,8 @@ The model file the sharded run writes must be offline_em's for the same bags, by
 on the package's two real recordings (each bag given more than once: one timeline), on a
 patrol simulated as several bags, with the sensor model learned in rounds over the blocks,
 on bags whose stamps fall on step borders so that a bag must be extracted again (plan.redo),
-and with one of the two workers killed while it runs EM tasks. Also: the errors of bad options, a missing plan and a corrupt shard.
+and with one of the two workers killed while it runs EM tasks. Also: the errors of bad
+options, a missing plan and a corrupt shard.
 """
 
 import math
@@ -172,9 +173,10 @@ class DaskOfflineEmTest(unittest.TestCase):
         result = run('plan', '--work', work, '--bags', '1')
         self.assertEqual(result.returncode, 1)
         self.assertIn('shard meta (extracted?)', result.stderr)
-        for bad in (['check', '--mrf-temperature', '50'], ['check', '--block-cells', '100'], ['frobnicate'],
-                    ['em', '--block', 'block_0_0', '--em-learn-sensor-model'], ['em', '--block', 'block_0_0', '--round', '0'],
-                    ['reduce', '--round', '0']):
+        for bad in (['check', '--mrf-temperature', '50'], ['check', '--block-cells', '100'],
+                    ['check', '--block-cells', '4'], ['frobnicate'], ['reduce', '--round', '0'],
+                    ['em', '--block', 'block_0_0', '--em-learn-sensor-model'],
+                    ['em', '--block', 'block_0_0', '--round', '0']):
             result = run(bad[0], '--work', work, *bad[1:])
             self.assertEqual(result.returncode, 2, bad)
             self.assertIn('sharded_em:', result.stderr)
