@@ -205,8 +205,13 @@ def main(argv=None):
         cluster = LocalCluster(n_workers=args.workers, threads_per_worker=1, processes=True,
                                dashboard_address=':0')
         client = Client(cluster)
+    # The dashboard is served by the scheduler, and only where bokeh is installed (Debian 12
+    # does not package it: pip install 'bokeh>=2.4.2,<3').
+    import importlib.util
+    dashboard = client.dashboard_link if args.scheduler or importlib.util.find_spec('bokeh') else \
+        'none (needs bokeh)'
     print('dask_offline_em: %d bags, %d workers, dashboard %s, work %s' % (
-        len(bags), len(client.scheduler_info()['workers']), client.dashboard_link, work))
+        len(bags), len(client.scheduler_info()['workers']), dashboard, work))
     try:
         timing = sharded_offline_em(client, bags, os.path.abspath(args.out), work, tool_options, sharded_em,
                                     retries=args.retries)

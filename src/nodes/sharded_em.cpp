@@ -489,15 +489,29 @@ std::vector<dog::core::TransitionParams> decodeParams(const std::string& path, s
   return params;
 }
 
+/// The blocks bag `index` has shards of (its meta's list), sorted.
+std::vector<std::string> bagBlocks(const Options& options, std::size_t index) {
+  const KeyValues meta(bagDir(options.work_dir, static_cast<int>(index)) + "/meta", "shard meta", kMetaHeader);
+  std::vector<std::string> blocks;
+  for (const std::string& line : meta.lines()) {
+    if (line.compare(0, 6, "block ") == 0) blocks.push_back(line.substr(6));
+  }
+  std::sort(blocks.begin(), blocks.end());
+  return blocks;
+}
+
 int emBlock(const Options& options) {
   const Plan plan = readPlan(options);
   const std::uint64_t config = configFingerprint(options.shared.mapper);
   const bool rounds = options.shared.em.learn_sensor_model;
   dog::core::SequenceBuilder builder;
-  // Bags in timeline order: each cell's steps keep increasing.
+  // Bags in timeline order: each cell's steps keep increasing. Only the shards a bag's meta
+  // lists are its own (a work directory may hold older files).
   for (std::size_t i = 0; i < plan.shifts.size(); ++i) {
-    const std::string path = bagDir(options.work_dir, static_cast<int>(i)) + "/" + options.block + ".obs";
-    if (fs::exists(path)) decodeShard(path, config, plan.shifts[i], &builder);
+    const std::vector<std::string> blocks = bagBlocks(options, i);
+    if (!std::binary_search(blocks.begin(), blocks.end(), options.block)) continue;
+    decodeShard(bagDir(options.work_dir, static_cast<int>(i)) + "/" + options.block + ".obs", config,
+                plan.shifts[i], &builder);
   }
   const dog::core::ObservationSequences sequences = builder.build();
   if (sequences.cellCount() == 0) throw std::runtime_error("no bag has observations in " + options.block);
@@ -538,10 +552,8 @@ int emBlock(const Options& options) {
 std::vector<std::string> allBlocks(const Options& options, std::size_t bags) {
   std::vector<std::string> blocks;
   for (std::size_t i = 0; i < bags; ++i) {
-    const KeyValues meta(bagDir(options.work_dir, static_cast<int>(i)) + "/meta", "shard meta", kMetaHeader);
-    for (const std::string& line : meta.lines()) {
-      if (line.compare(0, 6, "block ") == 0) blocks.push_back(line.substr(6));
-    }
+    const std::vector<std::string> own = bagBlocks(options, i);
+    blocks.insert(blocks.end(), own.begin(), own.end());
   }
   std::sort(blocks.begin(), blocks.end());
   blocks.erase(std::unique(blocks.begin(), blocks.end()), blocks.end());
@@ -596,14 +608,13 @@ int assemble(const Options& options) {
     sensor_sums = readSums(roundPath(options, "final"), kFinalHeader);
     parts_dir += "/" + std::to_string(final_round.integer("round"));
   }
-  std::vector<std::string> parts;
-  for (const fs::directory_entry& entry : fs::directory_iterator(parts_dir)) {
-    const std::string name = entry.path().filename().string();
-    if (!dog::core::isTemporaryName(name) && entry.path().extension() == ".dogm") parts.push_back(entry.path());
-  }
-  std::sort(parts.begin(), parts.end());
+  // One part per block of the plan's bags, each required (a work directory may hold
+  // parts of other runs: they are not read).
+  const std::vector<std::string> blocks = allBlocks(options, plan.shifts.size());
   std::size_t cells = 0;
-  for (const std::string& path : parts) {
+  for (const std::string& block : blocks) {
+    const std::string path = parts_dir + "/" + block + ".dogm";
+    if (!fs::exists(path)) throw std::runtime_error("no part of " + block + " (" + path + "): em not run for it?");
     const std::unique_ptr<dog::core::Mapper> part = dog::core::loadModel(path);
     if (configFingerprint(part->config()) != config) {
       throw std::runtime_error("part " + path + " was learned with another mapping configuration");
@@ -626,7 +637,7 @@ int assemble(const Options& options) {
     model.restoreSensorModelStats(stats);
   }
   dog::core::saveModel(model, options.out);
-  std::printf("assemble: %zu parts, %zu cells, steps 0..%" PRId64 "\nmodel -> %s\n", parts.size(), cells,
+  std::printf("assemble: %zu parts, %zu cells, steps 0..%" PRId64 "\nmodel -> %s\n", blocks.size(), cells,
               plan.last_step, options.out.c_str());
   return 0;
 }

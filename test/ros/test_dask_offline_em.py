@@ -166,6 +166,28 @@ class DaskOfflineEmTest(unittest.TestCase):
         self.assertTrue(keys, killed)  # it held EM tasks when it died
         self.assertNotIn(worker, self.client.scheduler_info()['workers'])  # and it is gone (its nanny started another)
 
+    def test_work_directory_of_another_run_is_reused_safely(self):
+        # Older shards and parts (other bags, other blocks) in the work directory are not read.
+        work = os.path.join(self.tmp, 'reused')
+        dask_offline_em.sharded_offline_em(self.client, [STATIONARY_BAG] * 2, os.path.join(self.tmp, 'first.dogm'),
+                                           work, STATIONARY_ARGS + ['--block-cells', '64'], self.sharded_em,
+                                           log=lambda line: None)
+        out = os.path.join(self.tmp, 'reused.dogm')
+        dask_offline_em.sharded_offline_em(self.client, [NEATO_BAG], out, work, NEATO_ARGS + ['--block-cells', '64'],
+                                           self.sharded_em, log=lambda line: None)
+        with open(out, 'rb') as model:
+            self.assertTrue(model.read() == offline_em([NEATO_BAG], out + '.single', NEATO_ARGS))
+        # A block whose part is missing fails the assembly, naming it.
+        parts = sorted(name for name in os.listdir(os.path.join(work, 'parts')) if name.endswith('.dogm'))
+        with open(os.path.join(work, 'bags', '0', 'meta')) as meta:
+            block = next(line.split()[1] for line in meta if line.startswith('block '))
+        os.remove(os.path.join(work, 'parts', block + '.dogm'))
+        result = subprocess.run([self.sharded_em, 'assemble', '--work', work, '--out', out, '--block-cells', '64'] +
+                                NEATO_ARGS, capture_output=True, text=True)
+        self.assertEqual(result.returncode, 1)
+        self.assertIn('no part of ' + block, result.stderr)
+        self.assertGreater(len(parts), 1)
+
     def test_errors(self):
         work = os.path.join(self.tmp, 'errors')
         os.makedirs(work)
