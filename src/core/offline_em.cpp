@@ -444,51 +444,12 @@ OfflineEmResult runOfflineEmMrf(const ObservationSequences& sequences, const Obs
 
   std::vector<CellXY> coordinates(cells);
   for (std::size_t c = 0; c < cells; ++c) coordinates[c] = sequences.cell(c);
-  const CellNeighbours graph = eightNeighbours(coordinates);
-  const double lambda = 1.0 / config.mrf_temperature;
-  // a_occ = p(occ -> occ) = 1 - p_free_given_occ, a_free = 1 - p_occ_given_free: the bounds
-  // [p_min, p_max] of the change probabilities become [1 - p_max, 1 - p_min] of the a's.
-  const double lo = finiteLogit(1.0 - config.p_max);
-  const double hi = finiteLogit(1.0 - config.p_min);
-  std::vector<double> logit_occ(cells, finiteLogit(1.0 - config.initial_params.p_free_given_occ));
-  std::vector<double> logit_free(cells, finiteLogit(1.0 - config.initial_params.p_occ_given_free));
-
-  std::vector<TransitionCounts> counts(cells);
-  std::vector<double> log_likelihood(cells);
-  const std::size_t chunk_cells = chunkCells(cells);
-  const std::size_t chunks = (cells + chunk_cells - 1) / chunk_cells;
-  const unsigned hardware = std::max(1U, std::thread::hardware_concurrency());
-  const std::size_t thread_count = std::min<std::size_t>(config.threads == 0 ? hardware : config.threads, chunks);
+  MrfEm mrf(std::move(coordinates), config);
+  OfflineEStep e;
   const auto e_step = [&]() {
-    std::atomic<std::size_t> next_chunk{0};
-    std::mutex failure_mutex;
-    std::exception_ptr failure;
-    const auto worker = [&]() {
-      try {
-        Scratch scratch(sensor);
-        scratch.emissions = false;  // the MRF does not learn the sensor model
-        for (std::size_t chunk = next_chunk++; chunk < chunks; chunk = next_chunk++) {
-          const std::size_t last = std::min(cells, (chunk + 1) * chunk_cells);
-          for (std::size_t c = chunk * chunk_cells; c < last; ++c) {
-            prepare(sequences.begin(c), sequences.end(c), scratch);
-            const ForwardBackwardResult pass = forwardBackwardPrepared(scratch, result.params[c], config.initial_p_occ);
-            counts[c] = pass.counts;
-            log_likelihood[c] = pass.log_likelihood;
-            result.final_p_occ[c] = pass.final_p_occ;
-          }
-        }
-      } catch (...) {
-        const std::lock_guard<std::mutex> lock(failure_mutex);
-        if (!failure) failure = std::current_exception();
-        next_chunk = chunks;
-      }
-    };
-    runOnThreads(thread_count, worker);
-    if (failure) std::rethrow_exception(failure);
-    // Summed in cell order: the same objective for any number of threads.
-    double objective = 0.0;
-    for (std::size_t c = 0; c < cells; ++c) objective += log_likelihood[c] + logPrior(result.params[c], config);
-    return objective + mrfPrior(graph, lambda, logit_occ) + mrfPrior(graph, lambda, logit_free);
+    e = offlineEStep(sequences, sensor, mrf.params(), config.initial_p_occ, config.threads);
+    result.final_p_occ = e.final_p_occ;
+    return mrf.objective(e.log_likelihood);
   };
 
   double objective = e_step();
@@ -500,66 +461,8 @@ OfflineEmResult runOfflineEmMrf(const ObservationSequences& sequences, const Obs
   };
   std::size_t iteration = 0;
   bool converged = false;
-  const double w = config.prior_weight;
-  // An M-step need not be exact, only gain (generalised EM): each map's Newton takes a step
-  // predicted to add less than 1 % of the gain at which EM itself stops, and stops there.
-  // Tolerance 0 solves every M-step exactly.
-  const double newton_gain_tolerance =
-      std::min(0.01 * config.tolerance * static_cast<double>(cells), std::numeric_limits<double>::max());
   while (iteration < static_cast<std::size_t>(config.max_iterations)) {
-    MrfMapProblem occ;
-    MrfMapProblem free;
-    for (MrfMapProblem* problem : {&occ, &free}) {
-      problem->graph = &graph;
-      problem->inverse_temperature = lambda;
-      problem->lo = lo;
-      problem->hi = hi;
-      problem->stay.resize(cells);
-      problem->leave.resize(cells);
-    }
-    for (std::size_t c = 0; c < cells; ++c) {
-      // Expected counts plus the MAP prior's pseudo-counts, as offlineMStep adds them.
-      occ.stay[c] = counts[c][0][0] + w * (1.0 - config.prior.p_free_given_occ);
-      occ.leave[c] = counts[c][0][1] + w * config.prior.p_free_given_occ;
-      free.stay[c] = counts[c][1][1] + w * (1.0 - config.prior.p_occ_given_free);
-      free.leave[c] = counts[c][1][0] + w * config.prior.p_occ_given_free;
-    }
-    std::array<int, 2> newton{0, 0};
-    // The two maps are independent problems: one per core.
-    std::optional<std::thread> other;
-    std::exception_ptr failure;
-    if ((config.threads == 0 ? hardware : config.threads) > 1) {
-      try {
-        other.emplace([&]() {
-          try {
-            newton[1] = maximizeMrfMap(free, logit_free, kMaxNewtonIterations, newton_gain_tolerance);
-          } catch (...) {
-            failure = std::current_exception();
-          }
-        });
-      } catch (const std::system_error&) {
-        other.reset();  // no second thread: both maps on this one
-      }
-    }
-    if (other) {
-      try {
-        newton[0] = maximizeMrfMap(occ, logit_occ, kMaxNewtonIterations, newton_gain_tolerance);
-      } catch (...) {
-        other->join();
-        throw;
-      }
-      other->join();
-      if (failure) std::rethrow_exception(failure);
-    } else {
-      newton[0] = maximizeMrfMap(occ, logit_occ, kMaxNewtonIterations, newton_gain_tolerance);
-      newton[1] = maximizeMrfMap(free, logit_free, kMaxNewtonIterations, newton_gain_tolerance);
-    }
-    result.mrf_newton_iterations.push_back(newton);
-    // The logit bounds are the probability bounds; the clamp only removes rounding.
-    for (std::size_t c = 0; c < cells; ++c) {
-      result.params[c] = TransitionParams{std::clamp(sigmoid(-logit_free[c]), config.p_min, config.p_max),
-                                          std::clamp(sigmoid(-logit_occ[c]), config.p_min, config.p_max)};
-    }
+    result.mrf_newton_iterations.push_back(mrf.mStep(e.counts));
     const double next_objective = e_step();
     const double gain = next_objective - objective;
     objective = next_objective;
@@ -569,11 +472,12 @@ OfflineEmResult runOfflineEmMrf(const ObservationSequences& sequences, const Obs
       result.cancelled = true;
       break;
     }
-    if (config.tolerance > 0.0 && gain < config.tolerance * static_cast<double>(cells)) {
+    if (mrf.converged(gain)) {
       converged = true;
       break;
     }
   }
+  result.params = mrf.params();
   for (std::size_t c = 0; c < cells; ++c) {
     result.final_step[c] = (sequences.end(c) - 1)->step;
     result.iterations[c] = static_cast<std::uint16_t>(iteration);
@@ -581,6 +485,154 @@ OfflineEmResult runOfflineEmMrf(const ObservationSequences& sequences, const Obs
   if (converged) result.cells_converged = cells;
   return result;
 }
+
+}  // namespace
+
+OfflineEStep offlineEStep(const ObservationSequences& sequences, const ObservationModel& sensor,
+                          const std::vector<TransitionParams>& params, double initial_p_occ, unsigned threads) {
+  const std::size_t cells = sequences.cellCount();
+  if (params.size() != cells) {
+    throw std::invalid_argument("offlineEStep: " + std::to_string(params.size()) + " parameters for " +
+                                std::to_string(cells) + " cells");
+  }
+  OfflineEStep e;
+  e.counts.resize(cells);
+  e.log_likelihood.resize(cells);
+  e.final_p_occ.resize(cells);
+  if (cells == 0) return e;
+  const std::size_t chunk_cells = chunkCells(cells);
+  const std::size_t chunks = (cells + chunk_cells - 1) / chunk_cells;
+  const unsigned hardware = std::max(1U, std::thread::hardware_concurrency());
+  const std::size_t thread_count = std::min<std::size_t>(threads == 0 ? hardware : threads, chunks);
+  std::atomic<std::size_t> next_chunk{0};
+  std::mutex failure_mutex;
+  std::exception_ptr failure;
+  const auto worker = [&]() {
+    try {
+      Scratch scratch(sensor);
+      scratch.emissions = false;  // the MRF does not learn the sensor model
+      for (std::size_t chunk = next_chunk++; chunk < chunks; chunk = next_chunk++) {
+        const std::size_t last = std::min(cells, (chunk + 1) * chunk_cells);
+        for (std::size_t c = chunk * chunk_cells; c < last; ++c) {
+          prepare(sequences.begin(c), sequences.end(c), scratch);
+          const ForwardBackwardResult pass = forwardBackwardPrepared(scratch, params[c], initial_p_occ);
+          e.counts[c] = pass.counts;
+          e.log_likelihood[c] = pass.log_likelihood;
+          e.final_p_occ[c] = pass.final_p_occ;
+        }
+      }
+    } catch (...) {
+      const std::lock_guard<std::mutex> lock(failure_mutex);
+      if (!failure) failure = std::current_exception();
+      next_chunk = chunks;
+    }
+  };
+  runOnThreads(thread_count, worker);
+  if (failure) std::rethrow_exception(failure);
+  return e;
+}
+
+MrfEm::MrfEm(std::vector<CellXY> cells, const OfflineEmConfig& config)
+    : config_(config), graph_(eightNeighbours(cells)), cells_(cells.size()) {
+  config.validate();
+  if (!(config.mrf_temperature > 0.0)) throw std::invalid_argument("MrfEm needs mrf_temperature > 0");
+  // a_occ = p(occ -> occ) = 1 - p_free_given_occ, a_free = 1 - p_occ_given_free: the bounds
+  // [p_min, p_max] of the change probabilities become [1 - p_max, 1 - p_min] of the a's.
+  lo_ = finiteLogit(1.0 - config.p_max);
+  hi_ = finiteLogit(1.0 - config.p_min);
+  params_.assign(cells_, config.initial_params);
+  logit_occ_.assign(cells_, finiteLogit(1.0 - config.initial_params.p_free_given_occ));
+  logit_free_.assign(cells_, finiteLogit(1.0 - config.initial_params.p_occ_given_free));
+}
+
+void MrfEm::restore(std::vector<TransitionParams> params, std::vector<double> logit_occ,
+                    std::vector<double> logit_free) {
+  if (params.size() != cells_ || logit_occ.size() != cells_ || logit_free.size() != cells_) {
+    throw std::invalid_argument("MrfEm::restore: not one value per cell");
+  }
+  params_ = std::move(params);
+  logit_occ_ = std::move(logit_occ);
+  logit_free_ = std::move(logit_free);
+}
+
+double MrfEm::objective(const std::vector<double>& log_likelihood) const {
+  if (log_likelihood.size() != cells_) throw std::invalid_argument("MrfEm::objective: not one value per cell");
+  const double lambda = 1.0 / config_.mrf_temperature;
+  // Summed in cell order: the same objective for any number of threads.
+  double objective = 0.0;
+  for (std::size_t c = 0; c < cells_; ++c) objective += log_likelihood[c] + logPrior(params_[c], config_);
+  return objective + mrfPrior(graph_, lambda, logit_occ_) + mrfPrior(graph_, lambda, logit_free_);
+}
+
+bool MrfEm::converged(double gain) const {
+  return config_.tolerance > 0.0 && gain < config_.tolerance * static_cast<double>(cells_);
+}
+
+std::array<int, 2> MrfEm::mStep(const std::vector<TransitionCounts>& counts) {
+  if (counts.size() != cells_) throw std::invalid_argument("MrfEm::mStep: not one count per cell");
+  const double w = config_.prior_weight;
+  // An M-step need not be exact, only gain (generalised EM): each map's Newton takes a step
+  // predicted to add less than 1 % of the gain at which EM itself stops, and stops there.
+  // Tolerance 0 solves every M-step exactly.
+  const double newton_gain_tolerance =
+      std::min(0.01 * config_.tolerance * static_cast<double>(cells_), std::numeric_limits<double>::max());
+  MrfMapProblem occ;
+  MrfMapProblem free;
+  for (MrfMapProblem* problem : {&occ, &free}) {
+    problem->graph = &graph_;
+    problem->inverse_temperature = 1.0 / config_.mrf_temperature;
+    problem->lo = lo_;
+    problem->hi = hi_;
+    problem->stay.resize(cells_);
+    problem->leave.resize(cells_);
+  }
+  for (std::size_t c = 0; c < cells_; ++c) {
+    // Expected counts plus the MAP prior's pseudo-counts, as offlineMStep adds them.
+    occ.stay[c] = counts[c][0][0] + w * (1.0 - config_.prior.p_free_given_occ);
+    occ.leave[c] = counts[c][0][1] + w * config_.prior.p_free_given_occ;
+    free.stay[c] = counts[c][1][1] + w * (1.0 - config_.prior.p_occ_given_free);
+    free.leave[c] = counts[c][1][0] + w * config_.prior.p_occ_given_free;
+  }
+  std::array<int, 2> newton{0, 0};
+  // The two maps are independent problems: one per core.
+  const unsigned hardware = std::max(1U, std::thread::hardware_concurrency());
+  std::optional<std::thread> other;
+  std::exception_ptr failure;
+  if ((config_.threads == 0 ? hardware : config_.threads) > 1) {
+    try {
+      other.emplace([&]() {
+        try {
+          newton[1] = maximizeMrfMap(free, logit_free_, kMaxNewtonIterations, newton_gain_tolerance);
+        } catch (...) {
+          failure = std::current_exception();
+        }
+      });
+    } catch (const std::system_error&) {
+      other.reset();  // no second thread: both maps on this one
+    }
+  }
+  if (other) {
+    try {
+      newton[0] = maximizeMrfMap(occ, logit_occ_, kMaxNewtonIterations, newton_gain_tolerance);
+    } catch (...) {
+      other->join();
+      throw;
+    }
+    other->join();
+    if (failure) std::rethrow_exception(failure);
+  } else {
+    newton[0] = maximizeMrfMap(occ, logit_occ_, kMaxNewtonIterations, newton_gain_tolerance);
+    newton[1] = maximizeMrfMap(free, logit_free_, kMaxNewtonIterations, newton_gain_tolerance);
+  }
+  // The logit bounds are the probability bounds; the clamp only removes rounding.
+  for (std::size_t c = 0; c < cells_; ++c) {
+    params_[c] = TransitionParams{std::clamp(sigmoid(-logit_free_[c]), config_.p_min, config_.p_max),
+                                  std::clamp(sigmoid(-logit_occ_[c]), config_.p_min, config_.p_max)};
+  }
+  return newton;
+}
+
+namespace {
 
 // Per-cell EM with a fixed sensor model, each cell from (*start)[cell] (or the config's
 // initial_params); with learn_sensor_model, result.sensor_*_sum get the sensor model's

@@ -19,6 +19,7 @@
 #include <vector>
 
 #include "dynamic_occupancy_grid/core/cell_model.h"
+#include "dynamic_occupancy_grid/core/mrf.h"
 #include "dynamic_occupancy_grid/core/traversal.h"
 
 namespace dynamic_occupancy_grid {
@@ -228,6 +229,54 @@ OfflineEmResult runOfflineEmRound(const ObservationSequences& sequences, const O
 std::optional<ObservationModel> nextSensorModel(const std::array<FixedPointSum, 2>& trials,
                                                 const std::array<FixedPointSum, 2>& hits,
                                                 const ObservationModel& used, const OfflineEmConfig& config);
+
+/// The E-step of every cell with fixed parameters (params[c] for cell c), in parallel over
+/// cells: what one iteration of the MRF's EM computes before its joint M-step. The result
+/// does not depend on `threads` (0 = one per core). Throws std::invalid_argument for a
+/// `params` of another size.
+struct OfflineEStep {
+  std::vector<TransitionCounts> counts;
+  std::vector<double> log_likelihood;
+  std::vector<double> final_p_occ;
+};
+OfflineEStep offlineEStep(const ObservationSequences& sequences, const ObservationModel& sensor,
+                          const std::vector<TransitionParams>& params, double initial_p_occ, unsigned threads);
+
+/// The MRF-smoothed EM's state and joint M-step (OfflineEmConfig::mrf_temperature > 0):
+/// the cells in a fixed order, their 8-neighbour graph, the two maps' logits and the cells'
+/// current transitions. runOfflineEm alternates offlineEStep and mStep on it; sharded
+/// offline EM runs the E-steps per block elsewhere and the M-step here, with the cells in
+/// the single process's order, for the same bits (docs/sharded_em.md).
+class MrfEm {
+ public:
+  /// `cells` distinct, in the order of ObservationSequences. Throws std::invalid_argument for
+  /// a bad config, mrf_temperature 0 or a repeated cell.
+  MrfEm(std::vector<CellXY> cells, const OfflineEmConfig& config);
+  std::size_t cellCount() const { return cells_; }
+  /// The transitions per cell: initial_params, then each M-step's.
+  const std::vector<TransitionParams>& params() const { return params_; }
+  const std::vector<double>& logitOcc() const { return logit_occ_; }    ///< logit p(occ -> occ)
+  const std::vector<double>& logitFree() const { return logit_free_; }  ///< logit p(free -> free)
+  /// Continues from a saved state (params, logits as the getters give them).
+  void restore(std::vector<TransitionParams> params, std::vector<double> logit_occ, std::vector<double> logit_free);
+  /// The objective EM maximises, for the E-step's log-likelihoods at params().
+  double objective(const std::vector<double>& log_likelihood) const;
+  /// EM stops after an iteration that gained `gain` (tolerance * cells).
+  bool converged(double gain) const;
+  /// The joint M-step from the E-step's counts at params(): new logits and params(); the
+  /// Newton iterations of each map (p(occ -> occ), p(free -> free)).
+  std::array<int, 2> mStep(const std::vector<TransitionCounts>& counts);
+
+ private:
+  OfflineEmConfig config_;
+  CellNeighbours graph_;
+  std::size_t cells_;
+  double lo_ = 0.0;
+  double hi_ = 0.0;
+  std::vector<TransitionParams> params_;
+  std::vector<double> logit_occ_;
+  std::vector<double> logit_free_;
+};
 
 /// The M-step of one cell from its expected counts: row-normalised counts (plus the prior's
 /// pseudo-counts), or one symmetric p_c, clamped to [p_min, p_max]. A from-state without
