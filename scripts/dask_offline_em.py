@@ -8,7 +8,9 @@ bags in the same order, bit for bit (docs/sharded_em.md).
 The work is sharded_em's steps as Dask tasks: one extraction per bag (the per-cell
 observations of each map block), the plan (where each bag's steps fall on the timeline), one
 EM task per block (with --em-learn-sensor-model: per block and round, each round ended by
-the reduce of the blocks' sensor-model sums), and the assembly of the model. Without --scheduler a LocalCluster of
+the reduce of the blocks' sensor-model sums; with --mrf-temperature: an E-step per block and
+iteration, each iteration ended by the MRF's joint M-step over all cells), and the assembly
+of the model. Without --scheduler a LocalCluster of
 --workers processes runs here. On a real cluster every worker needs the package built and a
 file system shared with the others at --work-dir (NFS or similar); the bags must be readable
 at the same paths on every worker.
@@ -67,6 +69,16 @@ def run_plan(command):
     if result.returncode != 0:
         raise RuntimeError('sharded_em plan failed (exit %d): %s' % (result.returncode, result.stderr.strip()))
     return 'ok', result.stdout
+
+
+def mrf_temperature(options):
+    """The --mrf-temperature among sharded_em's options (0 without)."""
+    for i, option in enumerate(options):
+        if option.startswith('--mrf-temperature='):
+            return float(option.split('=', 1)[1])
+        if option == '--mrf-temperature' and i + 1 < len(options):
+            return float(options[i + 1])
+    return 0.0
 
 
 def blocks_of(work, bags):
@@ -131,25 +143,31 @@ def sharded_offline_em(client, bags, out, work, options, sharded_em, retries=3, 
     start = time.time()
     blocks = blocks_of(work, len(bags))
     # Learning the sensor model: rounds of EM over every block, each followed by the reduce
-    # of the blocks' sums (the emission M-step), until it says done.
-    rounds = '--em-learn-sensor-model' in options
-    round_index = 0
+    # of the blocks' sums (the emission M-step). The MRF: iterations of the blocks' E-steps,
+    # each followed by the joint M-step over all cells. Both until that step says done.
+    if '--em-learn-sensor-model' in options:
+        loop, step = '--round', 'reduce'
+    elif mrf_temperature(options) > 0.0:
+        loop, step = '--iteration', 'mrf-step'
+    else:
+        loop, step = None, None
+    index = 0
     while True:
-        round_option = ['--round', str(round_index)] if rounds else []
-        em = [client.submit(run_step, base + ['em', '--block', block] + round_option + common,
-                            key='em-%s-%d-%s' % (block, round_index, token), retries=retries, pure=False)
+        loop_option = [loop, str(index)] if loop else []
+        em = [client.submit(run_step, base + ['em', '--block', block] + loop_option + common,
+                            key='em-%s-%d-%s' % (block, index, token), retries=retries, pure=False)
               for block in blocks]
         for line in wait('em', em):
             log(line.strip())
-        if not rounds:
+        if not loop:
             break
-        reduced = client.submit(run_step, base + ['reduce', '--round', str(round_index)] + common,
-                                key='reduce-%d-%s' % (round_index, token), retries=retries, pure=False).result()
+        reduced = client.submit(run_step, base + [step, loop, str(index)] + common,
+                                key='%s-%d-%s' % (step, index, token), retries=retries, pure=False).result()
         log(reduced.strip())
         if reduced.startswith('done'):
             break
-        round_index += 1
-    timing['em'] = (time.time() - start, len(blocks) * (round_index + 1))
+        index += 1
+    timing['em'] = (time.time() - start, len(blocks) * (index + 1))
 
     start = time.time()
     log(client.submit(run_step, base + ['assemble', '--out', out] + common, key='assemble-' + token,
@@ -189,9 +207,10 @@ def main(argv=None):
     sharded_em = os.path.abspath(args.sharded_em) if args.sharded_em else find_sharded_em()
     work = os.path.abspath(args.work_dir) if args.work_dir else tempfile.mkdtemp(prefix='dog_sharded_em_')
     os.makedirs(work, exist_ok=True)
-    if any(option in ('--work', '--index', '--anchor-step', '--bags', '--block', '--round', '--out')
+    if any(option in ('--work', '--index', '--anchor-step', '--bags', '--block', '--round', '--iteration', '--out')
            for option in tool_options):
-        parser.error('--work, --index, --anchor-step, --bags, --block, --round and --out are set by this script')
+        parser.error('--work, --index, --anchor-step, --bags, --block, --round, --iteration and --out are set by '
+                     'this script')
     # Every tool option is checked once, here, before any task runs.
     check = subprocess.run([sharded_em, 'check', '--work', work] + tool_options, capture_output=True, text=True)
     if check.returncode != 0:

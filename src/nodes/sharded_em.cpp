@@ -16,10 +16,14 @@
 //            next round's sensor model, or the end
 //   assemble the parts -> the model file (written atomically)
 //
+//   mrf-step with --mrf-temperature, after iteration K's E-step of every block (em
+//            --iteration K): the MRF's joint M-step over all cells, in offline_em's cell
+//            order -> the next iteration's transitions, or the end
+//
 // Cells are independent given the sensor model, so the blocks' EM runs are the single
 // process's, cell for cell; the sensor model's sums are exact (core::FixedPointSum), so
-// adding them over blocks gives the single process's. Not sharded (refused): the MRF (it
-// couples neighbouring cells across blocks).
+// adding them over blocks gives the single process's; the MRF's M-step (core::MrfEm) runs
+// on all cells in the single process's order, so it is the single process's.
 // File formats: docs/sharded_em.md.
 
 #include <algorithm>
@@ -38,6 +42,8 @@
 #include <sstream>
 #include <stdexcept>
 #include <string>
+#include <unordered_map>
+#include <unordered_set>
 #include <utility>
 #include <vector>
 
@@ -74,6 +80,7 @@ struct Options {
   int bags = 0;
   std::string block;
   int round = -1;
+  int iteration = -1;
   std::string out;
 };
 
@@ -225,6 +232,74 @@ void decodeShard(const std::string& path, std::uint64_t config, std::int64_t shi
   if (at != bytes.size() - 8) throw bad("trailing bytes");
 }
 
+// ---- checked binary files: an 8-byte magic, the payload, FNV-1a 64 of both ----------
+
+void writeChecked(const std::string& path, const char* magic, const std::string& payload) {
+  std::string bytes(magic, 8);
+  bytes += payload;
+  const std::uint64_t check = fingerprint(bytes);
+  put(&bytes, &check, 8);
+  dog::core::writeFileAtomically(path, bytes);
+}
+
+/// Reads a payload written by writeChecked; `take` pulls bytes from it in order.
+class CheckedReader {
+ public:
+  CheckedReader(const std::string& path, const char* magic, const std::string& what) : path_(path) {
+    bytes_ = readWholeFile(path, what);
+    if (bytes_.size() < 16 || std::memcmp(bytes_.data(), magic, 8) != 0) fail("bad magic or too short");
+    std::uint64_t check = 0;
+    std::memcpy(&check, bytes_.data() + bytes_.size() - 8, 8);
+    if (fingerprint(bytes_.substr(0, bytes_.size() - 8)) != check) fail("checksum mismatch (corrupt or truncated)");
+    at_ = 8;
+  }
+  template <class T>
+  T take() {
+    T value{};
+    if (at_ + sizeof(T) > bytes_.size() - 8) fail("truncated");
+    std::memcpy(&value, bytes_.data() + at_, sizeof(T));
+    at_ += sizeof(T);
+    return value;
+  }
+  void finish() const {
+    if (at_ != bytes_.size() - 8) fail("trailing bytes");
+  }
+  [[noreturn]] void fail(const std::string& why) const { throw std::runtime_error(path_ + ": " + why); }
+
+ private:
+  std::string path_;
+  std::string bytes_;
+  std::size_t at_ = 0;
+};
+
+constexpr char kCellsMagic[8] = {'D', 'O', 'G', 'C', 'E', 'L', 'L', '1'};
+
+void writeCells(const std::string& path, const std::vector<dog::core::CellXY>& cells) {
+  std::string payload;
+  const std::uint64_t count = cells.size();
+  put(&payload, &count, 8);
+  for (const dog::core::CellXY& xy : cells) {
+    put(&payload, &xy.x, 4);
+    put(&payload, &xy.y, 4);
+  }
+  writeChecked(path, kCellsMagic, payload);
+}
+
+std::vector<dog::core::CellXY> readCells(const std::string& path) {
+  CheckedReader in(path, kCellsMagic, "cell list");
+  std::vector<dog::core::CellXY> cells(in.take<std::uint64_t>());
+  for (dog::core::CellXY& xy : cells) {
+    xy.x = in.take<std::int32_t>();
+    xy.y = in.take<std::int32_t>();
+  }
+  in.finish();
+  return cells;
+}
+
+std::uint64_t cellKey(const dog::core::CellXY& xy) {
+  return (static_cast<std::uint64_t>(static_cast<std::uint32_t>(xy.x)) << 32) | static_cast<std::uint32_t>(xy.y);
+}
+
 // ---- extract --------------------------------------------------------------------------
 
 int extract(const Options& options) {
@@ -291,6 +366,10 @@ int extract(const Options& options) {
     dog::core::writeFileAtomically(dir + "/" + name + ".obs", encodeShard(config, cells));
     meta << "block " << name << "\n";
   }
+  // The cells in the order the bag's recorder first saw them (the MRF's cell order).
+  std::vector<dog::core::CellXY> cells(sequences.cellCount());
+  for (std::size_t c = 0; c < cells.size(); ++c) cells[c] = sequences.cell(c);
+  writeCells(dir + "/cells", cells);
   meta << "stamps " << stamps.size() << "\n";
   for (const double stamp : stamps) meta << "stamp " << exact(stamp) << "\n";
   // Written last: a bag is extracted once its meta exists.
@@ -301,6 +380,78 @@ int extract(const Options& options) {
               stats.source.scans_without_pose, sequences.cellCount(), sequences.observationCount(), blocks.size(),
               dir.c_str());
   return 0;
+}
+
+// ---- the MRF (--mrf-temperature): its state between iterations ------------------------
+
+/// With the MRF, iteration K's files: the state its E-steps use (mrf/state.K: the objective
+/// of every earlier iteration, each cell's transitions and logits, cells in mrf/cells'
+/// order, which is offline_em's), each block's E-step (mrf/estep.K/B) and part model
+/// (parts/mrf.K/B.dogm); mrf-step K writes mrf/state.K+1 or mrf/final.
+constexpr char kMrfStateMagic[8] = {'D', 'O', 'G', 'M', 'R', 'F', 'S', '1'};
+constexpr char kMrfEStepMagic[8] = {'D', 'O', 'G', 'M', 'R', 'F', 'E', '1'};
+constexpr const char* kMrfFinalHeader = "dog_shard_mrf_final 1";
+
+std::string mrfPath(const Options& options, const std::string& name) { return options.work_dir + "/mrf/" + name; }
+
+struct MrfState {
+  std::vector<double> objectives;  ///< of iterations 0 .. K - 1
+  std::vector<dog::core::TransitionParams> params;
+  std::vector<double> logit_occ;
+  std::vector<double> logit_free;
+};
+
+void writeMrfState(const Options& options, int iteration, const MrfState& state) {
+  std::string payload;
+  const std::uint64_t history = state.objectives.size();
+  const std::uint64_t cells = state.params.size();
+  put(&payload, &history, 8);
+  for (const double v : state.objectives) put(&payload, &v, 8);
+  put(&payload, &cells, 8);
+  for (std::size_t c = 0; c < cells; ++c) {
+    put(&payload, &state.params[c].p_occ_given_free, 8);
+    put(&payload, &state.params[c].p_free_given_occ, 8);
+    put(&payload, &state.logit_occ[c], 8);
+    put(&payload, &state.logit_free[c], 8);
+  }
+  writeChecked(mrfPath(options, "state." + std::to_string(iteration)), kMrfStateMagic, payload);
+}
+
+MrfState readMrfState(const Options& options, int iteration, std::size_t cells) {
+  CheckedReader in(mrfPath(options, "state." + std::to_string(iteration)), kMrfStateMagic,
+                   "MRF state (iteration run?)");
+  MrfState state;
+  state.objectives.resize(in.take<std::uint64_t>());
+  if (state.objectives.size() != static_cast<std::size_t>(iteration)) in.fail("not the state of this iteration");
+  for (double& v : state.objectives) v = in.take<double>();
+  if (in.take<std::uint64_t>() != cells) in.fail("not of the " + std::to_string(cells) + " cells of mrf/cells");
+  state.params.resize(cells);
+  state.logit_occ.resize(cells);
+  state.logit_free.resize(cells);
+  for (std::size_t c = 0; c < cells; ++c) {
+    state.params[c].p_occ_given_free = in.take<double>();
+    state.params[c].p_free_given_occ = in.take<double>();
+    state.logit_occ[c] = in.take<double>();
+    state.logit_free[c] = in.take<double>();
+  }
+  in.finish();
+  return state;
+}
+
+/// The cells in offline_em's order (each bag's new cells in the order its recorder saw
+/// them, bags in timeline order) and the state of iteration 0.
+void startMrf(const Options& options) {
+  std::vector<dog::core::CellXY> order;
+  std::unordered_set<std::uint64_t> seen;
+  for (int i = 0; i < options.bags; ++i) {
+    for (const dog::core::CellXY& xy : readCells(bagDir(options.work_dir, i) + "/cells")) {
+      if (seen.insert(cellKey(xy)).second) order.push_back(xy);
+    }
+  }
+  fs::create_directories(options.work_dir + "/mrf");
+  writeCells(mrfPath(options, "cells"), order);
+  const dog::core::MrfEm mrf(order, options.shared.em);
+  writeMrfState(options, 0, MrfState{{}, mrf.params(), mrf.logitOcc(), mrf.logitFree()});
 }
 
 // ---- plan -----------------------------------------------------------------------------
@@ -365,6 +516,7 @@ int plan(const Options& options) {
       << "last_step " << last_global << "\n"
       << "bags " << options.bags << "\n";
   for (int i = 0; i < options.bags; ++i) out << "shift " << i << " " << shifts[i] << "\n";
+  if (options.shared.em.mrf_temperature > 0.0) startMrf(options);
   dog::core::writeFileAtomically(options.work_dir + "/plan", out.str());
   std::printf("plan: %d bags, steps 0..%" PRId64 " -> %s/plan\n", options.bags, last_global,
               options.work_dir.c_str());
@@ -535,6 +687,45 @@ int emBlock(const Options& options) {
                                    encodeSums({result.sensor_trials_sum[0], result.sensor_trials_sum[1],
                                                result.sensor_hits_sum[0], result.sensor_hits_sum[1]}));
     dir += "/" + std::to_string(options.round);
+  } else if (options.shared.em.mrf_temperature > 0.0) {
+    // The MRF's iteration K: this block's E-step with the transitions of mrf/state.K. Its
+    // cells' places in offline_em's order (mrf/cells).
+    std::unordered_map<std::uint64_t, std::size_t> local;
+    for (std::size_t c = 0; c < sequences.cellCount(); ++c) local.emplace(cellKey(sequences.cell(c)), c);
+    const std::vector<dog::core::CellXY> order = readCells(mrfPath(options, "cells"));
+    std::vector<std::uint32_t> global(sequences.cellCount(), std::numeric_limits<std::uint32_t>::max());
+    for (std::size_t g = 0; g < order.size(); ++g) {
+      const auto found = local.find(cellKey(order[g]));
+      if (found != local.end()) global[found->second] = static_cast<std::uint32_t>(g);
+    }
+    const MrfState state = readMrfState(options, options.iteration, order.size());
+    std::vector<dog::core::TransitionParams> params(sequences.cellCount());
+    for (std::size_t c = 0; c < params.size(); ++c) {
+      if (global[c] == std::numeric_limits<std::uint32_t>::max()) {
+        throw std::runtime_error("cell of " + options.block + " missing from mrf/cells (planned with other bags?)");
+      }
+      params[c] = state.params[global[c]];
+    }
+    const dog::core::OfflineEStep e = dog::core::offlineEStep(sequences, mapper.sensor(), params,
+                                                              options.shared.em.initial_p_occ, options.shared.em.threads);
+    std::string payload;
+    const std::uint64_t count = sequences.cellCount();
+    put(&payload, &count, 8);
+    for (std::size_t c = 0; c < sequences.cellCount(); ++c) {
+      put(&payload, &global[c], 4);
+      for (const auto& row : e.counts[c]) put(&payload, row.data(), 16);
+      put(&payload, &e.log_likelihood[c], 8);
+    }
+    const std::string estep_dir = mrfPath(options, "estep." + std::to_string(options.iteration));
+    fs::create_directories(estep_dir);
+    writeChecked(estep_dir + "/" + options.block, kMrfEStepMagic, payload);
+    // The part as it is if EM stops after this E-step.
+    result.params = params;
+    result.final_p_occ = e.final_p_occ;
+    result.final_step.resize(sequences.cellCount());
+    for (std::size_t c = 0; c < sequences.cellCount(); ++c) result.final_step[c] = (sequences.end(c) - 1)->step;
+    result.iterations.assign(sequences.cellCount(), static_cast<std::uint16_t>(options.iteration));
+    dir += "/mrf." + std::to_string(options.iteration);
   } else {
     result = dog::core::runOfflineEm(sequences, mapper.sensor(), options.shared.em);
   }
@@ -542,9 +733,14 @@ int emBlock(const Options& options) {
   fs::create_directories(dir);
   const std::string path = dir + "/" + options.block + ".dogm";
   dog::core::saveModel(mapper, path);
-  std::printf("%s: %zu cells, %zu observed cell steps, %zu converged, objective %.6f -> %.6f -> %s\n",
-              options.block.c_str(), sequences.cellCount(), sequences.observationCount(), result.cells_converged,
-              result.objective.front(), result.objective.back(), path.c_str());
+  if (result.objective.empty()) {
+    std::printf("%s: %zu cells, %zu observed cell steps, E-step of iteration %d -> %s\n", options.block.c_str(),
+                sequences.cellCount(), sequences.observationCount(), options.iteration, path.c_str());
+  } else {
+    std::printf("%s: %zu cells, %zu observed cell steps, %zu converged, objective %.6f -> %.6f -> %s\n",
+                options.block.c_str(), sequences.cellCount(), sequences.observationCount(), result.cells_converged,
+                result.objective.front(), result.objective.back(), path.c_str());
+  }
   return 0;
 }
 
@@ -593,6 +789,57 @@ int reduce(const Options& options) {
   return 0;
 }
 
+/// After iteration K's E-step of every block: the objective, EM's stopping rule, and
+/// either the M-step (mrf/state.K+1, "continue") or the end (mrf/final, "done"), as
+/// runOfflineEm's MRF loop decides.
+int mrfStep(const Options& options) {
+  const Plan plan = readPlan(options);
+  const std::vector<dog::core::CellXY> order = readCells(mrfPath(options, "cells"));
+  const std::size_t cells = order.size();
+  MrfState state = readMrfState(options, options.iteration, cells);
+  std::vector<dog::core::TransitionCounts> counts(cells);
+  std::vector<double> log_likelihood(cells);
+  std::vector<bool> filled(cells, false);
+  const std::string estep_dir = mrfPath(options, "estep." + std::to_string(options.iteration));
+  for (const std::string& block : allBlocks(options, plan.shifts.size())) {
+    CheckedReader in(estep_dir + "/" + block, kMrfEStepMagic, "E-step (iteration run for " + block + "?)");
+    const auto n = in.take<std::uint64_t>();
+    for (std::uint64_t k = 0; k < n; ++k) {
+      const auto g = in.take<std::uint32_t>();
+      if (g >= cells || filled[g]) in.fail("a cell index out of range or repeated");
+      filled[g] = true;
+      for (auto& row : counts[g]) {
+        row[0] = in.take<double>();
+        row[1] = in.take<double>();
+      }
+      log_likelihood[g] = in.take<double>();
+    }
+    in.finish();
+  }
+  if (std::find(filled.begin(), filled.end(), false) != filled.end()) {
+    throw std::runtime_error("the blocks' E-steps of iteration " + std::to_string(options.iteration) +
+                             " miss cells of mrf/cells");
+  }
+  dog::core::MrfEm mrf(order, options.shared.em);
+  mrf.restore(state.params, state.logit_occ, state.logit_free);
+  const double objective = mrf.objective(log_likelihood);
+  const bool converged = options.iteration > 0 && mrf.converged(objective - state.objectives.back());
+  state.objectives.push_back(objective);
+  if (converged || options.iteration >= options.shared.em.max_iterations) {
+    dog::core::writeFileAtomically(mrfPath(options, "final"), std::string(kMrfFinalHeader) + "\niteration " +
+                                                                  std::to_string(options.iteration) + "\n");
+    std::printf("done: %d iterations (%s), objective %.6f -> %.6f\n", options.iteration,
+                converged ? "converged" : "the most allowed", state.objectives.front(), objective);
+    return 0;
+  }
+  const std::array<int, 2> newton = mrf.mStep(counts);
+  writeMrfState(options, options.iteration + 1, MrfState{state.objectives, mrf.params(), mrf.logitOcc(),
+                                                         mrf.logitFree()});
+  std::printf("continue: iteration %d, objective %.6f, Newton iterations %d/%d\n", options.iteration + 1, objective,
+              newton[0], newton[1]);
+  return 0;
+}
+
 // ---- assemble -------------------------------------------------------------------------
 
 int assemble(const Options& options) {
@@ -602,6 +849,10 @@ int assemble(const Options& options) {
   model.restoreTime(plan.origin, plan.last_step);
   std::string parts_dir = options.work_dir + "/parts";
   std::optional<Sums> sensor_sums;
+  if (options.shared.em.mrf_temperature > 0.0) {
+    const KeyValues final_iteration(mrfPath(options, "final"), "the MRF's end (mrf-step run?)", kMrfFinalHeader);
+    parts_dir += "/mrf." + std::to_string(final_iteration.integer("iteration"));
+  }
   if (options.shared.em.learn_sensor_model) {
     // The final round's parts, and the sensor model's sums over all blocks.
     const KeyValues final_round(roundPath(options, "final"), "final round (reduced?)", kFinalHeader);
@@ -650,7 +901,8 @@ Options parseArguments(int argc, char** argv) {
   cl::CommandLine line("sharded_em",
                        "usage: sharded_em extract BAG --index I --work DIR [options]\n"
                        "       sharded_em plan --work DIR --bags N [options]\n"
-                       "       sharded_em em --work DIR --block NAME [--round R] [options]\n"
+                       "       sharded_em em --work DIR --block NAME [--round R | --iteration K] [options]\n"
+                       "       sharded_em mrf-step --work DIR --iteration K [options]   (with --mrf-temperature)\n"
                        "       sharded_em reduce --work DIR --round R [options]   (with --em-learn-sensor-model)\n"
                        "       sharded_em assemble --work DIR --out MODEL [options]\n"
                        "       sharded_em check --work DIR [options]   (checks the options, does nothing)\n"
@@ -670,6 +922,8 @@ Options parseArguments(int argc, char** argv) {
       ("bags", cl::number(&options.bags, cl::between(1, 1000000000))->value_name("N"), "plan: the number of bags")
       ("block", cl::nonEmpty(&options.block, "a block name")->value_name("NAME"),
        "em: the block (block_X_Y, as extract names its shard files)")
+      ("iteration", cl::number(&options.iteration, cl::between(0, 65535))->value_name("K"),
+       "em, mrf-step: the iteration of the MRF's EM (with --mrf-temperature)")
       ("round", cl::number(&options.round, cl::between(0, 1000))->value_name("R"),
        "em, reduce: the round of learning the sensor model (with --em-learn-sensor-model)")
       ("out", cl::nonEmpty(&options.out, "a file name")->value_name("MODEL"), "assemble: model file to write");
@@ -678,7 +932,7 @@ Options parseArguments(int argc, char** argv) {
   line.hidden().add_options()("positional", boost::program_options::value(&positional));
   line.positional("positional");
   line.parse(argc, argv);
-  if (positional.empty()) line.fail("no step given (extract, plan, em, reduce, assemble or check)");
+  if (positional.empty()) line.fail("no step given (extract, plan, em, reduce, mrf-step, assemble or check)");
   options.command = positional[0];
   const auto arguments = [&](std::size_t n) {
     if (positional.size() != n + 1) line.fail(options.command + " takes " + std::to_string(n) + " argument(s)");
@@ -698,6 +952,9 @@ Options parseArguments(int argc, char** argv) {
       line.fail(options.round >= 0 ? "--round is for --em-learn-sensor-model"
                                    : "--em-learn-sensor-model needs --round");
     }
+    if ((options.shared.em.mrf_temperature > 0.0) != (options.iteration >= 0)) {
+      line.fail(options.iteration >= 0 ? "--iteration is for --mrf-temperature" : "--mrf-temperature needs --iteration");
+    }
   } else if (options.command == "assemble") {
     arguments(0);
     if (options.out.empty()) line.fail("assemble needs --out");
@@ -705,15 +962,16 @@ Options parseArguments(int argc, char** argv) {
     arguments(0);
     if (options.round < 0) line.fail("reduce needs --round");
     if (!options.shared.em.learn_sensor_model) line.fail("reduce is for --em-learn-sensor-model");
+  } else if (options.command == "mrf-step") {
+    arguments(0);
+    if (options.iteration < 0) line.fail("mrf-step needs --iteration");
+    if (!(options.shared.em.mrf_temperature > 0.0)) line.fail("mrf-step is for --mrf-temperature");
   } else if (options.command == "check") {
     arguments(0);
   } else {
-    line.fail("unknown step '" + options.command + "' (extract, plan, em, reduce, assemble or check)");
+    line.fail("unknown step '" + options.command + "' (extract, plan, em, reduce, mrf-step, assemble or check)");
   }
   if ((options.block_cells & (options.block_cells - 1)) != 0) line.fail("--block-cells must be a power of two");
-  if (options.shared.em.mrf_temperature > 0.0) {
-    line.fail("--mrf-temperature is not sharded (the MRF couples cells across blocks): use offline_em");
-  }
   // As offline_em: only the observations matter while mapping, EM learns the transitions.
   options.shared.mapper.learn_transitions = false;
   dog::bag_tools::validateSharedOptions(line, &options.shared);
@@ -729,6 +987,7 @@ int main(int argc, char** argv) {
     if (options.command == "plan") return plan(options);
     if (options.command == "em") return emBlock(options);
     if (options.command == "reduce") return reduce(options);
+    if (options.command == "mrf-step") return mrfStep(options);
     if (options.command == "assemble") return assemble(options);
     return 0;  // check: the options were fine
   } catch (const std::exception& e) {

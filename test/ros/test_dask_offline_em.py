@@ -4,6 +4,7 @@
 The model file the sharded run writes must be offline_em's for the same bags, byte for byte:
 on the package's two real recordings (each bag given more than once: one timeline), on a
 patrol simulated as several bags, with the sensor model learned in rounds over the blocks,
+with the MRF (E-steps per block, the joint M-step over all cells),
 on bags whose stamps fall on step borders so that a bag must be extracted again (plan.redo),
 and with one of the two workers killed while it runs EM tasks. Also: the errors of bad
 options, a missing plan and a corrupt shard.
@@ -126,6 +127,16 @@ class DaskOfflineEmTest(unittest.TestCase):
         self.assert_same_model('sensor_patrol', self.patrol, ['--em-learn-sensor-model', '--p-hit-given-occ', '0.6',
                                                               '--p-hit-given-free', '0.3'], block_cells=256)
 
+    def test_mrf_iterations_over_blocks(self):
+        # The MRF couples neighbouring cells across blocks: the blocks' E-steps, then the
+        # joint M-step over all cells in offline_em's cell order, every iteration.
+        lines = self.assert_same_model('mrf', [NEATO_BAG] * 2, NEATO_ARGS + ['--mrf-temperature', '50'],
+                                       block_cells=64)
+        self.assertGreaterEqual(sum(line.startswith('continue: iteration') for line in lines), 2, lines)
+        self.assertTrue(any(line.startswith('done: ') for line in lines), lines)
+        self.assert_same_model('mrf_patrol', self.patrol, ['--mrf-temperature', '20', '--em-iterations', '8'],
+                               block_cells=128)
+
     def test_bag_whose_stamps_round_differently_is_extracted_again(self):
         # Time step 0.1 s: the first bag fills steps 0..36, so the second starts at step 37.
         # The second's scan 0.0999999 s after its first falls in step 1 counted from its own
@@ -195,19 +206,22 @@ class DaskOfflineEmTest(unittest.TestCase):
         result = run('plan', '--work', work, '--bags', '1')
         self.assertEqual(result.returncode, 1)
         self.assertIn('shard meta (extracted?)', result.stderr)
-        for bad in (['check', '--mrf-temperature', '50'], ['check', '--block-cells', '100'],
+        for bad in (['check', '--mrf-temperature', '-1'], ['check', '--block-cells', '100'],
                     ['check', '--block-cells', '4'], ['frobnicate'], ['reduce', '--round', '0'],
                     ['em', '--block', 'block_0_0', '--em-learn-sensor-model'],
-                    ['em', '--block', 'block_0_0', '--round', '0']):
+                    ['em', '--block', 'block_0_0', '--round', '0'], ['mrf-step', '--iteration', '0'],
+                    ['em', '--block', 'block_0_0', '--mrf-temperature', '5']):
             result = run(bad[0], '--work', work, *bad[1:])
             self.assertEqual(result.returncode, 2, bad)
             self.assertIn('sharded_em:', result.stderr)
         # The driver refuses them before any task runs.
         driver = subprocess.run([sys.executable, os.path.join(PACKAGE_DIR, 'scripts', 'dask_offline_em.py'),
                                  NEATO_BAG, '--out', os.path.join(work, 'm.dogm'), '--sharded-em', self.sharded_em,
-                                 '--', '--mrf-temperature', '50'], capture_output=True, text=True, timeout=TIMEOUT_S)
+                                 '--', '--mrf-temperature', '50', '--em-learn-sensor-model'], capture_output=True,
+                                text=True, timeout=TIMEOUT_S)
         self.assertEqual(driver.returncode, 2)
-        self.assertIn('--mrf-temperature is not sharded', driver.stderr)
+        self.assertIn('learn_sensor_model does not combine with mrf_temperature', driver.stderr)
+        self.assertFalse(os.path.exists(os.path.join(work, 'm.dogm')))
         # A corrupt shard is named, and no part is written.
         self.sharded('corrupt', [NEATO_BAG], NEATO_ARGS)
         shard_dir = os.path.join(self.tmp, 'corrupt', 'bags', '0')
