@@ -12,11 +12,11 @@ the reduce of the blocks' sensor-model sums; with --mrf-temperature: an E-step p
 iteration, each iteration ended by the MRF's joint M-step over all cells), and the assembly
 of the model. Without --scheduler a LocalCluster of
 --workers processes runs here. On a real cluster every worker needs the package built and a
-file system shared with the others at --work-dir (NFS or similar); the bags must be readable
-at the same paths on every worker.
+file system shared with the others at --work-dir (NFS or similar); the bags and the work
+directory must be at the same paths on every worker and on the machine running this script.
 
-Tasks are idempotent (each writes its files atomically), so a worker that dies mid-run is
-harmless: Dask runs its tasks again elsewhere (its ``distributed.scheduler.allowed-failures``,
+Tasks are idempotent (each writes its files atomically, and a step a dead worker started is
+killed with it), so a worker that dies mid-run is harmless: Dask runs its tasks again elsewhere (its ``distributed.scheduler.allowed-failures``,
 3 by default), and the model is the same. Options after ``--`` go to every sharded_em step
 (mapping and EM options: sharded_em --help); they must be the ones offline_em would get.
 """
@@ -50,9 +50,17 @@ def find_sharded_em():
                      'pass --sharded-em)')
 
 
+def die_with_parent():
+    """In the child: SIGKILL when the worker that started it dies (Linux prctl
+    PR_SET_PDEATHSIG), so that a killed worker leaves no step running on its own."""
+    import ctypes
+    import signal
+    ctypes.CDLL('libc.so.6', use_errno=True).prctl(1, signal.SIGKILL)
+
+
 def run_step(command):
     """Runs one sharded_em step (a Dask task); its stdout, or an error with its stderr."""
-    result = subprocess.run(command, capture_output=True, text=True, errors='replace')
+    result = subprocess.run(command, capture_output=True, text=True, errors='replace', preexec_fn=die_with_parent)
     if result.returncode != 0:
         raise RuntimeError('%s failed (exit %d): %s' % (' '.join(command[:3]), result.returncode,
                                                         result.stderr.strip() or result.stdout.strip()))
@@ -61,7 +69,7 @@ def run_step(command):
 
 def run_plan(command):
     """The plan step: ('ok', stdout) or ('redo', [(bag, anchor step), ...])."""
-    result = subprocess.run(command, capture_output=True, text=True, errors='replace')
+    result = subprocess.run(command, capture_output=True, text=True, errors='replace', preexec_fn=die_with_parent)
     if result.returncode == EXIT_REDO:
         work = command[command.index('--work') + 1]
         with open(os.path.join(work, 'plan.redo')) as redo:
@@ -120,6 +128,12 @@ def sharded_offline_em(client, bags, out, work, options, sharded_em, retries=3, 
                for i, bag in enumerate(bags)]
     for line in wait('extract', extract):
         log(line.strip())
+    # Each meta must be this run's bag (a work directory may hold another run's).
+    for index, bag in enumerate(bags):
+        with open(os.path.join(work, 'bags', str(index), 'meta')) as meta:
+            listed = next((line[4:].rstrip('\n') for line in meta if line.startswith('bag ')), None)
+        if listed != bag:
+            raise RuntimeError('bags/%d/meta is of %s, not of %s' % (index, listed, bag))
     timing['extract'] = (time.time() - start, len(bags))
 
     start = time.time()
@@ -205,16 +219,19 @@ def main(argv=None):
         if not os.path.isfile(bag):
             parser.error('%s is not a file' % bag)
     sharded_em = os.path.abspath(args.sharded_em) if args.sharded_em else find_sharded_em()
-    work = os.path.abspath(args.work_dir) if args.work_dir else tempfile.mkdtemp(prefix='dog_sharded_em_')
-    os.makedirs(work, exist_ok=True)
+    # One EM thread per task: a worker runs one task per thread it has (dask-worker --nthreads).
+    if not any(option == '--threads' or option.startswith('--threads=') for option in tool_options):
+        tool_options = tool_options + ['--threads', '1']
     if any(option in ('--work', '--index', '--anchor-step', '--bags', '--block', '--round', '--iteration', '--out')
            for option in tool_options):
         parser.error('--work, --index, --anchor-step, --bags, --block, --round, --iteration and --out are set by '
                      'this script')
     # Every tool option is checked once, here, before any task runs.
-    check = subprocess.run([sharded_em, 'check', '--work', work] + tool_options, capture_output=True, text=True)
+    check = subprocess.run([sharded_em, 'check', '--work', '.'] + tool_options, capture_output=True, text=True)
     if check.returncode != 0:
         parser.error(check.stderr.strip().splitlines()[0] if check.stderr.strip() else 'bad sharded_em options')
+    work = os.path.abspath(args.work_dir) if args.work_dir else tempfile.mkdtemp(prefix='dog_sharded_em_')
+    os.makedirs(work, exist_ok=True)
 
     from distributed import Client, LocalCluster
     cluster = None
@@ -236,8 +253,8 @@ def main(argv=None):
                                     retries=args.retries)
         for phase, (seconds, tasks) in timing.items():
             print('dask_offline_em: %-8s %3d task(s) %8.2f s' % (phase, tasks, seconds))
-    except RuntimeError as error:
-        print('dask_offline_em: %s' % error, file=sys.stderr)
+    except Exception as error:  # a task that failed for good (its error, or Dask's KilledWorker), a file
+        print('dask_offline_em: %s: %s' % (type(error).__name__, error), file=sys.stderr)
         return 1
     finally:
         client.close()

@@ -114,6 +114,18 @@ std::string exact(double value) {
   return text;
 }
 
+/// The offline EM options' fingerprint (all but the thread count, which changes nothing).
+std::uint64_t emFingerprint(const dog::core::OfflineEmConfig& em) {
+  std::ostringstream text;
+  for (const double v : {em.initial_p_occ, em.initial_params.p_occ_given_free, em.initial_params.p_free_given_occ,
+                         em.prior.p_occ_given_free, em.prior.p_free_given_occ, em.prior_weight, em.p_min, em.p_max,
+                         em.tolerance, em.mrf_temperature, em.sensor_model_p_min}) {
+    text << exact(v) << " ";
+  }
+  text << em.symmetric << " " << em.max_iterations << " " << em.learn_sensor_model << " " << em.sensor_model_rounds;
+  return fingerprint(text.str());
+}
+
 std::string readWholeFile(const std::string& path, const std::string& what) {
   dog::core::RegularFileReader reader(path, "cannot read " + what + " " + path);
   std::string bytes;
@@ -145,7 +157,7 @@ class KeyValues {
   double number(const std::string& key) const { return parse(value(key), key); }
   std::int64_t integer(const std::string& key) const {
     const double v = number(key);
-    if (v != static_cast<double>(static_cast<std::int64_t>(v))) fail("'" + key + "' is not an integer");
+    if (!(std::abs(v) < 9.0e15) || v != std::floor(v)) fail("'" + key + "' is not an integer of at most 9e15");
     return static_cast<std::int64_t>(v);
   }
   double parse(const std::string& text, const std::string& key) const {
@@ -191,7 +203,7 @@ std::string encodeShard(std::uint64_t config, const BlockCells& cells) {
 }
 
 /// Adds the shard's observations at `path`, steps + `shift`, to `builder`.
-void decodeShard(const std::string& path, std::uint64_t config, std::int64_t shift,
+void decodeShard(const std::string& path, std::uint64_t config, std::uint64_t listed, std::int64_t shift,
                  dog::core::SequenceBuilder* builder) {
   const std::string bytes = readWholeFile(path, "shard");
   const auto bad = [&path](const std::string& why) { return std::runtime_error("shard " + path + ": " + why); };
@@ -201,6 +213,7 @@ void decodeShard(const std::string& path, std::uint64_t config, std::int64_t shi
   std::uint64_t check = 0;
   std::memcpy(&check, bytes.data() + bytes.size() - 8, 8);
   if (fingerprint(bytes.substr(0, bytes.size() - 8)) != check) throw bad("checksum mismatch (corrupt or truncated)");
+  if (check != listed) throw bad("not the shard its bag's meta lists (written by another extraction)");
   std::size_t at = 8;
   const auto take = [&](void* data, std::size_t size) {
     if (at + size > bytes.size() - 8) throw bad("truncated");
@@ -273,6 +286,7 @@ class CheckedReader {
 };
 
 constexpr char kCellsMagic[8] = {'D', 'O', 'G', 'C', 'E', 'L', 'L', '1'};
+constexpr char kStampsMagic[8] = {'D', 'O', 'G', 'S', 'T', 'M', 'P', '1'};
 
 void writeCells(const std::string& path, const std::vector<dog::core::CellXY>& cells) {
   std::string payload;
@@ -363,15 +377,23 @@ int extract(const Options& options) {
        << "blocks " << blocks.size() << "\n";
   for (const auto& [block, cells] : blocks) {
     const std::string name = blockName(block.first, block.second);
-    dog::core::writeFileAtomically(dir + "/" + name + ".obs", encodeShard(config, cells));
-    meta << "block " << name << "\n";
+    const std::string shard = encodeShard(config, cells);
+    dog::core::writeFileAtomically(dir + "/" + name + ".obs", shard);
+    std::uint64_t check = 0;
+    std::memcpy(&check, shard.data() + shard.size() - 8, 8);
+    meta << "block " << name << " " << hex(check) << "\n";
   }
   // The cells in the order the bag's recorder first saw them (the MRF's cell order).
   std::vector<dog::core::CellXY> cells(sequences.cellCount());
   for (std::size_t c = 0; c < cells.size(); ++c) cells[c] = sequences.cell(c);
   writeCells(dir + "/cells", cells);
+  // Every stamp handed to the mapper, for plan alone (the metas stay small for em).
+  std::string stamp_payload;
+  const std::uint64_t stamp_count = stamps.size();
+  put(&stamp_payload, &stamp_count, 8);
+  for (const double stamp : stamps) put(&stamp_payload, &stamp, 8);
+  writeChecked(dir + "/stamps", kStampsMagic, stamp_payload);
   meta << "stamps " << stamps.size() << "\n";
-  for (const double stamp : stamps) meta << "stamp " << exact(stamp) << "\n";
   // Written last: a bag is extracted once its meta exists.
   dog::core::writeFileAtomically(dir + "/meta", meta.str());
   std::printf("%s: scans read %zu, integrated %zu, rejected %zu, without a pose %zu; %zu cells, %zu observed cell "
@@ -478,11 +500,13 @@ int plan(const Options& options) {
       continue;
     }
     const std::int64_t offset = last_global + 1;
-    std::vector<double> stamps;
-    for (const std::string& line : meta.lines()) {
-      if (line.compare(0, 6, "stamp ") == 0) stamps.push_back(meta.parse(line.substr(6), "stamp"));
+    CheckedReader stamp_file(bagDir(options.work_dir, i) + "/stamps", kStampsMagic, "scan stamps");
+    std::vector<double> stamps(stamp_file.take<std::uint64_t>());
+    for (double& stamp : stamps) stamp = stamp_file.take<double>();
+    stamp_file.finish();
+    if (stamps.empty() || static_cast<std::int64_t>(stamps.size()) != meta.integer("stamps")) {
+      meta.fail("its stamps file does not hold its " + meta.value("stamps") + " stamps");
     }
-    if (stamps.empty()) meta.fail("has no stamps");
     dog::core::StepClock extracted(time_step);
     dog::core::StepClock timeline(time_step);
     extracted.anchor(stamps.front(), anchor);
@@ -500,6 +524,10 @@ int plan(const Options& options) {
     last_global = last_local - anchor + offset;
     origin = *timeline.origin();
   }
+  if (last_global > std::numeric_limits<std::int32_t>::max() - 1) {
+    throw std::runtime_error("the bags span " + std::to_string(last_global + 1) + " steps, more than the map's clock "
+                             "counts (2^31 - 1): use a longer --time-step");
+  }
   if (!redo.empty()) {
     std::string lines;
     for (const auto& [bag, offset] : redo) lines += std::to_string(bag) + " " + std::to_string(offset) + "\n";
@@ -511,6 +539,7 @@ int plan(const Options& options) {
   }
   out << kPlanHeader << "\n"
       << "config " << hex(config) << "\n"
+      << "em " << hex(emFingerprint(options.shared.em)) << "\n"
       << "block_cells " << options.block_cells << "\n"
       << "origin " << exact(origin) << "\n"
       << "last_step " << last_global << "\n"
@@ -535,6 +564,7 @@ Plan readPlan(const Options& options) {
     file.fail("planned with another mapping configuration");
   }
   if (file.integer("block_cells") != options.block_cells) file.fail("planned with another --block-cells");
+  if (file.value("em") != hex(emFingerprint(options.shared.em))) file.fail("planned with other offline EM options");
   Plan plan;
   plan.origin = file.number("origin");
   plan.last_step = file.integer("last_step");
@@ -641,14 +671,29 @@ std::vector<dog::core::TransitionParams> decodeParams(const std::string& path, s
   return params;
 }
 
-/// The blocks bag `index` has shards of (its meta's list), sorted.
-std::vector<std::string> bagBlocks(const Options& options, std::size_t index) {
+/// The shards bag `index` wrote (its meta's list: block names and the shards' checksums),
+/// sorted by block.
+std::vector<std::pair<std::string, std::uint64_t>> bagShards(const Options& options, std::size_t index) {
   const KeyValues meta(bagDir(options.work_dir, static_cast<int>(index)) + "/meta", "shard meta", kMetaHeader);
-  std::vector<std::string> blocks;
+  std::vector<std::pair<std::string, std::uint64_t>> shards;
   for (const std::string& line : meta.lines()) {
-    if (line.compare(0, 6, "block ") == 0) blocks.push_back(line.substr(6));
+    if (line.compare(0, 6, "block ") != 0) continue;
+    std::istringstream fields(line.substr(6));
+    std::string name;
+    std::string check;
+    if (!(fields >> name >> check) || check.size() != 16 ||
+        check.find_first_not_of("0123456789abcdef") != std::string::npos) {
+      meta.fail("bad block line '" + line + "'");
+    }
+    shards.emplace_back(name, std::stoull(check, nullptr, 16));
   }
-  std::sort(blocks.begin(), blocks.end());
+  std::sort(shards.begin(), shards.end());
+  return shards;
+}
+
+std::vector<std::string> bagBlocks(const Options& options, std::size_t index) {
+  std::vector<std::string> blocks;
+  for (const auto& shard : bagShards(options, index)) blocks.push_back(shard.first);
   return blocks;
 }
 
@@ -660,9 +705,10 @@ int emBlock(const Options& options) {
   // Bags in timeline order: each cell's steps keep increasing. Only the shards a bag's meta
   // lists are its own (a work directory may hold older files).
   for (std::size_t i = 0; i < plan.shifts.size(); ++i) {
-    const std::vector<std::string> blocks = bagBlocks(options, i);
-    if (!std::binary_search(blocks.begin(), blocks.end(), options.block)) continue;
-    decodeShard(bagDir(options.work_dir, static_cast<int>(i)) + "/" + options.block + ".obs", config,
+    const std::vector<std::pair<std::string, std::uint64_t>> shards = bagShards(options, i);
+    const auto found = std::lower_bound(shards.begin(), shards.end(), std::make_pair(options.block, std::uint64_t{0}));
+    if (found == shards.end() || found->first != options.block) continue;
+    decodeShard(bagDir(options.work_dir, static_cast<int>(i)) + "/" + options.block + ".obs", config, found->second,
                 plan.shifts[i], &builder);
   }
   const dog::core::ObservationSequences sequences = builder.build();
@@ -706,8 +752,8 @@ int emBlock(const Options& options) {
       }
       params[c] = state.params[global[c]];
     }
-    const dog::core::OfflineEStep e = dog::core::offlineEStep(sequences, mapper.sensor(), params,
-                                                              options.shared.em.initial_p_occ, options.shared.em.threads);
+    const dog::core::OfflineEStep e = dog::core::offlineEStep(
+        sequences, mapper.sensor(), params, options.shared.em.initial_p_occ, options.shared.em.threads);
     std::string payload;
     const std::uint64_t count = sequences.cellCount();
     put(&payload, &count, 8);
@@ -953,7 +999,8 @@ Options parseArguments(int argc, char** argv) {
                                    : "--em-learn-sensor-model needs --round");
     }
     if ((options.shared.em.mrf_temperature > 0.0) != (options.iteration >= 0)) {
-      line.fail(options.iteration >= 0 ? "--iteration is for --mrf-temperature" : "--mrf-temperature needs --iteration");
+      line.fail(options.iteration >= 0 ? "--iteration is for --mrf-temperature"
+                                       : "--mrf-temperature needs --iteration");
     }
   } else if (options.command == "assemble") {
     arguments(0);

@@ -184,12 +184,11 @@ class DaskOfflineEmTest(unittest.TestCase):
                                            work, STATIONARY_ARGS + ['--block-cells', '64'], self.sharded_em,
                                            log=lambda line: None)
         out = os.path.join(self.tmp, 'reused.dogm')
-        dask_offline_em.sharded_offline_em(self.client, [NEATO_BAG], out, work, NEATO_ARGS + ['--block-cells', '64'],
-                                           self.sharded_em, log=lambda line: None)
+        dask_offline_em.sharded_offline_em(self.client, [NEATO_BAG] * 2, out, work,
+                                           NEATO_ARGS + ['--block-cells', '64'], self.sharded_em, log=lambda line: None)
         with open(out, 'rb') as model:
-            self.assertTrue(model.read() == offline_em([NEATO_BAG], out + '.single', NEATO_ARGS))
+            self.assertTrue(model.read() == offline_em([NEATO_BAG] * 2, out + '.single', NEATO_ARGS))
         # A block whose part is missing fails the assembly, naming it.
-        parts = sorted(name for name in os.listdir(os.path.join(work, 'parts')) if name.endswith('.dogm'))
         with open(os.path.join(work, 'bags', '0', 'meta')) as meta:
             block = next(line.split()[1] for line in meta if line.startswith('block '))
         os.remove(os.path.join(work, 'parts', block + '.dogm'))
@@ -197,7 +196,37 @@ class DaskOfflineEmTest(unittest.TestCase):
                                 NEATO_ARGS, capture_output=True, text=True)
         self.assertEqual(result.returncode, 1)
         self.assertIn('no part of ' + block, result.stderr)
-        self.assertGreater(len(parts), 1)
+
+    def test_shard_a_bag_does_not_list_is_not_read(self):
+        # The steps by hand: the second bag is the Neato's first 8 s only, so it sees fewer
+        # blocks than the first; a stale shard planted in its directory for a block only the
+        # first bag saw must change nothing.
+        options = NEATO_ARGS + ['--block-cells', '64']
+        models = []
+        for name in ('clean', 'planted'):
+            work = os.path.join(self.tmp, 'listed_' + name)
+            run = lambda *args: subprocess.run([self.sharded_em] + list(args) + ['--work', work] + options,
+                                               capture_output=True, text=True, check=True, timeout=TIMEOUT_S)
+            run('extract', NEATO_BAG, '--index', '0')
+            with rosbag.Bag(NEATO_BAG) as bag:
+                start = bag.get_start_time()
+            run('extract', NEATO_BAG, '--index', '1', '--end-time', str(start + 8.0))
+            blocks = []
+            for index in (0, 1):
+                with open(os.path.join(work, 'bags', str(index), 'meta')) as meta:
+                    blocks.append({line.split()[1] for line in meta if line.startswith('block ')})
+            only_first = sorted(blocks[0] - blocks[1])
+            self.assertTrue(only_first, blocks)
+            if name == 'planted':
+                shutil.copy(os.path.join(work, 'bags', '0', only_first[0] + '.obs'),
+                            os.path.join(work, 'bags', '1', only_first[0] + '.obs'))
+            run('plan', '--bags', '2')
+            for block in sorted(blocks[0] | blocks[1]):
+                run('em', '--block', block)
+            run('assemble', '--out', os.path.join(work, 'model.dogm'))
+            with open(os.path.join(work, 'model.dogm'), 'rb') as model:
+                models.append(model.read())
+        self.assertTrue(models[0] == models[1])
 
     def test_errors(self):
         work = os.path.join(self.tmp, 'errors')
@@ -222,6 +251,19 @@ class DaskOfflineEmTest(unittest.TestCase):
         self.assertEqual(driver.returncode, 2)
         self.assertIn('learn_sensor_model does not combine with mrf_temperature', driver.stderr)
         self.assertFalse(os.path.exists(os.path.join(work, 'm.dogm')))
+        # A valid shard that is not the one the bag's meta lists (another extraction's) is refused.
+        self.sharded('swapped', [NEATO_BAG], NEATO_ARGS + ['--block-cells', '128'])
+        swapped = os.path.join(self.tmp, 'swapped')
+        names = sorted(name for name in os.listdir(os.path.join(swapped, 'bags', '0')) if name.endswith('.obs'))
+        shutil.copy(os.path.join(swapped, 'bags', '0', names[0]), os.path.join(swapped, 'bags', '0', names[1]))
+        result = run('em', '--work', swapped, '--block', names[1][:-4], '--block-cells', '128', *NEATO_ARGS)
+        self.assertEqual(result.returncode, 1)
+        self.assertIn('not the shard its bag\'s meta lists', result.stderr)
+        # Other offline EM options than the plan's are refused.
+        result = run('em', '--work', swapped, '--block', names[0][:-4], '--block-cells', '128', '--em-iterations', '7',
+                     *NEATO_ARGS)
+        self.assertEqual(result.returncode, 1)
+        self.assertIn('planned with other offline EM options', result.stderr)
         # A corrupt shard is named, and no part is written.
         self.sharded('corrupt', [NEATO_BAG], NEATO_ARGS)
         shard_dir = os.path.join(self.tmp, 'corrupt', 'bags', '0')
