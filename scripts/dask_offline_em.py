@@ -181,7 +181,16 @@ def sharded_offline_em(client, bags, out, work, options, sharded_em, retries=3, 
         if reduced.startswith('done'):
             break
         index += 1
-    timing['em'] = (time.time() - start, len(blocks) * (index + 1))
+    tasks = len(blocks) * (index + 1)
+    if step == 'mrf-step':
+        # The parts, from the last iteration's E-steps.
+        finish = [client.submit(run_step, base + ['em', '--block', block, loop, str(index), '--finish'] + common,
+                                key='finish-%s-%s' % (block, token), retries=retries, pure=False)
+                  for block in blocks]
+        for line in wait('em', finish):
+            log(line.strip())
+        tasks += len(blocks)
+    timing['em'] = (time.time() - start, tasks)
 
     start = time.time()
     log(client.submit(run_step, base + ['assemble', '--out', out] + common, key='assemble-' + token,

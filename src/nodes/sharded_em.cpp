@@ -81,6 +81,7 @@ struct Options {
   std::string block;
   int round = -1;
   int iteration = -1;
+  bool finish = false;
   std::string out;
 };
 
@@ -716,7 +717,6 @@ int emBlock(const Options& options) {
   // The part is a model of its own (the timeline's clock, its block's cells).
   dog::core::Mapper mapper(options.shared.mapper);
   mapper.restoreTime(plan.origin, std::nullopt);
-  mapper.replayObservations(sequences);
   dog::core::OfflineEmResult result;
   std::string dir = options.work_dir + "/parts";
   if (rounds) {
@@ -752,22 +752,37 @@ int emBlock(const Options& options) {
       }
       params[c] = state.params[global[c]];
     }
-    const dog::core::OfflineEStep e = dog::core::offlineEStep(
-        sequences, mapper.sensor(), params, options.shared.em.initial_p_occ, options.shared.em.threads);
-    std::string payload;
-    const std::uint64_t count = sequences.cellCount();
-    put(&payload, &count, 8);
-    for (std::size_t c = 0; c < sequences.cellCount(); ++c) {
-      put(&payload, &global[c], 4);
-      for (const auto& row : e.counts[c]) put(&payload, row.data(), 16);
-      put(&payload, &e.log_likelihood[c], 8);
-    }
     const std::string estep_dir = mrfPath(options, "estep." + std::to_string(options.iteration));
-    fs::create_directories(estep_dir);
-    writeChecked(estep_dir + "/" + options.block, kMrfEStepMagic, payload);
-    // The part as it is if EM stops after this E-step.
+    std::vector<double> final_p_occ(sequences.cellCount());
+    if (!options.finish) {
+      const dog::core::OfflineEStep e = dog::core::offlineEStep(
+          sequences, mapper.sensor(), params, options.shared.em.initial_p_occ, options.shared.em.threads);
+      std::string payload;
+      const std::uint64_t count = sequences.cellCount();
+      put(&payload, &count, 8);
+      for (std::size_t c = 0; c < sequences.cellCount(); ++c) {
+        put(&payload, &global[c], 4);
+        for (const auto& row : e.counts[c]) put(&payload, row.data(), 16);
+        put(&payload, &e.log_likelihood[c], 8);
+        put(&payload, &e.final_p_occ[c], 8);
+      }
+      fs::create_directories(estep_dir);
+      writeChecked(estep_dir + "/" + options.block, kMrfEStepMagic, payload);
+      std::printf("%s: %zu cells, %zu observed cell steps, E-step of iteration %d\n", options.block.c_str(),
+                  sequences.cellCount(), sequences.observationCount(), options.iteration);
+      return 0;
+    }
+    // --finish: EM stopped after this iteration's E-step; its final beliefs make the part.
+    CheckedReader in(estep_dir + "/" + options.block, kMrfEStepMagic, "E-step (iteration run?)");
+    if (in.take<std::uint64_t>() != sequences.cellCount()) in.fail("not of this block's cells");
+    for (std::size_t c = 0; c < sequences.cellCount(); ++c) {
+      if (in.take<std::uint32_t>() != global[c]) in.fail("not of this block's cells");
+      for (int k = 0; k < 5; ++k) in.take<double>();  // counts, log-likelihood
+      final_p_occ[c] = in.take<double>();
+    }
+    in.finish();
     result.params = params;
-    result.final_p_occ = e.final_p_occ;
+    result.final_p_occ = final_p_occ;
     result.final_step.resize(sequences.cellCount());
     for (std::size_t c = 0; c < sequences.cellCount(); ++c) result.final_step[c] = (sequences.end(c) - 1)->step;
     result.iterations.assign(sequences.cellCount(), static_cast<std::uint16_t>(options.iteration));
@@ -775,12 +790,13 @@ int emBlock(const Options& options) {
   } else {
     result = dog::core::runOfflineEm(sequences, mapper.sensor(), options.shared.em);
   }
+  mapper.replayObservations(sequences);
   mapper.applyOfflineEm(sequences, result, true);
   fs::create_directories(dir);
   const std::string path = dir + "/" + options.block + ".dogm";
   dog::core::saveModel(mapper, path);
   if (result.objective.empty()) {
-    std::printf("%s: %zu cells, %zu observed cell steps, E-step of iteration %d -> %s\n", options.block.c_str(),
+    std::printf("%s: %zu cells, %zu observed cell steps, the MRF's iteration %d -> %s\n", options.block.c_str(),
                 sequences.cellCount(), sequences.observationCount(), options.iteration, path.c_str());
   } else {
     std::printf("%s: %zu cells, %zu observed cell steps, %zu converged, objective %.6f -> %.6f -> %s\n",
@@ -859,6 +875,7 @@ int mrfStep(const Options& options) {
         row[1] = in.take<double>();
       }
       log_likelihood[g] = in.take<double>();
+      in.take<double>();  // the final belief: for em --finish
     }
     in.finish();
   }
@@ -970,6 +987,8 @@ Options parseArguments(int argc, char** argv) {
        "em: the block (block_X_Y, as extract names its shard files)")
       ("iteration", cl::number(&options.iteration, cl::between(0, 65535))->value_name("K"),
        "em, mrf-step: the iteration of the MRF's EM (with --mrf-temperature)")
+      ("finish", boost::program_options::bool_switch(&options.finish),
+       "em with --iteration K: write the block's part from iteration K's E-step (after mrf-step said done)")
       ("round", cl::number(&options.round, cl::between(0, 1000))->value_name("R"),
        "em, reduce: the round of learning the sensor model (with --em-learn-sensor-model)")
       ("out", cl::nonEmpty(&options.out, "a file name")->value_name("MODEL"), "assemble: model file to write");
@@ -998,6 +1017,7 @@ Options parseArguments(int argc, char** argv) {
       line.fail(options.round >= 0 ? "--round is for --em-learn-sensor-model"
                                    : "--em-learn-sensor-model needs --round");
     }
+    if (options.finish && options.iteration < 0) line.fail("--finish needs --iteration");
     if ((options.shared.em.mrf_temperature > 0.0) != (options.iteration >= 0)) {
       line.fail(options.iteration >= 0 ? "--iteration is for --mrf-temperature"
                                        : "--mrf-temperature needs --iteration");
