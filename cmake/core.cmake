@@ -39,7 +39,10 @@ target_link_libraries(dynamic_occupancy_grid_core PUBLIC Eigen3::Eigen Threads::
 # Only model_io.cpp includes zlib.h; no public header does, so users need not see it.
 target_link_libraries(dynamic_occupancy_grid_core PRIVATE ZLIB::ZLIB)
 target_compile_features(dynamic_occupancy_grid_core PUBLIC cxx_std_17)
-target_compile_options(dynamic_occupancy_grid_core PRIVATE -Wall -Wextra -Wpedantic)
+# -fno-semantic-interposition: the library's calls to its own functions may be inlined (with
+# -fPIC, GCC otherwise calls each through the PLT, in case another library interposes it;
+# the scan's per-cell visitor was such a call). Nobody interposes functions of this library.
+target_compile_options(dynamic_occupancy_grid_core PRIVATE -Wall -Wextra -Wpedantic -fno-semantic-interposition)
 set_target_properties(dynamic_occupancy_grid_core PROPERTIES POSITION_INDEPENDENT_CODE ON)
 
 add_library(dynamic_occupancy_grid_evaluation

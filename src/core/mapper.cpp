@@ -1,10 +1,12 @@
 #include "dynamic_occupancy_grid/core/mapper.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <limits>
 #include <stdexcept>
 #include <string>
+#include <utility>
 
 #include "dynamic_occupancy_grid/core/scan_beams.h"
 #include "dynamic_occupancy_grid/core/traversal.h"
@@ -176,6 +178,12 @@ ScanResult Mapper::integrate(const Scan& scan) {
     }
     return cached_tile;
   };
+  // A beam's misses are counted kMissLookahead cells behind the traversal, which prefetches
+  // each cell's record when it reaches it: far from the sensor every visit is a cache miss,
+  // and this keeps that many of them in flight. The cells are counted in the same order.
+  constexpr std::size_t kMissLookahead = 32;
+  std::array<std::pair<CellGrid::Tile*, int>, kMissLookahead> pending;
+  std::size_t pending_count = 0;
   for (const BeamEnd& beam : beams) {
     const CellXY end = traverseSegment(u0, v0, beam.u1, beam.v1, [&](std::int32_t x, std::int32_t y) {
       CellGrid::Tile* tile = tile_of(x, y);
@@ -183,8 +191,18 @@ ScanResult Mapper::integrate(const Scan& scan) {
         ++result.cells_outside;
         return;
       }
-      markMiss(*tile, CellGrid::offsetOf(x, y));
+      const int offset = CellGrid::offsetOf(x, y);
+      __builtin_prefetch(&tile->scan_record[offset], 1);
+      auto& slot = pending[pending_count % kMissLookahead];
+      if (pending_count >= kMissLookahead) markMiss(*slot.first, slot.second);
+      slot = {tile, offset};
+      ++pending_count;
     });
+    for (std::size_t k = pending_count > kMissLookahead ? pending_count - kMissLookahead : 0; k < pending_count; ++k) {
+      const auto& slot = pending[k % kMissLookahead];
+      markMiss(*slot.first, slot.second);
+    }
+    pending_count = 0;
     CellGrid::Tile* tile = tile_of(end.x, end.y);
     if (tile == nullptr) {
       ++result.cells_outside;
