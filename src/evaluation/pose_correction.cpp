@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <deque>
 #include <iomanip>
 #include <memory>
 #include <optional>
@@ -119,6 +120,8 @@ PoseCorrectionResult runPoseCorrection(const PoseCorrectionConfig& config) {
   filters[2].name = "rbpf_oracle";
   filters[2].filter = std::make_unique<PoseFilter>(filter_config, std::make_shared<WorldTransitions>(world));
 
+  // learner_lag_updates > 0: rbpf_hmm's update scans, each with the update count it made.
+  std::deque<std::pair<Scan, std::size_t>> lagged;
   std::vector<Pose2D> truth;
   std::vector<Pose2D> odometry_track;
   std::vector<double> stamps;
@@ -144,22 +147,42 @@ PoseCorrectionResult runPoseCorrection(const PoseCorrectionConfig& config) {
         const ScanResult result = mapper->integrate(mapper == &known ? scan : odometry_scan);
         if (result.status != ScanStatus::kIntegrated) throw std::runtime_error("pose correction: scan rejected: " + result.error);
       }
+      bool hmm_updated = false;
       for (FilterRun& run : filters) {
         const auto start = std::chrono::steady_clock::now();
         const PoseUpdate update = run.filter->integrate(odometry_scan);
         if (update.updated) {
           run.update_ms += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
         }
+        if (&run == &filters[1]) hmm_updated = update.updated;
         run.estimate.push_back(composePose(run.filter->mapToOdometry(), laser_odometry));
       }
-      Scan corrected = scan;
-      corrected.laser_pose = filters[1].estimate.back();
-      learner.integrate(corrected);
+      if (config.learner_lag_updates == 0) {
+        Scan corrected = scan;
+        corrected.laser_pose = filters[1].estimate.back();
+        learner.integrate(corrected);
+      } else {
+        if (hmm_updated) lagged.push_back({scan, filters[1].filter->updates()});
+        if (!lagged.empty() && lagged.front().second + config.learner_lag_updates <= filters[1].filter->updates()) {
+          const std::vector<TrajectoryNode> trajectory = filters[1].filter->bestTrajectory();
+          while (!lagged.empty() && lagged.front().second + config.learner_lag_updates <= filters[1].filter->updates()) {
+            Scan corrected = lagged.front().first;
+            const std::size_t node = lagged.front().second - 1;  // the update's node, oldest first
+            if (node >= trajectory.size() || trajectory[node].stamp_s != corrected.stamp_s) {
+              throw std::logic_error("pose correction: the best trajectory does not hold the lagged update");
+            }
+            corrected.laser_pose = trajectory[node].pose;
+            learner.integrate(corrected);
+            lagged.pop_front();
+          }
+        }
+      }
       truth.push_back(scan.laser_pose);
       odometry_track.push_back(laser_odometry);
       stamps.push_back(scan.stamp_s);
     }
-    for (Mapper* mapper : {&known, &dead_reckoning, &learner}) mapper->finishStep();
+    for (Mapper* mapper : {&known, &dead_reckoning}) mapper->finishStep();
+    if (config.learner_lag_updates == 0) learner.finishStep();
     if (t >= score_from) {
       for (std::int32_t y = 0; y < world.height(); ++y) {
         for (std::int32_t x = 0; x < world.width(); ++x) {

@@ -54,6 +54,7 @@ struct Options {
   int murphy_repetitions = 100;
   int murphy_doors_runs = 10;
   int pose_correction_runs = 0;
+  int pose_correction_learner_lag = 0;
   std::uint64_t seed = 1;
   unsigned threads = 0;
 };
@@ -130,6 +131,9 @@ Options parseOptions(int argc, char** argv) {
        "runs of the pose filter's comparison on patrol_office with drifting odometry (docs/pose_correction.md: known "
        "pose, odometry, the RBPF with a static, learned and true-transition map; 30 particles, 400 steps, about a "
        "minute each; default 0 skips it)")
+      ("pose-correction-learner-lag", cl::number(&options.pose_correction_learner_lag, cl::between(0, 100000))->value_name("N"),
+       "rbpf_hmm's learner: 0 (default) maps every scan at the filter's estimate of its time; N maps the filter's "
+       "update scans N updates later at the best particle's trajectory then (a fixed-lag smoother)")
       ("seed",
        cl::number(&options.seed, cl::between<std::uint64_t>(0, std::numeric_limits<long long>::max()))
            ->value_name("S"),
@@ -1052,6 +1056,7 @@ int main(int argc, char** argv) {
     if (options.pose_correction_runs > 0) {
       core::PoseCorrectionConfig config;
       config.filter.threads = options.threads;
+      config.learner_lag_updates = static_cast<std::size_t>(options.pose_correction_learner_lag);
       std::vector<core::PoseCorrectionResult> runs;
       for (int r = 0; r < options.pose_correction_runs; ++r) {
         config.world_seed = options.seed;

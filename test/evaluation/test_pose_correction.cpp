@@ -69,4 +69,27 @@ TEST(PoseCorrection, FiltersBeatOdometryOnAPatrol) {
   EXPECT_EQ(lines, 1 + 2 * 5);
 }
 
+// rbpf_hmm's learner as a fixed-lag smoother: the update scans mapped `learner_lag_updates`
+// updates later at the best trajectory's pose then. runPoseCorrection checks that the
+// trajectory's node it takes is that scan's (a logic_error otherwise), so an off-by-one in
+// the lag's bookkeeping fails here.
+TEST(PoseCorrection, LaggedLearnerFollowsTheBestTrajectory) {
+  dog::PoseCorrectionConfig config;
+  config.steps = 120;
+  config.filter.particles = 10;
+  config.learner_lag_updates = 5;
+  const dog::PoseCorrectionResult result = dog::runPoseCorrection(config);
+  const double odometry = find(result, "odometry").ate_rmse_m;
+  EXPECT_GT(odometry, 0.3);
+  const dog::PoseEstimatorResult& learned = find(result, "rbpf_hmm");
+  EXPECT_LT(learned.ate_rmse_m, 0.5 * odometry);
+  EXPECT_GT(learned.updates, 50u);
+  // The lag changes only what the learner sees: the other filters are the same run.
+  config.learner_lag_updates = 0;
+  const dog::PoseCorrectionResult plain = dog::runPoseCorrection(config);
+  for (const char* name : {"rbpf_static", "rbpf_oracle", "odometry"}) {
+    EXPECT_EQ(find(result, name).ate_rmse_m, find(plain, name).ate_rmse_m) << name;
+  }
+}
+
 }  // namespace

@@ -42,6 +42,11 @@ struct PoseCorrectionConfig {
   std::size_t relative_error_scans = 10;  ///< the relative error's span
   /// rbpf_hmm: cells its learner has observed in fewer steps stay static (MapperTransitions).
   std::uint32_t learned_min_observed_steps = 30;
+  /// rbpf_hmm's learner: 0 maps every scan at the filter's estimate of its time; n > 0 maps
+  /// only the filter's update scans, n updates later, at the pose the best particle's
+  /// trajectory gives them then (a fixed-lag smoother: resampling has pruned the
+  /// hypotheses that lost by then).
+  std::size_t learner_lag_updates = 0;
   /// Throws std::invalid_argument naming the first bad field.
   void validate() const;
 };
