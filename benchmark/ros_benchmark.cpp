@@ -23,6 +23,7 @@
 
 #include "dynamic_occupancy_grid/core/parallel.h"
 
+#include "dynamic_occupancy_grid/core/cell_kinds.h"
 #include "dynamic_occupancy_grid/core/mapper.h"
 #include "dynamic_occupancy_grid/ros/grid_messages.h"
 
@@ -58,7 +59,13 @@ const dog::Mapper& fullMap() {
         state.log_odds = 4.0f * p(rng) - 2.0f;
         state.p_occ_given_free = transition(rng);
         state.p_free_given_occ = transition(rng);
-        state.em_stats.fill(1.0f);
+        // The default learner's state: p(kind, state) at 2 kind + state, summing to 1
+        // (restoreCell refuses anything else), spread evenly over the kinds.
+        state.em_stats.fill(0.0f);
+        for (int k = 0; k < dog::kKindCount; ++k) {
+          state.em_stats[2 * k] = state.p_occ / dog::kKindCount;
+          state.em_stats[2 * k + 1] = (1.0f - state.p_occ) / dog::kKindCount;
+        }
         state.observed_steps = 10;
         m->restoreCell(x, y, state);
       }
