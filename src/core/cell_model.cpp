@@ -42,8 +42,10 @@ bool TransitionParams::isValid() const {
   return isProbability(p_occ_given_free) && isProbability(p_free_given_occ);
 }
 
-ObservationModel::ObservationModel(double p_hit_given_occ, double p_hit_given_free)
-    : p_hit_given_occ_(p_hit_given_occ), p_hit_given_free_(p_hit_given_free) {
+ObservationModel::ObservationModel(double p_hit_given_occ, double p_hit_given_free, double mixed_step_probability)
+    : p_hit_given_occ_(p_hit_given_occ),
+      p_hit_given_free_(p_hit_given_free),
+      mixed_step_probability_(mixed_step_probability) {
   const auto open_unit = [](double p) { return p > 0.0 && p < 1.0; };
   if (!open_unit(p_hit_given_occ) || !open_unit(p_hit_given_free)) {
     throw std::invalid_argument("sensor model: p_hit_given_occ (" +
@@ -56,8 +58,29 @@ ObservationModel::ObservationModel(double p_hit_given_occ, double p_hit_given_fr
                                 ") must be greater than p_hit_given_free (" +
                                 std::to_string(p_hit_given_free) + ")");
   }
+  if (!(mixed_step_probability >= 0.0 && mixed_step_probability <= 0.5)) {
+    throw std::invalid_argument("sensor model: mixed_step_probability must be in [0, 0.5], got " +
+                                std::to_string(mixed_step_probability));
+  }
   hit_log_odds_ = std::log(p_hit_given_occ / p_hit_given_free);
   miss_log_odds_ = std::log1p(-p_hit_given_occ) - std::log1p(-p_hit_given_free);
+}
+
+double ObservationModel::mixedLogLikelihoodRatio(std::uint32_t hits, std::uint32_t misses) const {
+  const double h = hits;
+  const double m = misses;
+  const double keep = std::log1p(-mixed_step_probability_);
+  const double occ = keep + h * std::log(p_hit_given_occ_) + m * std::log1p(-p_hit_given_occ_);
+  const double free = keep + h * std::log(p_hit_given_free_) + m * std::log1p(-p_hit_given_free_);
+  // log(eps B(h + 1, m + 1)) = log eps + log h! + log m! - log (h + m + 1)!
+  const double mixed =
+      std::log(mixed_step_probability_) + std::lgamma(h + 1.0) + std::lgamma(m + 1.0) - std::lgamma(h + m + 2.0);
+  // log(e^a + e^c) without overflow or underflow.
+  const auto log_sum = [](double a, double c) {
+    const double top = std::max(a, c);
+    return top + std::log1p(std::exp(std::min(a, c) - top));
+  };
+  return log_sum(occ, mixed) - log_sum(free, mixed);
 }
 
 double predictOneStep(double p_occ, const TransitionParams& params) {

@@ -84,6 +84,9 @@ void MapperConfig::validate() const {
           "sensor_model_prior_weight must be > 0, got " + std::to_string(sensor_model_prior_weight));
   require(sensor_model_p_min > 0.0 && sensor_model_p_min <= 0.4,
           "sensor_model_p_min must be in (0, 0.4], got " + std::to_string(sensor_model_p_min));
+  require(sensor_model_mixed_step_probability >= 0.0 && sensor_model_mixed_step_probability <= 0.5,
+          "sensor_model_mixed_step_probability must be in [0, 0.5], got " +
+              std::to_string(sensor_model_mixed_step_probability));
   require(std::isfinite(prior_population_weight) && prior_population_weight > 0.0,
           "prior_population_weight must be > 0, got " + std::to_string(prior_population_weight));
   require(online_em.min_observed_steps <= std::numeric_limits<std::uint16_t>::max(),
@@ -95,7 +98,7 @@ void MapperConfig::validate() const {
 
 Mapper::Mapper(const MapperConfig& config)
     : config_(validated(config)),
-      sensor_(config.p_hit_given_occ, config.p_hit_given_free),
+      sensor_(config.p_hit_given_occ, config.p_hit_given_free, config.sensor_model_mixed_step_probability),
       static_sensor_(config.p_hit_given_occ, config.p_hit_given_free),
       clock_(config.time_step_s),
       grid_(config.resolution_m, config.origin_x_m, config.origin_y_m, fixedCells(config),
@@ -371,7 +374,8 @@ void Mapper::updateSensorModel() {
   // The M-step of the shared emissions: hits over beam ends per state, with the configured
   // model as sensor_model_prior_weight beam ends of each state.
   if (sensor_stats_.trials[0] == 0.0 && sensor_stats_.trials[1] == 0.0) {
-    sensor_ = ObservationModel(config_.p_hit_given_occ, config_.p_hit_given_free);  // nothing learned
+    sensor_ = ObservationModel(config_.p_hit_given_occ, config_.p_hit_given_free,
+                               config_.sensor_model_mixed_step_probability);  // nothing learned
     return;
   }
   const double w = config_.sensor_model_prior_weight;
@@ -381,7 +385,7 @@ void Mapper::updateSensorModel() {
   const double free = std::clamp(
       (sensor_stats_.hits[1] + w * config_.p_hit_given_free) / (sensor_stats_.trials[1] + w), lo, 1.0 - lo);
   // A hit must stay evidence for "occupied": keep the last model otherwise.
-  if (occ >= free + 0.05) sensor_ = ObservationModel(occ, free);
+  if (occ >= free + 0.05) sensor_ = ObservationModel(occ, free, config_.sensor_model_mixed_step_probability);
 }
 
 void Mapper::restoreSensorModelStats(const SensorModelStats& stats) {
@@ -739,13 +743,19 @@ void Mapper::setCellTransitions(std::int32_t x, std::int32_t y, const Transition
 }
 
 void Mapper::setSensorModel(double p_hit_given_occ, double p_hit_given_free) {
-  const ObservationModel sensor(p_hit_given_occ, p_hit_given_free);  // throws for a bad model
-  sensor_ = sensor;
-  static_sensor_ = sensor;
+  // Throws for a bad model.
+  sensor_ = ObservationModel(p_hit_given_occ, p_hit_given_free, config_.sensor_model_mixed_step_probability);
+  static_sensor_ = ObservationModel(p_hit_given_occ, p_hit_given_free);
   config_.p_hit_given_occ = p_hit_given_occ;
   config_.p_hit_given_free = p_hit_given_free;
   // With learn_sensor_model the new values are where learning starts again.
   sensor_stats_ = SensorModelStats{};
+}
+
+void Mapper::setMixedStepProbability(double mixed_step_probability) {
+  // Throws for a value outside [0, 0.5].
+  sensor_ = ObservationModel(sensor_.pHitGivenOcc(), sensor_.pHitGivenFree(), mixed_step_probability);
+  config_.sensor_model_mixed_step_probability = mixed_step_probability;
 }
 
 CellBox Mapper::takeChangedCells() {

@@ -110,6 +110,10 @@ inline void addMappingOptions(command_line::CommandLine& line, SharedOptions* op
        "sensor model: p(hit | occupied) (default 0.7)")
       ("p-hit-given-free", cl::number(&mapper.p_hit_given_free, cl::between(0.0, 1.0))->value_name("P"),
        "sensor model: p(hit | free) (default 0.2)")
+      ("mixed-step-probability",
+       cl::number(&mapper.sensor_model_mixed_step_probability, cl::between(0.0, 0.5))->value_name("P"),
+       "sensor model: the chance that a step whose beams disagree comes from a cell they only partly cover "
+       "(default 0.001; 0 reads every step plainly), as the node's ~sensor_model/mixed_step_probability")
       ("prior-p-occ-given-free",
        cl::number(&mapper.prior_transitions.p_occ_given_free, cl::between(0.0, 1.0))->value_name("P"),
        "transition prior per step, free -> occupied (default 0.01)")

@@ -91,6 +91,11 @@ void logLearners(const core::MapperConfig& config) {
     }
     ROS_INFO("%s", line.str().c_str());
   }
+  if (config.sensor_model_mixed_step_probability > 0.0) {
+    ROS_INFO("steps whose beams disagree may come from a partly covered cell with probability %g "
+             "(sensor_model/mixed_step_probability)",
+             config.sensor_model_mixed_step_probability);
+  }
   if (config.learn_sensor_model) {
     ROS_INFO("online learning of the sensor model: from p_hit_given_occ %g, p_hit_given_free %g, worth %g beam "
              "ends per state (sensor_model/prior_weight), within [%g, %g] (sensor_model/p_min)",
@@ -129,6 +134,7 @@ bool MappingNode::start() {
   if (parameters_.runsHmm() && !parameters_.model_file.empty()) {
     try {
       mapper_ = core::loadModel(parameters_.model_file);
+      mapper_->setMixedStepProbability(parameters_.mapper.sensor_model_mixed_step_probability);
     } catch (const std::exception& e) {
       ROS_FATAL("~model_file: %s", e.what());
       return false;
@@ -1213,6 +1219,7 @@ bool MappingNode::loadModel(LoadModel::Request& request, LoadModel::Response& re
   std::unique_ptr<core::Mapper> loaded;
   try {
     loaded = core::loadModel(path);
+    loaded->setMixedStepProbability(parameters_.mapper.sensor_model_mixed_step_probability);
   } catch (const std::exception& e) {
     return fail(e.what());
   }

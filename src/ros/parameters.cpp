@@ -146,7 +146,7 @@ std::string mapperParameterMessage(const std::string& message) {
     const std::string prefix = "online_em " + field + " ";
     if (starts_with(prefix)) return "online_em/" + message.substr(std::string("online_em ").size());
   }
-  for (const std::string field : {"prior_weight", "p_min"}) {
+  for (const std::string field : {"prior_weight", "p_min", "mixed_step_probability"}) {
     const std::string prefix = "sensor_model_" + field + " ";
     if (starts_with(prefix)) return "sensor_model/" + message.substr(std::string("sensor_model_").size());
   }
@@ -246,6 +246,7 @@ bool readParameters(const ros::NodeHandle& private_nh, NodeParameters* parameter
   read.boolean("learn_sensor_model", &m.learn_sensor_model);
   read.number("sensor_model/prior_weight", &m.sensor_model_prior_weight);
   read.number("sensor_model/p_min", &m.sensor_model_p_min);
+  read.number("sensor_model/mixed_step_probability", &m.sensor_model_mixed_step_probability);
   std::string learner = "kinds";
   read.text("learner", &learner);
   if (learner == "kinds") {

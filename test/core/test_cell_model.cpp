@@ -707,6 +707,73 @@ TEST(CellModelObservation, LogLikelihoodRatioIsLogOfProductOfLikelihoods) {
   }
 }
 
+// A step's likelihood under the mixed-step model, from products in long double: state s
+// hits with p, a partly covered cell with an unknown rate (the integral of q^h (1 - q)^m
+// over [0, 1] is h! m! / (h + m + 1)!).
+long double mixedStepLikelihood(long double p, long double eps, unsigned hits, unsigned misses) {
+  long double plain = 1.0L;
+  for (unsigned i = 0; i < hits; ++i) plain *= p;
+  for (unsigned i = 0; i < misses; ++i) plain *= 1.0L - p;
+  long double beta = 1.0L;  // h! m! / (h + m + 1)!: the product of i / (h + i) for i = 1..m, over h + m + 1
+  for (unsigned i = 1; i <= misses; ++i) beta *= static_cast<long double>(i) / (hits + i);
+  beta /= hits + misses + 1;
+  return (1.0L - eps) * plain + eps * beta;
+}
+
+TEST(CellModelMixedSteps, DisagreeingStepsMatchAProductReference) {
+  for (const auto& [occ, free] : std::vector<std::pair<double, double>>{{0.7, 0.2}, {0.942, 0.01}, {0.99, 0.001}}) {
+    for (const double eps : {1e-4, 1e-3, 0.05, 0.5}) {
+      const dog::ObservationModel sensor(occ, free, eps);
+      EXPECT_EQ(sensor.mixedStepProbability(), eps);
+      for (unsigned hits = 1; hits <= 12; ++hits) {
+        for (unsigned misses = 1; misses <= 12; ++misses) {
+          const long double reference =
+              std::log(mixedStepLikelihood(occ, eps, hits, misses) / mixedStepLikelihood(free, eps, hits, misses));
+          EXPECT_NEAR(sensor.logLikelihoodRatio(hits, misses), static_cast<double>(reference), 1e-10)
+              << occ << " / " << free << " eps " << eps << ": " << hits << " hits, " << misses << " misses";
+        }
+      }
+    }
+  }
+}
+
+TEST(CellModelMixedSteps, StepsThatAgreeKeepThePlainLikelihoods) {
+  const dog::ObservationModel plain(0.942, 0.01);
+  const dog::ObservationModel mixed(0.942, 0.01, 1e-3);
+  for (std::uint32_t n = 0; n <= 40; ++n) {
+    EXPECT_EQ(mixed.logLikelihoodRatio(n, 0), plain.logLikelihoodRatio(n, 0)) << n;
+    EXPECT_EQ(mixed.logLikelihoodRatio(0, n), plain.logLikelihoodRatio(0, n)) << n;
+  }
+  // eps = 0 is the plain model for every step.
+  const dog::ObservationModel zero(0.942, 0.01, 0.0);
+  EXPECT_EQ(zero.logLikelihoodRatio(3, 7), plain.logLikelihoodRatio(3, 7));
+}
+
+TEST(CellModelMixedSteps, ADisagreeingStepIsWeakEvidenceAndCountsStayFinite) {
+  // A wall's edge cell under a sharp laser: read plainly, 3 hits and 7 misses say "free"
+  // (a likelihood ratio of e^-6.2) and 6 hits and 4 misses "occupied" (e^16); read as
+  // possibly mixed, neither says much.
+  const dog::ObservationModel plain(0.942, 0.01);
+  const dog::ObservationModel mixed(0.942, 0.01, 1e-3);
+  EXPECT_LT(plain.logLikelihoodRatio(3, 7), -6.0);
+  EXPECT_GT(plain.logLikelihoodRatio(6, 4), 15.0);
+  EXPECT_LT(std::abs(mixed.logLikelihoodRatio(3, 7)), 1.0);
+  EXPECT_LT(std::abs(mixed.logLikelihoodRatio(6, 4)), 3.0);
+  // Many beams: no overflow (the counts go up to 65535 per step).
+  for (const auto& [hits, misses] : std::vector<std::pair<std::uint32_t, std::uint32_t>>{
+           {65535, 1}, {1, 65535}, {65535, 65535}, {40000, 3}}) {
+    EXPECT_TRUE(std::isfinite(mixed.logLikelihoodRatio(hits, misses))) << hits << " / " << misses;
+  }
+}
+
+TEST(CellModelMixedSteps, RejectsAProbabilityOutsideZeroToOneHalf) {
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  for (const double eps : {-1e-9, 0.5000001, 1.0, nan, kInf}) {
+    EXPECT_THROW(dog::ObservationModel(0.7, 0.2, eps), std::invalid_argument) << eps;
+  }
+  EXPECT_NO_THROW(dog::ObservationModel(0.7, 0.2, 0.5));
+}
+
 // =====================================================================================
 // 7. No NaN for extreme evidence.
 // =====================================================================================

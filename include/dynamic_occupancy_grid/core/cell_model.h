@@ -27,11 +27,22 @@ struct TransitionParams {
 
 /// The sensor model shared by all cells: p(hit | occ) and p(hit | free); a miss has
 /// p(miss | s) = 1 - p(hit | s); a step without observation carries no evidence.
+///
+/// Steps whose beams disagree (hits and misses in one step): with mixed_step_probability
+/// eps > 0 such a step may also come from a cell the beams only partly cover (a wall's edge
+/// under the laser's range noise), whose beams hit at an unknown rate q ~ U(0, 1) whatever
+/// the state (docs/online_learning.md, "Steps whose beams disagree"):
+///   p(z | s) = (1 - eps) p_s^h (1 - p_s)^m + eps B(h + 1, m + 1),
+/// B the Beta function (the sequence's likelihood integrated over q). A step of 3 hits and
+/// 7 misses is then weak evidence either way rather than strong evidence for "free". Steps
+/// that agree (only hits or only misses) keep the plain likelihoods: an edge cell's pure
+/// steps are read as the state they show, and one clear step still turns a cell over.
 class ObservationModel {
  public:
-  /// Throws std::invalid_argument unless both probabilities are in (0, 1) and
-  /// p_hit_given_occ > p_hit_given_free (a hit must be evidence for "occupied").
-  ObservationModel(double p_hit_given_occ, double p_hit_given_free);
+  /// Throws std::invalid_argument unless both probabilities are in (0, 1),
+  /// p_hit_given_occ > p_hit_given_free (a hit must be evidence for "occupied") and
+  /// mixed_step_probability is in [0, 0.5].
+  ObservationModel(double p_hit_given_occ, double p_hit_given_free, double mixed_step_probability = 0.0);
 
   double pHitGivenOcc() const { return p_hit_given_occ_; }
   double pHitGivenFree() const { return p_hit_given_free_; }
@@ -39,15 +50,21 @@ class ObservationModel {
   double hitLogOdds() const { return hit_log_odds_; }
   /// log p(miss|occ)/p(miss|free) < 0.
   double missLogOdds() const { return miss_log_odds_; }
+  double mixedStepProbability() const { return mixed_step_probability_; }
   /// Log-likelihood ratio log p(z|occ)/p(z|free) of `hits` hits and `misses` misses
-  /// fused in one time step (their likelihoods multiply, THEORY.md §1).
+  /// fused in one time step (their likelihoods multiply, THEORY.md §1; a step with both
+  /// weighed as above).
   double logLikelihoodRatio(std::uint32_t hits, std::uint32_t misses) const {
+    if (hits != 0 && misses != 0 && mixed_step_probability_ > 0.0) return mixedLogLikelihoodRatio(hits, misses);
     return hits * hit_log_odds_ + misses * miss_log_odds_;
   }
 
  private:
+  double mixedLogLikelihoodRatio(std::uint32_t hits, std::uint32_t misses) const;
+
   double p_hit_given_occ_;
   double p_hit_given_free_;
+  double mixed_step_probability_;
   double hit_log_odds_;
   double miss_log_odds_;
 };

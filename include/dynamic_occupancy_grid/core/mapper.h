@@ -51,6 +51,12 @@ struct MapperConfig {
   /// The learned p_hit_given_occ and p_hit_given_free stay in [sensor_model_p_min,
   /// 1 - sensor_model_p_min], p_hit_given_occ at least 0.05 above p_hit_given_free.
   double sensor_model_p_min = 0.01;
+  /// The chance that a step whose beams disagree (hits and misses in one step) comes from a
+  /// cell they only partly cover, a wall's edge under the laser's range noise, rather than
+  /// from the cell's state (ObservationModel; docs/online_learning.md, "Steps whose beams
+  /// disagree"). 0 reads every step with the plain likelihoods of THEORY.md §1. The static
+  /// baseline always reads them plainly. In [0, 0.5].
+  double sensor_model_mixed_step_probability = 1e-3;
   /// Transition probabilities every cell starts with (per step); also the prior guess of
   /// online learning.
   TransitionParams prior_transitions{0.01, 0.01};
@@ -201,6 +207,10 @@ class Mapper {
   /// (0, 1) with p_hit_given_occ > p_hit_given_free. With learn_sensor_model they are the
   /// new start: the sums learned so far are dropped.
   void setSensorModel(double p_hit_given_occ, double p_hit_given_free);
+  /// How steps whose beams disagree are read from now on (MapperConfig::
+  /// sensor_model_mixed_step_probability). Model files do not hold it: whoever loads one
+  /// sets the reader's own. Throws std::invalid_argument (and changes nothing) outside [0, 0.5].
+  void setMixedStepProbability(double mixed_step_probability);
   /// Turns online learning of the sensor model on or off while mapping. Off: the model
   /// learned so far stays in use, fixed; on again: learning goes on from its sums.
   void setLearnSensorModel(bool learn_sensor_model) { config_.learn_sensor_model = learn_sensor_model; }
