@@ -629,10 +629,13 @@ Sums readSums(const std::string& path, const char* header) {
 
 /// The sensor model round `round` uses.
 dog::core::ObservationModel roundSensor(const Options& options, int round) {
-  if (round == 0) return {options.shared.mapper.p_hit_given_occ, options.shared.mapper.p_hit_given_free};
+  // Steps are read as the one-process run reads them (mapper.sensor()): with the mapper's
+  // mixed-step probability.
+  const double mixed = options.shared.mapper.sensor_model_mixed_step_probability;
+  if (round == 0) return {options.shared.mapper.p_hit_given_occ, options.shared.mapper.p_hit_given_free, mixed};
   const KeyValues file(roundPath(options, std::to_string(round) + ".sensor"), "sensor model (reduced?)", kSensorHeader);
   try {
-    return {file.number("p_hit_given_occ"), file.number("p_hit_given_free")};
+    return {file.number("p_hit_given_occ"), file.number("p_hit_given_free"), mixed};
   } catch (const std::invalid_argument& e) {
     file.fail(e.what());
   }

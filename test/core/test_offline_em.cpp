@@ -588,7 +588,10 @@ TEST(OfflineEmForwardBackward, MatchesPathEnumeration) {
   std::uniform_int_distribution<int> count(0, 5);
   SweepCheck sweep;
   for (int trial = 0; trial < 2000; ++trial) {
-    const auto sensor = randomSensor(rng);
+    // Every other trial reads steps whose beams disagree as possibly mixed (ObservationModel).
+    const auto plain = randomSensor(rng);
+    const double eps = trial % 2 == 0 ? 0.0 : std::uniform_real_distribution<double>(1e-4, 0.5)(rng);
+    const dog::ObservationModel sensor(plain.pHitGivenOcc(), plain.pHitGivenFree(), eps);
     const auto transition = randomParams(rng);
     const double initial_p_occ = randomInitialPOcc(rng);
     // Observed steps: a random subset of t_1 .. t_1 + span - 1 holding both ends, so the
@@ -606,9 +609,15 @@ TEST(OfflineEmForwardBackward, MatchesPathEnumeration) {
     for (auto& row : b) row[0] = row[1] = 1.0L;
     for (const auto& z : sequence) {
       const LD p_hit[2] = {sensor.pHitGivenOcc(), sensor.pHitGivenFree()};
+      // A partly covered cell's sequence likelihood, the integral of q^h (1 - q)^m:
+      // h! m! / (h + m + 1)!.
+      LD beta = 1.0L / (z.hits + z.misses + 1);
+      for (std::uint32_t i = 1; i <= z.misses; ++i) beta *= static_cast<LD>(i) / (z.hits + i);
+      const bool mixed = z.hits > 0 && z.misses > 0;
       for (int s = 0; s < 2; ++s) {
-        b[z.step - first + 1][s] = std::pow(p_hit[s], static_cast<LD>(z.hits)) *
-                                   std::pow(1.0L - p_hit[s], static_cast<LD>(z.misses));
+        const LD state_likelihood = std::pow(p_hit[s], static_cast<LD>(z.hits)) *
+                                    std::pow(1.0L - p_hit[s], static_cast<LD>(z.misses));
+        b[z.step - first + 1][s] = mixed ? (1.0L - eps) * state_likelihood + eps * beta : state_likelihood;
       }
     }
     const Matrix2 A = transitionMatrix(transition);
