@@ -64,23 +64,28 @@ ObservationModel::ObservationModel(double p_hit_given_occ, double p_hit_given_fr
   }
   hit_log_odds_ = std::log(p_hit_given_occ / p_hit_given_free);
   miss_log_odds_ = std::log1p(-p_hit_given_occ) - std::log1p(-p_hit_given_free);
+  log_hit_[0] = std::log(p_hit_given_occ);
+  log_hit_[1] = std::log(p_hit_given_free);
+  log_miss_[0] = std::log1p(-p_hit_given_occ);
+  log_miss_[1] = std::log1p(-p_hit_given_free);
+  log_keep_ = std::log1p(-mixed_step_probability);
+  log_mixed_ = std::log(mixed_step_probability);
 }
 
-double ObservationModel::mixedLogLikelihoodRatio(std::uint32_t hits, std::uint32_t misses) const {
+std::array<double, 2> ObservationModel::logLikelihoods(std::uint32_t hits, std::uint32_t misses) const {
+  std::array<double, 2> log_p{hits * log_hit_[0] + misses * log_miss_[0], hits * log_hit_[1] + misses * log_miss_[1]};
+  if (hits == 0 || misses == 0 || mixed_step_probability_ == 0.0) return log_p;
   const double h = hits;
   const double m = misses;
-  const double keep = std::log1p(-mixed_step_probability_);
-  const double occ = keep + h * std::log(p_hit_given_occ_) + m * std::log1p(-p_hit_given_occ_);
-  const double free = keep + h * std::log(p_hit_given_free_) + m * std::log1p(-p_hit_given_free_);
   // log(eps B(h + 1, m + 1)) = log eps + log h! + log m! - log (h + m + 1)!
-  const double mixed =
-      std::log(mixed_step_probability_) + std::lgamma(h + 1.0) + std::lgamma(m + 1.0) - std::lgamma(h + m + 2.0);
-  // log(e^a + e^c) without overflow or underflow.
-  const auto log_sum = [](double a, double c) {
-    const double top = std::max(a, c);
-    return top + std::log1p(std::exp(std::min(a, c) - top));
-  };
-  return log_sum(occ, mixed) - log_sum(free, mixed);
+  const double mixed = log_mixed_ + std::lgamma(h + 1.0) + std::lgamma(m + 1.0) - std::lgamma(h + m + 2.0);
+  for (double& log_state : log_p) {
+    // log((1 - eps) e^a + e^c) without overflow or underflow.
+    const double a = log_keep_ + log_state;
+    const double top = std::max(a, mixed);
+    log_state = top + std::log1p(std::exp(std::min(a, mixed) - top));
+  }
+  return log_p;
 }
 
 double predictOneStep(double p_occ, const TransitionParams& params) {

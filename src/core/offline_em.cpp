@@ -57,26 +57,12 @@ struct ScaledLikelihood {
   bool occ_larger;
 };
 
-// log(e^a + e^c) without overflow or underflow.
-double logSum(double a, double c) {
-  const double top = std::max(a, c);
-  return top + std::log1p(std::exp(std::min(a, c) - top));
-}
-
-// The step's likelihoods as ObservationModel reads them: a step whose beams disagree may
-// also come from a partly covered cell (mixed_step_probability eps, log_keep = log(1 - eps),
-// log_eps = log eps; docs/online_learning.md, "Steps whose beams disagree").
-ScaledLikelihood scaledLikelihood(std::uint32_t hits, std::uint32_t misses, const double log_hit[2],
-                                  const double log_miss[2], double log_keep, double log_eps) {
-  double log_b_occ = hits * log_hit[0] + misses * log_miss[0];
-  double log_b_free = hits * log_hit[1] + misses * log_miss[1];
-  if (hits != 0 && misses != 0 && std::isfinite(log_eps)) {
-    const double h = hits;
-    const double m = misses;
-    const double mixed = log_eps + std::lgamma(h + 1.0) + std::lgamma(m + 1.0) - std::lgamma(h + m + 2.0);
-    log_b_occ = logSum(log_keep + log_b_occ, mixed);
-    log_b_free = logSum(log_keep + log_b_free, mixed);
-  }
+// The step's likelihoods as the sensor model reads them (a step whose beams disagree may
+// also come from a partly covered cell: ObservationModel).
+ScaledLikelihood scaledLikelihood(std::uint32_t hits, std::uint32_t misses, const ObservationModel& sensor) {
+  const std::array<double, 2> log_p = sensor.logLikelihoods(hits, misses);
+  const double log_b_occ = log_p[0];
+  const double log_b_free = log_p[1];
   const bool occ_larger = log_b_occ >= log_b_free;
   const double scale = occ_larger ? log_b_occ : log_b_free;
   return ScaledLikelihood{std::exp((occ_larger ? log_b_free : log_b_occ) - scale), scale, occ_larger};
@@ -89,10 +75,7 @@ constexpr std::uint32_t kTabulatedCounts = 32;
 // Per-thread buffers for one sensor, reused from cell to cell.
 struct Scratch {
   explicit Scratch(const ObservationModel& sensor)
-      : log_hit{std::log(sensor.pHitGivenOcc()), std::log(sensor.pHitGivenFree())},
-        log_miss{std::log1p(-sensor.pHitGivenOcc()), std::log1p(-sensor.pHitGivenFree())},
-        log_keep(std::log1p(-sensor.mixedStepProbability())),
-        log_eps(std::log(sensor.mixedStepProbability())),
+      : sensor(sensor),
         table(kTabulatedCounts * kTabulatedCounts),
         table_filled(kTabulatedCounts * kTabulatedCounts, 0) {}
 
@@ -101,10 +84,7 @@ struct Scratch {
   std::vector<double> normaliser;            // c_k of the scaled forward pass
   std::vector<double> lambda_before;         // lambda^(L_k - 1) of each run
   std::vector<double> objective;             // per iteration, of the cell being run
-  double log_hit[2];                         // log p(hit | occ), log p(hit | free)
-  double log_miss[2];
-  double log_keep;  // log(1 - mixed_step_probability)
-  double log_eps;   // log mixed_step_probability (-inf: steps are read plainly)
+  ObservationModel sensor;
   // scaledLikelihood(hits, misses) at [hits * kTabulatedCounts + misses], where table_filled.
   std::vector<ScaledLikelihood> table;
   std::vector<char> table_filled;
@@ -122,13 +102,12 @@ void prepare(const StepObservation* begin, const StepObservation* end, Scratch& 
     if (it->hits < kTabulatedCounts && it->misses < kTabulatedCounts) {
       const std::size_t key = std::size_t{it->hits} * kTabulatedCounts + it->misses;
       if (!scratch.table_filled[key]) {
-        scratch.table[key] =
-            scaledLikelihood(it->hits, it->misses, scratch.log_hit, scratch.log_miss, scratch.log_keep, scratch.log_eps);
+        scratch.table[key] = scaledLikelihood(it->hits, it->misses, scratch.sensor);
         scratch.table_filled[key] = 1;
       }
       b = scratch.table[key];
     } else {
-      b = scaledLikelihood(it->hits, it->misses, scratch.log_hit, scratch.log_miss, scratch.log_keep, scratch.log_eps);
+      b = scaledLikelihood(it->hits, it->misses, scratch.sensor);
     }
     out.push_back(Prepared{b.occ_larger ? 1.0 : b.smaller, b.occ_larger ? b.smaller : 1.0, b.log_scale,
                            std::int64_t{it->step} - previous, it->hits, it->misses});

@@ -4,6 +4,7 @@
 // stationary distribution and mixing time, and the standard log-odds occupancy grid used
 // as the static baseline. ROS-free: this header must only include the standard library.
 
+#include <array>
 #include <cstdint>
 #include <optional>
 
@@ -55,18 +56,26 @@ class ObservationModel {
   /// fused in one time step (their likelihoods multiply, THEORY.md §1; a step with both
   /// weighed as above).
   double logLikelihoodRatio(std::uint32_t hits, std::uint32_t misses) const {
-    if (hits != 0 && misses != 0 && mixed_step_probability_ > 0.0) return mixedLogLikelihoodRatio(hits, misses);
+    if (hits != 0 && misses != 0 && mixed_step_probability_ > 0.0) {
+      const std::array<double, 2> log_p = logLikelihoods(hits, misses);
+      return log_p[0] - log_p[1];
+    }
     return hits * hit_log_odds_ + misses * miss_log_odds_;
   }
+  /// log p(z|occ) and log p(z|free) of `hits` hits and `misses` misses in one step, the
+  /// partly covered cell's term included where it applies (offline EM's emissions).
+  std::array<double, 2> logLikelihoods(std::uint32_t hits, std::uint32_t misses) const;
 
  private:
-  double mixedLogLikelihoodRatio(std::uint32_t hits, std::uint32_t misses) const;
-
   double p_hit_given_occ_;
   double p_hit_given_free_;
   double mixed_step_probability_;
   double hit_log_odds_;
   double miss_log_odds_;
+  double log_hit_[2];   ///< log p(hit | occ), log p(hit | free)
+  double log_miss_[2];  ///< log p(miss | occ), log p(miss | free)
+  double log_keep_;     ///< log(1 - mixed_step_probability)
+  double log_mixed_;    ///< log mixed_step_probability (-inf at 0)
 };
 
 /// One prediction step without observation: p(occ at t+1) from p(occ at t), i.e. q·A.
