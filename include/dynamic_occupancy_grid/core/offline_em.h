@@ -105,7 +105,7 @@ class FixedPointSum {
 /// One forward–backward pass over one cell's sequence with fixed parameters.
 struct ForwardBackwardResult {
   TransitionCounts counts{};    ///< expected transitions over all steps of the chain
-  double log_likelihood = 0.0;  ///< log p(z_1:T) with the sensor's true likelihoods
+  double log_likelihood = 0.0;  ///< log p(z_1:T) with the sensor's true likelihoods (ObservationModel::logLikelihoods)
   double final_p_occ = 0.0;     ///< filtered p(occ) at the last observed step
   /// Expected beam ends (hits + misses) and hits in each state (0 = occ, 1 = free) over the
   /// observed steps, from the smoothed state posteriors: the sensor model's E-step.
