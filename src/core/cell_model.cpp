@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <math.h>  // lgamma_r (POSIX)
 #include <stdexcept>
 #include <string>
 
@@ -11,6 +12,13 @@ namespace core {
 namespace {
 
 bool isProbability(double p) { return p >= 0.0 && p <= 1.0; }  // false for NaN
+
+// log Gamma(x) for x > 0. Not std::lgamma: glibc's writes the global signgam, a data race
+// between offline EM's worker threads and the node's mapping; lgamma_r returns the sign.
+double logGamma(double x) {
+  int sign = 0;
+  return ::lgamma_r(x, &sign);
+}
 
 // ln|lambda| computed without cancellation: for tiny p_of + p_fo, lambda rounds to 1
 // but log1p keeps the exact rate (a cell changing once in 1e12 steps still mixes).
@@ -78,7 +86,7 @@ std::array<double, 2> ObservationModel::logLikelihoods(std::uint32_t hits, std::
   const double h = hits;
   const double m = misses;
   // log(eps B(h + 1, m + 1)) = log eps + log h! + log m! - log (h + m + 1)!
-  const double mixed = log_mixed_ + std::lgamma(h + 1.0) + std::lgamma(m + 1.0) - std::lgamma(h + m + 2.0);
+  const double mixed = log_mixed_ + logGamma(h + 1.0) + logGamma(m + 1.0) - logGamma(h + m + 2.0);
   for (double& log_state : log_p) {
     // log((1 - eps) e^a + e^c) without overflow or underflow.
     const double a = log_keep_ + log_state;

@@ -164,7 +164,8 @@ Run runRepetition(const ScenarioConfig& scenario, const MrfExperimentConfig& con
   const ObservationSequences sequences = recordRun(simulation, mapper_config, learners);
   run.repetition.cells_observed = sequences.cellCount();
   run.repetition.square_cells_both_states = squareCellsSeenInBothStates(sequences, simulation.mrfSquaresLayout());
-  const ObservationModel sensor(mapper_config.p_hit_given_occ, mapper_config.p_hit_given_free);
+  const ObservationModel sensor(mapper_config.p_hit_given_occ, mapper_config.p_hit_given_free,
+                                mapper_config.sensor_model_mixed_step_probability);
 
   OfflineEmConfig em_config = evaluationOfflineEmConfig(mapper_config);
   em_config.initial_params = TransitionParams{0.5, 0.5};  // the paper's starting point

@@ -759,11 +759,24 @@ TEST(CellModelMixedSteps, ADisagreeingStepIsWeakEvidenceAndCountsStayFinite) {
   EXPECT_GT(plain.logLikelihoodRatio(6, 4), 15.0);
   EXPECT_LT(std::abs(mixed.logLikelihoodRatio(3, 7)), 1.0);
   EXPECT_LT(std::abs(mixed.logLikelihoodRatio(6, 4)), 3.0);
-  // Many beams: no overflow (the counts go up to 65535 per step).
+  // Many beams (the counts go up to 65535 per step), where every product underflows: against
+  // a reference in logs, in long double. An even split of a step that size is the partly
+  // covered cell's (the plain terms are e^-90000 below it): no evidence either way.
+  const auto log_likelihood = [](long double p, long double eps, long double h, long double m) {
+    const long double plain = std::log1p(-eps) + h * std::log(p) + m * std::log1p(-p);
+    const long double partly = std::log(eps) + std::lgamma(h + 1.0L) + std::lgamma(m + 1.0L) - std::lgamma(h + m + 2.0L);
+    const long double top = std::max(plain, partly);
+    return top + std::log1p(std::exp(std::min(plain, partly) - top));
+  };
   for (const auto& [hits, misses] : std::vector<std::pair<std::uint32_t, std::uint32_t>>{
-           {65535, 1}, {1, 65535}, {65535, 65535}, {40000, 3}}) {
-    EXPECT_TRUE(std::isfinite(mixed.logLikelihoodRatio(hits, misses))) << hits << " / " << misses;
+           {65535, 1}, {1, 65535}, {65535, 65535}, {40000, 3}, {3000, 2000}}) {
+    const long double reference =
+        log_likelihood(0.942L, 1e-3L, hits, misses) - log_likelihood(0.01L, 1e-3L, hits, misses);
+    EXPECT_NEAR(mixed.logLikelihoodRatio(hits, misses), static_cast<double>(reference),
+                1e-9 * std::max(1.0L, std::abs(reference)))
+        << hits << " / " << misses;
   }
+  EXPECT_EQ(mixed.logLikelihoodRatio(65535, 65535), 0.0);
 }
 
 TEST(CellModelMixedSteps, RejectsAProbabilityOutsideZeroToOneHalf) {
