@@ -15,6 +15,28 @@ namespace dynamic_occupancy_grid {
 namespace core {
 namespace {
 
+// The length of the segment (u0, v0) -> (u1, v1) inside cell (x, y), in grid units (cells):
+// its parameter interval [enter, exit] within the cell's square, times its length.
+double chordThroughCell(std::int32_t x, std::int32_t y, double u0, double v0, double u1, double v1) {
+  const double du = u1 - u0;
+  const double dv = v1 - v0;
+  double enter = -std::numeric_limits<double>::infinity();
+  double exit = std::numeric_limits<double>::infinity();
+  if (du != 0.0) {
+    const double a = (x - u0) / du;
+    const double b = (x + 1.0 - u0) / du;
+    enter = std::max(enter, std::min(a, b));
+    exit = std::min(exit, std::max(a, b));
+  }
+  if (dv != 0.0) {
+    const double a = (y - v0) / dv;
+    const double b = (y + 1.0 - v0) / dv;
+    enter = std::max(enter, std::min(a, b));
+    exit = std::min(exit, std::max(a, b));
+  }
+  return std::max(0.0, exit - enter) * std::hypot(du, dv);
+}
+
 using ScanRecord = CellGrid::ScanRecord;
 
 // addSensorEvidence: the smallest lambda^k between a step and the next observation for the
@@ -87,6 +109,8 @@ void MapperConfig::validate() const {
   require(sensor_model_mixed_step_probability >= 0.0 && sensor_model_mixed_step_probability <= 0.5,
           "sensor_model_mixed_step_probability must be in [0, 0.5], got " +
               std::to_string(sensor_model_mixed_step_probability));
+  require(clipped_corner_chord >= 0.0 && clipped_corner_chord <= 1.5,
+          "clipped_corner_chord must be in [0, 1.5], got " + std::to_string(clipped_corner_chord));
   require(std::isfinite(prior_population_weight) && prior_population_weight > 0.0,
           "prior_population_weight must be > 0, got " + std::to_string(prior_population_weight));
   require(online_em.min_observed_steps <= std::numeric_limits<std::uint16_t>::max(),
@@ -188,6 +212,7 @@ ScanResult Mapper::integrate(const Scan& scan) {
   std::array<std::pair<CellGrid::Tile*, int>, kMissLookahead> pending;
   std::size_t pending_count = 0;
   for (const BeamEnd& beam : beams) {
+    const std::size_t outside_before = result.cells_outside;
     const CellXY end = traverseSegment(u0, v0, beam.u1, beam.v1, [&](std::int32_t x, std::int32_t y) {
       CellGrid::Tile* tile = tile_of(x, y);
       if (tile == nullptr) {
@@ -201,7 +226,16 @@ ScanResult Mapper::integrate(const Scan& scan) {
       slot = {tile, offset};
       ++pending_count;
     });
-    for (std::size_t k = pending_count > kMissLookahead ? pending_count - kMissLookahead : 0; k < pending_count; ++k) {
+    // The last pending cell is the one just before the end cell when no cell of the beam
+    // was outside the map (a beam that leaves the map clips nothing).
+    bool clipped = false;
+    if (beam.hit && config_.clipped_corner_chord > 0.0 && pending_count > 0 && result.cells_outside == outside_before) {
+      const auto& [last_tile, last_offset] = pending[(pending_count - 1) % kMissLookahead];
+      clipped = chordThroughCell(last_tile->cellX(last_offset), last_tile->cellY(last_offset), u0, v0, beam.u1,
+                                 beam.v1) < config_.clipped_corner_chord;
+    }
+    const std::size_t counted = clipped ? pending_count - 1 : pending_count;
+    for (std::size_t k = pending_count > kMissLookahead ? pending_count - kMissLookahead : 0; k < counted; ++k) {
       const auto& slot = pending[k % kMissLookahead];
       markMiss(*slot.first, slot.second);
     }
@@ -750,6 +784,13 @@ void Mapper::setSensorModel(double p_hit_given_occ, double p_hit_given_free) {
   config_.p_hit_given_free = p_hit_given_free;
   // With learn_sensor_model the new values are where learning starts again.
   sensor_stats_ = SensorModelStats{};
+}
+
+void Mapper::setClippedCornerChord(double clipped_corner_chord) {
+  MapperConfig config = config_;
+  config.clipped_corner_chord = clipped_corner_chord;
+  config.validate();  // throws for a value outside [0, 1.5]
+  config_.clipped_corner_chord = clipped_corner_chord;
 }
 
 void Mapper::setMixedStepProbability(double mixed_step_probability) {

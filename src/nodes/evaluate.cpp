@@ -51,6 +51,7 @@ struct Options {
   std::vector<std::string> learning_scenarios{"patrol", "patrol_office", "dynamic_25_25"};
   int learning_repetitions = 4;
   bool learning_ablations = false;
+  double learning_clipped_corner_chord = 0.0;
   int murphy_repetitions = 100;
   int murphy_doors_runs = 10;
   int pose_correction_runs = 0;
@@ -121,6 +122,10 @@ Options parseOptions(int argc, char** argv) {
        "repetitions of each learning scenario (default 4; 0 skips it)")
       ("learning-ablations", boost::program_options::bool_switch(&options.learning_ablations),
        "also the kinds learner with one choice changed each (docs/online_learning.md)")
+      ("learning-clipped-corner-chord",
+       cl::number(&options.learning_clipped_corner_chord, cl::between(0.0, 1.5))->value_name("C"),
+       "every mapper of the learning experiment counts no miss in a corner its beam clips over less than C cells "
+       "just before the beam's end (MapperConfig::clipped_corner_chord; default 0: every miss)")
       ("murphy-repetitions", cl::number(&options.murphy_repetitions, repetitions)->value_name("N"),
        "seeds of Murphy's 1D corridor (docs/murphy_corridor.md: exact Bayes, online and offline EM, the RBPF; "
        "default 100, about a second; 0 skips it)")
@@ -1013,6 +1018,7 @@ int main(int argc, char** argv) {
       config.repetitions = options.learning_repetitions;
       config.seed = options.seed;
       config.threads = options.threads;
+      config.clipped_corner_chord = options.learning_clipped_corner_chord;
       if (options.learning_ablations) {
         for (const core::LearnerVariant& variant : core::kindsAblationVariants()) config.variants.push_back(variant);
       }

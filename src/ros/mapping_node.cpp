@@ -96,6 +96,11 @@ void logLearners(const core::MapperConfig& config) {
              "(sensor_model/mixed_step_probability)",
              config.sensor_model_mixed_step_probability);
   }
+  if (config.clipped_corner_chord > 0.0) {
+    ROS_INFO("a beam that hits counts no miss in a corner it clips over less than %g cells just before its end "
+             "(clipped_corner_chord)",
+             config.clipped_corner_chord);
+  }
   if (config.learn_sensor_model) {
     ROS_INFO("online learning of the sensor model: from p_hit_given_occ %g, p_hit_given_free %g, worth %g beam "
              "ends per state (sensor_model/prior_weight), within [%g, %g] (sensor_model/p_min)",
@@ -135,6 +140,7 @@ bool MappingNode::start() {
     try {
       mapper_ = core::loadModel(parameters_.model_file);
       mapper_->setMixedStepProbability(parameters_.mapper.sensor_model_mixed_step_probability);
+      mapper_->setClippedCornerChord(parameters_.mapper.clipped_corner_chord);
     } catch (const std::exception& e) {
       ROS_FATAL("~model_file: %s", e.what());
       return false;
@@ -1220,6 +1226,7 @@ bool MappingNode::loadModel(LoadModel::Request& request, LoadModel::Response& re
   try {
     loaded = core::loadModel(path);
     loaded->setMixedStepProbability(parameters_.mapper.sensor_model_mixed_step_probability);
+    loaded->setClippedCornerChord(parameters_.mapper.clipped_corner_chord);
   } catch (const std::exception& e) {
     return fail(e.what());
   }

@@ -330,6 +330,46 @@ TEST(MapperBeams, HitBeamMissesCellsBeforeTheEndAndHitsTheEnd) {
   expectFirstStepEvidence(mapper, rowEvidence(0, 3, {0, 1}, {{{4, 0}, {1, 0}}}));
 }
 
+// clipped_corner_chord: a beam from lattice (0.5, 0.5) to (4.2, 1.05) crosses y = 1 at
+// x = 3.864, so it clips cell (3, 1) over 0.137 cells just before its end cell (4, 1); cell
+// (3, 0) before it is crossed over 0.87. With a chord of 0.3 the clipped cell counts no miss
+// (under range noise the surface hit may lie in it); every other cell, and any beam without
+// return, counts as before.
+TEST(MapperBeams, AHitBeamCountsNoMissInACornerItClipsJustBeforeItsEnd) {
+  const double dx = (4.2 - 0.5) * 0.25;
+  const double dy = (1.05 - 0.5) * 0.25;
+  const auto range = static_cast<float>(std::hypot(dx, dy));
+  const double angle = std::atan2(dy, dx);
+  for (const double chord : {0.0, 0.1, 0.3}) {
+    SCOPED_TRACE("clipped_corner_chord " + std::to_string(chord));
+    dog::MapperConfig config = testConfig();
+    config.clipped_corner_chord = chord;
+    dog::Mapper mapper(config);
+    ASSERT_EQ(mapper.integrate(makeScan(0.0, {range}, 0.0, angle)).status, dog::ScanStatus::kIntegrated);
+    mapper.finishStep();
+    const std::optional<dog::CellState> clipped = mapper.grid().cell(3, 1);
+    EXPECT_EQ(clipped.has_value(), chord < 0.137) << "the clipped corner";
+    EXPECT_TRUE(mapper.grid().cell(3, 0).has_value());
+    ASSERT_TRUE(mapper.grid().cell(4, 1).has_value());
+    EXPECT_GT(mapper.grid().cell(4, 1)->p_occ, 0.5);  // the end cell's hit
+    // A beam without return along the same line misses the corner cell whatever the chord.
+    dog::MapperConfig clearing = config;
+    clearing.max_free_range_m = range;  // cleared to the same end point
+    dog::Mapper no_return(clearing);
+    ASSERT_EQ(no_return.integrate(makeScan(0.0, {kInfF}, 0.0, angle)).status, dog::ScanStatus::kIntegrated);
+    no_return.finishStep();
+    EXPECT_TRUE(no_return.grid().cell(3, 1).has_value());
+  }
+  dog::MapperConfig bad = testConfig();
+  bad.clipped_corner_chord = 1.6;
+  EXPECT_THROW(dog::Mapper{bad}, std::invalid_argument);
+  dog::Mapper mapper(testConfig());
+  EXPECT_THROW(mapper.setClippedCornerChord(-0.1), std::invalid_argument);
+  EXPECT_EQ(mapper.config().clipped_corner_chord, 0.0);
+  mapper.setClippedCornerChord(0.3);
+  EXPECT_EQ(mapper.config().clipped_corner_chord, 0.3);
+}
+
 TEST(MapperBeams, RangeEqualToRangeMinIsAHitBelowIsIgnored) {
   dog::Mapper mapper(testConfig());
   // range_min 0.25: 0.25 -> hit at lattice 1.5; 0.125 -> ignored.
@@ -1698,6 +1738,38 @@ TEST(MapperSensorModel, SumsAreTheCellStepsWeighedByTheirSmoothedState) {
   EXPECT_GT(stats.trials[1], 100.0);  // the free cells before it
 }
 
+// The sensor model is rebuilt whenever its hit rates change (learned online, set from
+// outside, restored from a model file's sums); every new one reads steps whose beams
+// disagree with the mixed-step probability the mapper was given.
+TEST(MapperSensorModel, EveryNewSensorModelKeepsTheMixedStepProbability) {
+  dog::MapperConfig config = sensorConfig();
+  config.sensor_model_prior_weight = 5.0;
+  config.sensor_model_mixed_step_probability = 0.01;
+  dog::Mapper mapper(config);
+  EXPECT_EQ(mapper.sensor().mixedStepProbability(), 0.01);
+  for (int step = 0; step < 200; ++step) {
+    if (!SensorScenario::observed(step)) continue;
+    ASSERT_EQ(mapper.integrate(makeScan(step, {SensorScenario::range(step)})).status, dog::ScanStatus::kIntegrated);
+  }
+  mapper.finishStep();
+  ASSERT_NE(mapper.sensor().pHitGivenOcc(), config.p_hit_given_occ);  // learned: a new model
+  EXPECT_EQ(mapper.sensor().mixedStepProbability(), 0.01);
+  dog::Mapper loaded(config);
+  loaded.restoreSensorModelStats(mapper.sensorModelStats());
+  EXPECT_EQ(loaded.sensor().pHitGivenOcc(), mapper.sensor().pHitGivenOcc());
+  EXPECT_EQ(loaded.sensor().mixedStepProbability(), 0.01);
+  mapper.setSensorModel(0.8, 0.1);
+  EXPECT_EQ(mapper.sensor().mixedStepProbability(), 0.01);
+  // A bad value changes nothing; a good one is kept by the next new model.
+  EXPECT_THROW(mapper.setMixedStepProbability(0.6), std::invalid_argument);
+  EXPECT_EQ(mapper.sensor().mixedStepProbability(), 0.01);
+  mapper.setMixedStepProbability(0.2);
+  EXPECT_EQ(mapper.sensor().pHitGivenOcc(), 0.8);
+  mapper.setSensorModel(0.75, 0.1);
+  EXPECT_EQ(mapper.sensor().mixedStepProbability(), 0.2);
+  EXPECT_EQ(mapper.config().sensor_model_mixed_step_probability, 0.2);
+}
+
 TEST(MapperSensorModel, LearnsTheHitRatesAndKeepsThemWhenTurnedOff) {
   dog::MapperConfig config = sensorConfig();
   config.sensor_model_prior_weight = 5.0;
@@ -2013,11 +2085,10 @@ TEST(MapperKinds, AStationaryLasersEdgeCellIsNotLearnedAsChanging) {
     config.p_hit_given_free = 0.01;
     config.sensor_model_mixed_step_probability = eps;
     dog::Mapper mapper(config);
-    std::mt19937 rng(7);
-    std::bernoulli_distribution in_edge(0.5);
+    std::mt19937 rng(7);  // its sequence is the standard's (std::bernoulli_distribution's is not)
     for (int step = 0; step < 200; ++step) {
       for (int scan = 0; scan < 10; ++scan) {
-        const float range = in_edge(rng) ? 1.1f : 1.35f;
+        const float range = (rng() & 1U) != 0 ? 1.1f : 1.35f;
         ASSERT_EQ(mapper.integrate(makeScan(step + 0.05 * scan, {range})).status, dog::ScanStatus::kIntegrated);
       }
     }
