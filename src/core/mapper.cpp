@@ -16,12 +16,12 @@ namespace core {
 namespace {
 
 // The length of the segment (u0, v0) -> (u1, v1) inside cell (x, y), in grid units (cells):
-// its parameter interval [enter, exit] within the cell's square, times its length.
+// its parameter interval [enter, exit] within the cell's square and [0, 1], times its length.
 double chordThroughCell(std::int32_t x, std::int32_t y, double u0, double v0, double u1, double v1) {
   const double du = u1 - u0;
   const double dv = v1 - v0;
-  double enter = -std::numeric_limits<double>::infinity();
-  double exit = std::numeric_limits<double>::infinity();
+  double enter = 0.0;
+  double exit = 1.0;
   if (du != 0.0) {
     const double a = (x - u0) / du;
     const double b = (x + 1.0 - u0) / du;
@@ -226,10 +226,12 @@ ScanResult Mapper::integrate(const Scan& scan) {
       slot = {tile, offset};
       ++pending_count;
     });
+    CellGrid::Tile* tile = tile_of(end.x, end.y);
     // The last pending cell is the one just before the end cell when no cell of the beam
-    // was outside the map (a beam that leaves the map clips nothing).
+    // was outside the map (a beam that leaves the map, or ends outside it, clips nothing).
     bool clipped = false;
-    if (beam.hit && config_.clipped_corner_chord > 0.0 && pending_count > 0 && result.cells_outside == outside_before) {
+    if (beam.hit && config_.clipped_corner_chord > 0.0 && pending_count > 0 && tile != nullptr &&
+        result.cells_outside == outside_before) {
       const auto& [last_tile, last_offset] = pending[(pending_count - 1) % kMissLookahead];
       clipped = chordThroughCell(last_tile->cellX(last_offset), last_tile->cellY(last_offset), u0, v0, beam.u1,
                                  beam.v1) < config_.clipped_corner_chord;
@@ -240,7 +242,6 @@ ScanResult Mapper::integrate(const Scan& scan) {
       markMiss(*slot.first, slot.second);
     }
     pending_count = 0;
-    CellGrid::Tile* tile = tile_of(end.x, end.y);
     if (tile == nullptr) {
       ++result.cells_outside;
     } else if (beam.hit) {

@@ -331,7 +331,7 @@ TEST(MapperBeams, HitBeamMissesCellsBeforeTheEndAndHitsTheEnd) {
 }
 
 // clipped_corner_chord: a beam from lattice (0.5, 0.5) to (4.2, 1.05) crosses y = 1 at
-// x = 3.864, so it clips cell (3, 1) over 0.137 cells just before its end cell (4, 1); cell
+// x = 3.864, so it clips cell (3, 1) over 0.138 cells just before its end cell (4, 1); cell
 // (3, 0) before it is crossed over 0.87. With a chord of 0.3 the clipped cell counts no miss
 // (under range noise the surface hit may lie in it); every other cell, and any beam without
 // return, counts as before.
@@ -348,7 +348,7 @@ TEST(MapperBeams, AHitBeamCountsNoMissInACornerItClipsJustBeforeItsEnd) {
     ASSERT_EQ(mapper.integrate(makeScan(0.0, {range}, 0.0, angle)).status, dog::ScanStatus::kIntegrated);
     mapper.finishStep();
     const std::optional<dog::CellState> clipped = mapper.grid().cell(3, 1);
-    EXPECT_EQ(clipped.has_value(), chord < 0.137) << "the clipped corner";
+    EXPECT_EQ(clipped.has_value(), chord < 0.138) << "the clipped corner";
     EXPECT_TRUE(mapper.grid().cell(3, 0).has_value());
     ASSERT_TRUE(mapper.grid().cell(4, 1).has_value());
     EXPECT_GT(mapper.grid().cell(4, 1)->p_occ, 0.5);  // the end cell's hit
@@ -359,6 +359,38 @@ TEST(MapperBeams, AHitBeamCountsNoMissInACornerItClipsJustBeforeItsEnd) {
     ASSERT_EQ(no_return.integrate(makeScan(0.0, {kInfF}, 0.0, angle)).status, dog::ScanStatus::kIntegrated);
     no_return.finishStep();
     EXPECT_TRUE(no_return.grid().cell(3, 1).has_value());
+  }
+  // A beam of 36 cells (more than the traversal's 32 pending misses): from (0.5, 0.5) to
+  // (36.2, 1.00567) it crosses y = 1 at x = 35.8, clipping cell (35, 1) over 0.2 cells.
+  const double long_dx = (36.2 - 0.5) * 0.25;
+  const double long_dy = (0.5 + 35.7 * (0.5 / 35.3) - 0.5) * 0.25;
+  for (const double chord : {0.1, 0.3}) {
+    SCOPED_TRACE("a long beam, clipped_corner_chord " + std::to_string(chord));
+    dog::MapperConfig config = testConfig();
+    config.clipped_corner_chord = chord;
+    dog::Mapper mapper(config);
+    ASSERT_EQ(mapper.integrate(makeScan(0.0, {static_cast<float>(std::hypot(long_dx, long_dy))}, 0.0,
+                                        std::atan2(long_dy, long_dx)))
+                  .status,
+              dog::ScanStatus::kIntegrated);
+    mapper.finishStep();
+    EXPECT_EQ(mapper.grid().cell(35, 1).has_value(), chord < 0.2);
+    EXPECT_TRUE(mapper.grid().cell(35, 0).has_value());
+    EXPECT_TRUE(mapper.grid().cell(36, 1).has_value());
+  }
+  // A beam whose end cell lies outside the map clips nothing: cells 0..3 x 0..1 only.
+  {
+    dog::MapperConfig config = testConfig();
+    config.clipped_corner_chord = 0.3;
+    config.fixed_bounds = true;
+    config.width_m = 1.0;
+    config.height_m = 0.5;
+    dog::Mapper mapper(config);
+    const dog::ScanResult result = mapper.integrate(makeScan(0.0, {range}, 0.0, angle));
+    ASSERT_EQ(result.status, dog::ScanStatus::kIntegrated);
+    EXPECT_EQ(result.cells_outside, 1U);  // the end cell (4, 1)
+    mapper.finishStep();
+    EXPECT_TRUE(mapper.grid().cell(3, 1).has_value());
   }
   dog::MapperConfig bad = testConfig();
   bad.clipped_corner_chord = 1.6;

@@ -84,8 +84,8 @@ struct MapperConfig {
   /// clips, where under the laser's range noise the surface it hit may lie (a wall's face
   /// cell, seen at a grazing angle, would otherwise be missed at one visit and hit at the
   /// next, and learned as changing; docs/online_learning.md, "Corners a beam clips before
-  /// its end"). A beam that leaves the map on its way clips nothing. 0 (the default) counts
-  /// every miss; 0.3 is the measured choice. In [0, 1.5].
+  /// its end"). A beam that leaves the map, or ends outside it, clips nothing. 0 (the
+  /// default) counts every miss; 0.3 is the measured choice. In [0, 1.5].
   /// Like sensor_model_mixed_step_probability, not in model files: a loaded model takes
   /// the loader's (Mapper::setClippedCornerChord).
   double clipped_corner_chord = 0.0;
