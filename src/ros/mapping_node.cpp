@@ -109,6 +109,13 @@ void logLearners(const core::MapperConfig& config) {
   }
 }
 
+// A loaded model takes this node's settings for what model files leave out: how a step's
+// beams are read and which misses a scan counts.
+void applySettingsModelFilesLeaveOut(core::Mapper& mapper, const core::MapperConfig& config) {
+  mapper.setMixedStepProbability(config.sensor_model_mixed_step_probability);
+  mapper.setClippedCornerChord(config.clipped_corner_chord);
+}
+
 }  // namespace
 
 MappingNode::MappingNode(const ros::NodeHandle& nh, const ros::NodeHandle& private_nh)
@@ -139,8 +146,7 @@ bool MappingNode::start() {
   if (parameters_.runsHmm() && !parameters_.model_file.empty()) {
     try {
       mapper_ = core::loadModel(parameters_.model_file);
-      mapper_->setMixedStepProbability(parameters_.mapper.sensor_model_mixed_step_probability);
-      mapper_->setClippedCornerChord(parameters_.mapper.clipped_corner_chord);
+      applySettingsModelFilesLeaveOut(*mapper_, parameters_.mapper);
     } catch (const std::exception& e) {
       ROS_FATAL("~model_file: %s", e.what());
       return false;
@@ -1225,8 +1231,7 @@ bool MappingNode::loadModel(LoadModel::Request& request, LoadModel::Response& re
   std::unique_ptr<core::Mapper> loaded;
   try {
     loaded = core::loadModel(path);
-    loaded->setMixedStepProbability(parameters_.mapper.sensor_model_mixed_step_probability);
-    loaded->setClippedCornerChord(parameters_.mapper.clipped_corner_chord);
+    applySettingsModelFilesLeaveOut(*loaded, parameters_.mapper);
   } catch (const std::exception& e) {
     return fail(e.what());
   }
