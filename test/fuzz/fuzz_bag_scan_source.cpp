@@ -17,6 +17,7 @@
 #include <rosbag/bag.h>
 #include <sensor_msgs/LaserScan.h>
 #include <tf2_msgs/TFMessage.h>
+#include <unistd.h>
 
 #include <cstddef>
 #include <cstdint>
@@ -44,15 +45,27 @@ const char* const kScanTopics[] = {"/scan", "scan_other"};
   std::abort();
 }
 
+// The scratch directory of the bag; it goes, with the bag, when the fuzzer exits (-runs,
+// -max_total_time; a crash leaves it, the input is kept in the artifacts anyway).
+char scratch_directory[64] = "";
+constexpr const char* kBagName = "/input.bag";
+
+void removeScratch() {
+  ::unlink((std::string(scratch_directory) + kBagName).c_str());
+  ::rmdir(scratch_directory);
+}
+
 const std::string& bagPath() {
   static const std::string path = [] {
     // /dev/shm when there is one: a bag per input, written and read in memory.
-    char shm_directory[] = "/dev/shm/fuzz_bag_scan_source.XXXXXX";
-    char tmp_directory[] = "/tmp/fuzz_bag_scan_source.XXXXXX";
-    const char* directory = ::mkdtemp(shm_directory);
-    if (directory == nullptr) directory = ::mkdtemp(tmp_directory);
-    if (directory == nullptr) fail("cannot create a temporary directory");
-    return std::string(directory) + "/input.bag";
+    for (const char* pattern : {"/dev/shm/fuzz_bag_scan_source.XXXXXX", "/tmp/fuzz_bag_scan_source.XXXXXX"}) {
+      std::strcpy(scratch_directory, pattern);
+      if (::mkdtemp(scratch_directory) != nullptr) {
+        std::atexit(removeScratch);
+        return std::string(scratch_directory) + kBagName;
+      }
+    }
+    fail("cannot create a temporary directory");
   }();
   return path;
 }
