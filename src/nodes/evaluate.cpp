@@ -56,6 +56,7 @@ struct Options {
   int murphy_doors_runs = 10;
   int pose_correction_runs = 0;
   int pose_correction_learner_lag = 0;
+  int pose_correction_particles = 30;
   std::uint64_t seed = 1;
   unsigned threads = 0;
 };
@@ -134,8 +135,10 @@ Options parseOptions(int argc, char** argv) {
        "chooses its moves by entropy against one that moves at random; default 10, a few seconds; 0 skips it)")
       ("pose-correction-runs", cl::number(&options.pose_correction_runs, repetitions)->value_name("N"),
        "runs of the pose filter's comparison on patrol_office with drifting odometry (docs/pose_correction.md: known "
-       "pose, odometry, the RBPF with a static, learned and true-transition map; 30 particles, 400 steps, about a "
-       "minute each; default 0 skips it)")
+       "pose, odometry, the RBPF with a static, learned and true-transition map; 400 steps, about a minute each "
+       "with 30 particles; default 0 skips it)")
+      ("pose-correction-particles", cl::number(&options.pose_correction_particles, cl::between(1, 10000))->value_name("N"),
+       "particles of each filter in the pose filter's comparison (default 30)")
       ("pose-correction-learner-lag", cl::number(&options.pose_correction_learner_lag, cl::between(0, 100000))->value_name("N"),
        "rbpf_hmm's learner: 0 (default) maps every scan at the filter's estimate of its time; N maps the filter's "
        "update scans N updates later at the best particle's trajectory then (a fixed-lag smoother)")
@@ -1062,6 +1065,7 @@ int main(int argc, char** argv) {
     if (options.pose_correction_runs > 0) {
       core::PoseCorrectionConfig config;
       config.filter.threads = options.threads;
+      config.filter.particles = static_cast<std::size_t>(options.pose_correction_particles);
       config.learner_lag_updates = static_cast<std::size_t>(options.pose_correction_learner_lag);
       std::vector<core::PoseCorrectionResult> runs;
       for (int r = 0; r < options.pose_correction_runs; ++r) {

@@ -450,6 +450,8 @@ class EvaluateTool(unittest.TestCase):
             self.assertIn(entry, stdout)
         for args, message in ((["--repetitions", "x"], "evaluate: --repetitions: needs a whole number in [1, 100000], got 'x'"),
                               (["--mrf-temperature", "0"], "evaluate: --mrf-temperature: needs a number >= 1e-09, got '0'"),
+                              (["--pose-correction-particles", "0"],
+                               "evaluate: --pose-correction-particles: needs a whole number in [1, 10000], got '0'"),
                               (["--scenarios", "door"], "evaluate: --scenarios: the door scenario is the path planning"),
                               (["--seed", "1", "--seed", "2"], "'--seed' cannot be specified more than once"),
                               (["--out"], "'--out' is missing")):
@@ -474,6 +476,7 @@ class EvaluateTool(unittest.TestCase):
                      ["--murphy-repetitions", "-1"], ["--murphy-repetitions", "x"],
                      ["--learning-scenarios", "nope"], ["--learning-repetitions", "-1"],
                      ["--learning-scenarios", "patrol,patrol"],
+                     ["--pose-correction-particles", "0"], ["--pose-correction-particles", "x"],
                      ["--no-such-option", "1"], ["--out"]):
             rc, _, stderr = evaluate(args)
             self.assertEqual(rc, 2, args)
