@@ -17,7 +17,6 @@
 #include <rosbag/bag.h>
 #include <sensor_msgs/LaserScan.h>
 #include <tf2_msgs/TFMessage.h>
-#include <unistd.h>
 
 #include <cstddef>
 #include <cstdint>
@@ -29,6 +28,7 @@
 
 #include "dynamic_occupancy_grid/core/mapper.h"
 #include "dynamic_occupancy_grid/ros/bag_scan_source.h"
+#include "scratch_file.h"
 
 namespace core = dynamic_occupancy_grid::core;
 namespace ros_layer = dynamic_occupancy_grid::ros_layer;
@@ -45,27 +45,13 @@ const char* const kScanTopics[] = {"/scan", "scan_other"};
   std::abort();
 }
 
-// The scratch directory of the bag; it goes, with the bag, when the fuzzer exits (-runs,
-// -max_total_time; a crash leaves it, the input is kept in the artifacts anyway).
-char scratch_directory[64] = "";
-constexpr const char* kBagName = "/input.bag";
-
-void removeScratch() {
-  ::unlink((std::string(scratch_directory) + kBagName).c_str());
-  ::rmdir(scratch_directory);
-}
-
 const std::string& bagPath() {
   static const std::string path = [] {
     // /dev/shm when there is one: a bag per input, written and read in memory.
-    for (const char* pattern : {"/dev/shm/fuzz_bag_scan_source.XXXXXX", "/tmp/fuzz_bag_scan_source.XXXXXX"}) {
-      std::strcpy(scratch_directory, pattern);
-      if (::mkdtemp(scratch_directory) != nullptr) {
-        std::atexit(removeScratch);
-        return std::string(scratch_directory) + kBagName;
-      }
-    }
-    fail("cannot create a temporary directory");
+    std::string file = fuzz_scratch::makeFile(
+        {"/dev/shm/fuzz_bag_scan_source.XXXXXX", "/tmp/fuzz_bag_scan_source.XXXXXX"}, "input.bag");
+    if (file.empty()) fail("cannot create a temporary directory");
+    return file;
   }();
   return path;
 }

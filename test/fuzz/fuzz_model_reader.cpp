@@ -7,7 +7,6 @@
 // and save again to the same bytes (model_io.h: "saving it again gives the same bytes"),
 // and must map on (one scan) without a sanitizer finding.
 
-#include <unistd.h>
 #include <zlib.h>
 
 #include <algorithm>
@@ -22,6 +21,7 @@
 
 #include "dynamic_occupancy_grid/core/mapper.h"
 #include "dynamic_occupancy_grid/core/model_io.h"
+#include "scratch_file.h"
 
 namespace core = dynamic_occupancy_grid::core;
 
@@ -50,21 +50,11 @@ std::unique_ptr<core::Mapper> loaded(const std::string& path, std::string* error
   }
 }
 
-// The scratch directory of the model file; it goes, with the file, when the fuzzer exits
-// (-runs, -max_total_time; a crash leaves it, the input is kept in the artifacts anyway).
-char scratch_directory[] = "/tmp/fuzz_model_reader.XXXXXX";
-constexpr const char* kModelName = "/model.dogm";
-
-void removeScratch() {
-  ::unlink((std::string(scratch_directory) + kModelName).c_str());
-  ::rmdir(scratch_directory);
-}
-
 const std::string& modelPath() {
   static const std::string path = [] {
-    if (::mkdtemp(scratch_directory) == nullptr) fail("cannot create a temporary directory");
-    std::atexit(removeScratch);
-    return std::string(scratch_directory) + kModelName;
+    std::string file = fuzz_scratch::makeFile({"/tmp/fuzz_model_reader.XXXXXX"}, "model.dogm");
+    if (file.empty()) fail("cannot create a temporary directory");
+    return file;
   }();
   return path;
 }
