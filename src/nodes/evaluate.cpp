@@ -57,6 +57,8 @@ struct Options {
   int pose_correction_runs = 0;
   int pose_correction_learner_lag = 0;
   int pose_correction_particles = 30;
+  std::string pose_correction_scenario = "patrol_office";
+  int pose_correction_steps = 400;
   std::uint64_t seed = 1;
   unsigned threads = 0;
 };
@@ -134,11 +136,18 @@ Options parseOptions(int argc, char** argv) {
        "runs of Murphy's 2D world with doors (docs/murphy_corridor.md: the RBPF learning the map, the robot that "
        "chooses its moves by entropy against one that moves at random; default 10, a few seconds; 0 skips it)")
       ("pose-correction-runs", cl::number(&options.pose_correction_runs, repetitions)->value_name("N"),
-       "runs of the pose filter's comparison on patrol_office with drifting odometry (docs/pose_correction.md: known "
-       "pose, odometry, the RBPF with a static, learned and true-transition map; 400 steps, about a minute each "
-       "with 30 particles; default 0 skips it)")
+       "runs of the pose filter's comparison with drifting odometry (docs/pose_correction.md: known pose, "
+       "odometry, the RBPF with a static, learned and true-transition map; on patrol_office 400 steps, about a "
+       "minute each with 30 particles; default 0 skips it)")
       ("pose-correction-particles", cl::number(&options.pose_correction_particles, cl::between(1, 10000))->value_name("N"),
        "particles of each filter in the pose filter's comparison (default 30)")
+      ("pose-correction-scenario",
+       cl::converted([](const std::string& name) { core::scenarioConfig(name); return name; },
+                     [&options](const std::string& name) { options.pose_correction_scenario = name; })
+           ->value_name("NAME"),
+       "the world of the pose filter's comparison (default patrol_office; any of --scenarios' names)")
+      ("pose-correction-steps", cl::number(&options.pose_correction_steps, cl::between(2, 1000000))->value_name("N"),
+       "steps of each run of the pose filter's comparison (default 400: four loops of patrol_office)")
       ("pose-correction-learner-lag", cl::number(&options.pose_correction_learner_lag, cl::between(0, 100000))->value_name("N"),
        "rbpf_hmm's learner: 0 (default) maps every scan at the filter's estimate of its time; N maps the filter's "
        "update scans N updates later at the best particle's trajectory then (a fixed-lag smoother)")
@@ -1067,6 +1076,8 @@ int main(int argc, char** argv) {
       config.filter.threads = options.threads;
       config.filter.particles = static_cast<std::size_t>(options.pose_correction_particles);
       config.learner_lag_updates = static_cast<std::size_t>(options.pose_correction_learner_lag);
+      config.scenario = options.pose_correction_scenario;
+      config.steps = options.pose_correction_steps;
       std::vector<core::PoseCorrectionResult> runs;
       for (int r = 0; r < options.pose_correction_runs; ++r) {
         config.world_seed = options.seed;

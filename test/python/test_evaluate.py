@@ -365,6 +365,25 @@ class EvaluateTool(unittest.TestCase):
             self.assertIn(name, methods)
         self.assertLess(methods.index("rm_averaged"), methods.index("kinds_posterior_counting"))
 
+    def test_pose_correction_in_another_world(self):
+        # --pose-correction-scenario and --pose-correction-steps pick the comparison's world
+        # and length: a short parking lot run, a row per estimator, the world in the summary.
+        out = os.path.join(self.tmp.name, "pose_parking")
+        rc, _, stderr = evaluate(["--out", out, "--scenarios", "none", "--path-repetitions", "0",
+                                  "--mrf-repetitions", "0", "--memory-repetitions", "0", "--learning-scenarios", "none",
+                                  "--murphy-repetitions", "0", "--murphy-doors-runs", "0", "--pose-correction-runs", "1",
+                                  "--pose-correction-scenario", "parking_lot", "--pose-correction-steps", "12",
+                                  "--pose-correction-particles", "5", "--threads", "1"])
+        self.assertEqual(rc, 0, stderr)
+        with open(os.path.join(out, "pose_correction_errors.csv")) as file:
+            rows = list(csv.DictReader(file))
+        self.assertEqual([row["estimator"] for row in rows],
+                         ["known_pose", "odometry", "rbpf_static", "rbpf_hmm", "rbpf_oracle"])
+        with open(os.path.join(out, "pose_correction_trajectory.csv")) as file:
+            self.assertEqual(len(list(csv.DictReader(file))), 12)  # one scan a step in the parking lot
+        with open(os.path.join(out, "summary.md")) as file:
+            self.assertIn("## Mapping under pose uncertainty (parking_lot, 1 runs of 12", file.read())
+
     def test_murphy_same_seed_same_numbers_on_any_threads(self):
         again = os.path.join(self.tmp.name, "murphy_again")
         rc, _, stderr = evaluate(["--out", again, "--scenarios", "none", "--path-repetitions", "0",
@@ -452,6 +471,10 @@ class EvaluateTool(unittest.TestCase):
                               (["--mrf-temperature", "0"], "evaluate: --mrf-temperature: needs a number >= 1e-09, got '0'"),
                               (["--pose-correction-particles", "0"],
                                "evaluate: --pose-correction-particles: needs a whole number in [1, 10000], got '0'"),
+                              (["--pose-correction-scenario", "nope"],
+                               "evaluate: --pose-correction-scenario: unknown scenario 'nope' (known: dynamic_5_5,"),
+                              (["--pose-correction-steps", "1"],
+                               "evaluate: --pose-correction-steps: needs a whole number in [2, 1000000], got '1'"),
                               (["--scenarios", "door"], "evaluate: --scenarios: the door scenario is the path planning"),
                               (["--seed", "1", "--seed", "2"], "'--seed' cannot be specified more than once"),
                               (["--out"], "'--out' is missing")):
@@ -477,6 +500,7 @@ class EvaluateTool(unittest.TestCase):
                      ["--learning-scenarios", "nope"], ["--learning-repetitions", "-1"],
                      ["--learning-scenarios", "patrol,patrol"],
                      ["--pose-correction-particles", "0"], ["--pose-correction-particles", "x"],
+                     ["--pose-correction-scenario", ""], ["--pose-correction-steps", "x"],
                      ["--no-such-option", "1"], ["--out"]):
             rc, _, stderr = evaluate(args)
             self.assertEqual(rc, 2, args)
