@@ -36,6 +36,43 @@ struct CellAccuracy {
   double fraction() const { return total == 0 ? 0.0 : static_cast<double>(right) / static_cast<double>(total); }
 };
 
+/// `learner`'s transitions, as `transitions` reads them, against the world's on the cells
+/// `observed` (the known-pose map's), one row per kind of cell.
+std::vector<LearnedTransitionError> learnedTransitionErrors(const std::string& learner, const TransitionSource& transitions,
+                                                           const World& world, const Mapper& observed) {
+  std::vector<LearnedTransitionError> rows(3);
+  rows[0].kind = "static_occupied";
+  rows[1].kind = "static_free";
+  rows[2].kind = "changing";
+  std::vector<std::size_t> changing(3, 0);
+  for (std::int32_t y = 0; y < world.height(); ++y) {
+    for (std::int32_t x = 0; x < world.width(); ++x) {
+      const std::optional<CellState> seen = observed.grid().cell(x, y);
+      if (!seen || seen->last_step == kNeverObserved) continue;
+      const TransitionParams truth = world.truth(x, y);
+      const std::size_t kind = !truth.isStatic() ? 2 : world.occupied(x, y) ? 0 : 1;
+      const TransitionParams learned = transitions.at(x, y);
+      LearnedTransitionError& row = rows[kind];
+      ++row.cells;
+      row.mae_p_occ_given_free += std::abs(learned.p_occ_given_free - truth.p_occ_given_free);
+      row.mae_p_free_given_occ += std::abs(learned.p_free_given_occ - truth.p_free_given_occ);
+      const double leaving = kind == 0   ? learned.p_free_given_occ
+                             : kind == 1 ? learned.p_occ_given_free
+                                         : std::max(learned.p_occ_given_free, learned.p_free_given_occ);
+      changing[kind] += leaving > kLearnedChangingRate ? 1 : 0;
+    }
+  }
+  for (std::size_t k = 0; k < rows.size(); ++k) {
+    rows[k].learner = learner;
+    if (rows[k].cells == 0) continue;
+    const double n = static_cast<double>(rows[k].cells);
+    rows[k].mae_p_occ_given_free /= n;
+    rows[k].mae_p_free_given_occ /= n;
+    rows[k].learned_changing_share = static_cast<double>(changing[k]) / n;
+  }
+  return rows;
+}
+
 struct TrajectoryErrors {
   double ate = 0.0;
   double rpe_trans = 0.0;
@@ -207,6 +244,12 @@ PoseCorrectionResult runPoseCorrection(const PoseCorrectionConfig& config) {
 
   PoseCorrectionResult result;
   result.scans = truth.size();
+  for (const auto& [name, mapper] : {std::pair<const char*, const Mapper*>{"known_pose", &known}, {"rbpf_hmm", &learner}}) {
+    const MapperTransitions transitions(*mapper, scenario.resolution_m, config.learned_min_observed_steps);
+    for (LearnedTransitionError& row : learnedTransitionErrors(name, transitions, world, known)) {
+      result.learned.push_back(std::move(row));
+    }
+  }
   const auto add = [&](const std::string& name, const std::vector<Pose2D>& track, const CellAccuracy& changing,
                        const CellAccuracy& still) -> PoseEstimatorResult& {
     PoseEstimatorResult estimator;
@@ -261,6 +304,16 @@ std::map<std::string, std::string> poseCorrectionCsvTables(const std::vector<Pos
     }
   }
   tables["pose_correction_errors.csv"] = errors.str();
+  std::ostringstream learned;
+  learned << std::setprecision(9);
+  learned << "run,learner,kind,cells,mae_p_occ_given_free,mae_p_free_given_occ,learned_changing_share\n";
+  for (std::size_t r = 0; r < runs.size(); ++r) {
+    for (const LearnedTransitionError& e : runs[r].learned) {
+      learned << r << ',' << e.learner << ',' << e.kind << ',' << e.cells << ',' << e.mae_p_occ_given_free << ','
+              << e.mae_p_free_given_occ << ',' << e.learned_changing_share << '\n';
+    }
+  }
+  tables["pose_correction_learned.csv"] = learned.str();
   if (runs.empty()) return tables;
   std::ostringstream trajectory;
   trajectory << std::setprecision(9);
@@ -304,6 +357,26 @@ std::string formatPoseCorrectionSummary(const PoseCorrectionConfig& config, cons
         << mean.rpe_trans_rmse_m << " | " << mean.rpe_rot_rmse_rad << " | " << mean.final_error_m << " | "
         << std::setprecision(4) << mean.changing_accuracy << " | " << mean.static_accuracy << " | " << std::setprecision(1)
         << mean.ms_per_update << " |\n";
+  }
+  out << "\nThe transitions learned by the end of the run against the truth, per kind of cell the known-pose map "
+         "observed (means over the runs; learned as changing: the rate of leaving the true state, for a changing "
+         "cell either rate, above "
+      << std::setprecision(3) << kLearnedChangingRate
+      << " per step):\n\n| learner | kind | cells | MAE p(occ\\|free) | MAE p(free\\|occ) | learned as changing |\n"
+         "|---|---|---|---|---|---|\n";
+  for (std::size_t k = 0; k < runs.front().learned.size(); ++k) {
+    double cells = 0.0, mae_of = 0.0, mae_fo = 0.0, share = 0.0;
+    for (const PoseCorrectionResult& run : runs) {
+      const LearnedTransitionError& e = run.learned[k];
+      cells += static_cast<double>(e.cells) / runs.size();
+      mae_of += e.mae_p_occ_given_free / runs.size();
+      mae_fo += e.mae_p_free_given_occ / runs.size();
+      share += e.learned_changing_share / runs.size();
+    }
+    const LearnedTransitionError& first = runs.front().learned[k];
+    out << "| " << first.learner << " | " << first.kind << " | " << std::setprecision(0) << cells << " | "
+        << std::setprecision(5) << mae_of << " | " << mae_fo << " | " << std::setprecision(1) << 100.0 * share
+        << " % |\n";
   }
   out << "\nPer run (ATE in m; changing-cell accuracy):\n\n| run |";
   for (const PoseEstimatorResult& e : runs.front().estimators) out << ' ' << e.name << " |";

@@ -33,6 +33,10 @@ TEST(PoseCorrection, FiltersBeatOdometryOnAPatrol) {
               << e.static_accuracy << ", " << e.ms_per_update << " ms/update, " << e.updates << " updates, "
               << e.resamplings << " resamplings\n";
   }
+  for (const auto& e : result.learned) {
+    std::cout << e.learner << ' ' << e.kind << ": " << e.cells << " cells, MAE " << e.mae_p_occ_given_free << " / "
+              << e.mae_p_free_given_occ << ", learned as changing " << e.learned_changing_share << "\n";
+  }
   ASSERT_EQ(result.estimators.size(), 5u);
   EXPECT_EQ(result.scans, 400u);
   EXPECT_EQ(find(result, "known_pose").ate_rmse_m, 0.0);
@@ -67,6 +71,36 @@ TEST(PoseCorrection, FiltersBeatOdometryOnAPatrol) {
   lines = 0;
   while (std::getline(errors, line)) ++lines;
   EXPECT_EQ(lines, 1 + 2 * 5);
+  // The learned transitions per kind of cell: both learners on the cells the known-pose map
+  // observed (the same cells), the known-pose learner's walls and free space static.
+  ASSERT_EQ(result.learned.size(), 6u);
+  const char* kinds[3] = {"static_occupied", "static_free", "changing"};
+  for (std::size_t k = 0; k < 3; ++k) {
+    const dog::LearnedTransitionError& at_truth = result.learned[k];
+    const dog::LearnedTransitionError& filtered = result.learned[3 + k];
+    EXPECT_EQ(at_truth.learner, "known_pose");
+    EXPECT_EQ(filtered.learner, "rbpf_hmm");
+    EXPECT_EQ(at_truth.kind, kinds[k]);
+    EXPECT_EQ(filtered.kind, kinds[k]);
+    EXPECT_EQ(at_truth.cells, filtered.cells) << kinds[k];
+    EXPECT_GT(at_truth.cells, 100u) << kinds[k];
+    for (const dog::LearnedTransitionError* e : {&at_truth, &filtered}) {
+      EXPECT_GE(e->learned_changing_share, 0.0);
+      EXPECT_LE(e->learned_changing_share, 1.0);
+      EXPECT_GE(e->mae_p_occ_given_free, 0.0);
+      EXPECT_GE(e->mae_p_free_given_occ, 0.0);
+    }
+  }
+  EXPECT_LT(result.learned[0].learned_changing_share, 0.01);
+  EXPECT_LT(result.learned[1].learned_changing_share, 0.01);
+  EXPECT_LT(result.learned[0].mae_p_free_given_occ, 0.002);
+  EXPECT_GT(result.learned[2].learned_changing_share, 0.1);  // doors, carts, people seen often enough
+  std::istringstream learned(tables.at("pose_correction_learned.csv"));
+  lines = 0;
+  while (std::getline(learned, line)) ++lines;
+  EXPECT_EQ(lines, 1 + 2 * 6);
+  EXPECT_NE(dog::formatPoseCorrectionSummary(config, {result}).find("| rbpf_hmm | static_occupied |"),
+            std::string::npos);
 }
 
 // rbpf_hmm's learner as a fixed-lag smoother: the update scans mapped `learner_lag_updates`

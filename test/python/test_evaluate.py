@@ -381,6 +381,13 @@ class EvaluateTool(unittest.TestCase):
                          ["known_pose", "odometry", "rbpf_static", "rbpf_hmm", "rbpf_oracle"])
         with open(os.path.join(out, "pose_correction_trajectory.csv")) as file:
             self.assertEqual(len(list(csv.DictReader(file))), 12)  # one scan a step in the parking lot
+        with open(os.path.join(out, "pose_correction_learned.csv")) as file:
+            learned = list(csv.DictReader(file))
+        self.assertEqual([(row["learner"], row["kind"]) for row in learned],
+                         [(learner, kind) for learner in ("known_pose", "rbpf_hmm")
+                          for kind in ("static_occupied", "static_free", "changing")])
+        for row in learned:
+            self.assertTrue(0.0 <= float(row["learned_changing_share"]) <= 1.0, row)
         with open(os.path.join(out, "summary.md")) as file:
             self.assertIn("## Mapping under pose uncertainty (parking_lot, 1 runs of 12", file.read())
 

@@ -475,9 +475,36 @@ class TestSimulate(unittest.TestCase):
               f"odometry {np.mean(odometry_errors):.3f} m, {len(rows)} filter updates")
         self.assertGreater(np.mean(odometry_errors), 1.0, "too little drift to test anything")
         self.assertLess(np.mean(errors), PARAMS["rbpf_max_error_ratio"] * np.mean(odometry_errors))
-        # The layers and the model are written as without correction.
-        for name in ("belief.pgm", "static_map.yaml", "model.dogm"):
+        # The layers and the model are written as without correction, and the best particle's
+        # own map beside them: on the cells both know, mostly the same side of 0.5.
+        for name in ("belief.pgm", "static_map.yaml", "model.dogm", "best_particle_belief.pgm",
+                     "best_particle_belief.yaml"):
             self.assertTrue(os.path.isfile(os.path.join(out, name)), name)
+        self.assertIn("best_particle_belief", stdout)
+        layers = {}
+        for name in ("belief", "best_particle_belief"):
+            with open(os.path.join(out, name + ".yaml")) as file:
+                meta = yaml.safe_load(file)
+            layers[name] = (np.load(os.path.join(out, name + ".npy")), meta["origin"], meta["resolution"])
+        (belief, belief_origin, resolution), (best, best_origin, best_resolution) = \
+            layers["belief"], layers["best_particle_belief"]
+        self.assertEqual(best_resolution, resolution)
+        # The best particle's cells inside the belief layer's window (both on the same lattice).
+        dx = int(round((best_origin[0] - belief_origin[0]) / resolution))
+        dy = int(round((best_origin[1] - belief_origin[1]) / resolution))
+        agree = both = 0
+        for r in range(best.shape[0]):
+            for c in range(best.shape[1]):
+                br, bc = r + dy, c + dx
+                if not (0 <= br < belief.shape[0] and 0 <= bc < belief.shape[1]):
+                    continue
+                if math.isnan(best[r, c]) or math.isnan(belief[br, bc]):
+                    continue
+                both += 1
+                agree += (best[r, c] > 0.5) == (belief[br, bc] > 0.5)
+        print(f"best_particle_belief agrees with belief on {agree} of {both} cells")
+        self.assertGreater(both, 1000)
+        self.assertGreater(agree, 0.9 * both)
 
         # The options' checks.
         for args, named in ((["--pose-correction", "amcl"], "--pose-correction"),

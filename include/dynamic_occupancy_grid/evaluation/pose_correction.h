@@ -14,7 +14,9 @@
 // the motion over a fixed number of scans), and each map's accuracy at the end of every
 // step of the run's second half, on the cells that change and on the static cells, against
 // the truth of that step. The filters' estimate at a scan is the online one (the best
-// particle's correction of that scan's odometry), as a robot uses it.
+// particle's correction of that scan's odometry), as a robot uses it. At the end, the
+// transitions rbpf_hmm's learner learned against the truth, per kind of cell, beside those
+// the known-pose Mapper learned from the same scans.
 //
 // ROS-free: standard library only.
 
@@ -64,8 +66,28 @@ struct PoseEstimatorResult {
   std::size_t resamplings = 0;
 };
 
+/// One learner's transitions against the world's at the end of a run, on one kind of cell
+/// (static_occupied, static_free, changing) of those the known-pose map observed, read as
+/// the filter reads them (MapperTransitions: static until observed in
+/// learned_min_observed_steps steps).
+struct LearnedTransitionError {
+  std::string learner;  ///< known_pose (the Mapper at the true poses) or rbpf_hmm (its learner)
+  std::string kind;
+  std::size_t cells = 0;
+  double mae_p_occ_given_free = 0.0;  ///< mean |learned - true|, per step
+  double mae_p_free_given_occ = 0.0;
+  /// Cells learned as changing: the rate of leaving their true state (a changing cell: either
+  /// rate) above kLearnedChangingRate per step.
+  double learned_changing_share = 0.0;
+};
+
+/// Above it a cell is "learned as changing": it forgets its state within about 200 steps
+/// (two loops of patrol_office).
+constexpr double kLearnedChangingRate = 0.005;
+
 struct PoseCorrectionResult {
   std::vector<PoseEstimatorResult> estimators;  ///< in the order of the header's list
+  std::vector<LearnedTransitionError> learned;  ///< known_pose's three kinds, then rbpf_hmm's
   std::size_t scans = 0;
   std::size_t changing_cells = 0;
   std::size_t static_cells = 0;
