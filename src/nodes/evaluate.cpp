@@ -145,7 +145,7 @@ Options parseOptions(int argc, char** argv) {
        cl::converted([](const std::string& name) { core::scenarioConfig(name); return name; },
                      [&options](const std::string& name) { options.pose_correction_scenario = name; })
            ->value_name("NAME"),
-       "the world of the pose filter's comparison (default patrol_office; any of --scenarios' names)")
+       "the world of the pose filter's comparison (default patrol_office; any of the simulator's scenarios)")
       ("pose-correction-steps", cl::number(&options.pose_correction_steps, cl::between(2, 1000000))->value_name("N"),
        "steps of each run of the pose filter's comparison (default 400: four loops of patrol_office)")
       ("pose-correction-learner-lag", cl::number(&options.pose_correction_learner_lag, cl::between(0, 100000))->value_name("N"),

@@ -219,17 +219,22 @@ int run(const Options& options) {
   exportLayers(mapper, options, options.out_dir, true);
   if (correction) {
     // The best particle's own map (its trajectory's scans only), beside the layers of the
-    // scans at the best particle's pose of their time.
+    // scans at the best particle's pose of their time. Empty when no scan gave the filter a
+    // cell (every beam of the scans before the first update unusable).
     const dog::core::ParticleBelief belief = correction->bestParticleBelief();
-    const double r = correction->filter().config().resolution_m;
-    const dog::core::MapWindow window{r, belief.cells.min_x * r, belief.cells.min_y * r, belief.cells};
-    std::vector<std::int8_t> occupancy;
-    dog::core::toOccupancyValues(belief.values, 1.0f, &occupancy);
-    dog::core::writeMapServerFiles(options.out_dir, "best_particle_belief", window, occupancy);
-    dog::core::writeNpyLayer(options.out_dir, "best_particle_belief", window, belief.values);
-    std::printf("best_particle_belief %lld x %lld cells -> %s/best_particle_belief.pgm (.yaml, .npy)\n",
-                static_cast<long long>(belief.cells.width()), static_cast<long long>(belief.cells.height()),
-                options.out_dir.c_str());
+    if (belief.values.empty()) {
+      std::printf("best_particle_belief: the best particle has no cell yet; not written\n");
+    } else {
+      const double r = correction->filter().config().resolution_m;
+      const dog::core::MapWindow window{r, belief.cells.min_x * r, belief.cells.min_y * r, belief.cells};
+      std::vector<std::int8_t> occupancy;
+      dog::core::toOccupancyValues(belief.values, 1.0f, &occupancy);
+      dog::core::writeMapServerFiles(options.out_dir, "best_particle_belief", window, occupancy);
+      dog::core::writeNpyLayer(options.out_dir, "best_particle_belief", window, belief.values);
+      std::printf("best_particle_belief %lld x %lld cells -> %s/best_particle_belief.pgm (.yaml, .npy)\n",
+                  static_cast<long long>(belief.cells.width()), static_cast<long long>(belief.cells.height()),
+                  options.out_dir.c_str());
+    }
   }
   dog::core::saveModel(mapper, options.model_path);
   std::printf("model -> %s\n", options.model_path.c_str());

