@@ -125,6 +125,9 @@ struct FilterRun {
 void PoseCorrectionConfig::validate() const {
   scenarioConfig(scenario);  // throws for an unknown name
   if (steps < 2) throw std::invalid_argument("PoseCorrectionConfig: steps must be >= 2");
+  if (!(learner_max_spread_m >= 0.0) || !std::isfinite(learner_max_spread_m)) {
+    throw std::invalid_argument("PoseCorrectionConfig: learner_max_spread_m must be finite and >= 0");
+  }
   odometry_noise.validate();
   if (relative_error_scans < 1) throw std::invalid_argument("PoseCorrectionConfig: relative_error_scans must be >= 1");
   filter.validate();
@@ -159,6 +162,7 @@ PoseCorrectionResult runPoseCorrection(const PoseCorrectionConfig& config) {
 
   // learner_lag_updates > 0: rbpf_hmm's update scans, each with the update count it made.
   std::deque<std::pair<Scan, std::size_t>> lagged;
+  bool learner_agrees = true;  // learner_max_spread_m: the particles agreed at the last update
   std::vector<Pose2D> truth;
   std::vector<Pose2D> odometry_track;
   std::vector<double> stamps;
@@ -195,9 +199,20 @@ PoseCorrectionResult runPoseCorrection(const PoseCorrectionConfig& config) {
         run.estimate.push_back(composePose(run.filter->mapToOdometry(), laser_odometry));
       }
       if (config.learner_lag_updates == 0) {
-        Scan corrected = scan;
-        corrected.laser_pose = filters[1].estimate.back();
-        learner.integrate(corrected);
+        if (hmm_updated && config.learner_max_spread_m > 0.0) {
+          const Pose2D& best = filters[1].filter->best().pose;
+          double squares = 0.0;
+          for (const Particle& particle : filters[1].filter->particles()) {
+            squares += std::pow(particle.pose.x_m - best.x_m, 2) + std::pow(particle.pose.y_m - best.y_m, 2);
+          }
+          learner_agrees =
+              std::sqrt(squares / static_cast<double>(filters[1].filter->particles().size())) < config.learner_max_spread_m;
+        }
+        if (learner_agrees) {
+          Scan corrected = scan;
+          corrected.laser_pose = filters[1].estimate.back();
+          learner.integrate(corrected);
+        }
       } else {
         if (hmm_updated) lagged.push_back({scan, filters[1].filter->updates()});
         if (!lagged.empty() && lagged.front().second + config.learner_lag_updates <= filters[1].filter->updates()) {

@@ -59,6 +59,7 @@ struct Options {
   int pose_correction_particles = 30;
   std::string pose_correction_scenario = "patrol_office";
   int pose_correction_steps = 400;
+  double pose_correction_learner_max_spread = 0.0;
   std::uint64_t seed = 1;
   unsigned threads = 0;
 };
@@ -146,6 +147,10 @@ Options parseOptions(int argc, char** argv) {
                      [&options](const std::string& name) { options.pose_correction_scenario = name; })
            ->value_name("NAME"),
        "the world of the pose filter's comparison (default patrol_office; any of the simulator's scenarios)")
+      ("pose-correction-learner-max-spread",
+       cl::number(&options.pose_correction_learner_max_spread, cl::between(0.0, 1000.0))->value_name("M"),
+       "rbpf_hmm's learner maps a scan only while the particles' positions are within M m (RMS) of the best "
+       "particle's at the last update (default 0: every scan)")
       ("pose-correction-steps", cl::number(&options.pose_correction_steps, cl::between(2, 1000000))->value_name("N"),
        "steps of each run of the pose filter's comparison (default 400: four loops of patrol_office)")
       ("pose-correction-learner-lag", cl::number(&options.pose_correction_learner_lag, cl::between(0, 100000))->value_name("N"),
@@ -1078,6 +1083,7 @@ int main(int argc, char** argv) {
       config.learner_lag_updates = static_cast<std::size_t>(options.pose_correction_learner_lag);
       config.scenario = options.pose_correction_scenario;
       config.steps = options.pose_correction_steps;
+      config.learner_max_spread_m = options.pose_correction_learner_max_spread;
       std::vector<core::PoseCorrectionResult> runs;
       for (int r = 0; r < options.pose_correction_runs; ++r) {
         config.world_seed = options.seed;

@@ -8,6 +8,7 @@
 #include <gtest/gtest.h>
 
 #include <iostream>
+#include <limits>
 #include <sstream>
 #include <string>
 
@@ -116,6 +117,28 @@ TEST(PoseCorrection, LaggedLearnerFollowsTheBestTrajectory) {
   const dog::PoseCorrectionResult plain = dog::runPoseCorrection(config);
   for (const char* name : {"rbpf_static", "rbpf_oracle", "odometry"}) {
     EXPECT_EQ(find(result, name).ate_rmse_m, find(plain, name).ate_rmse_m) << name;
+  }
+}
+
+// rbpf_hmm's learner gated on the particles' agreement: a gate every cloud passes is no gate;
+// a tight one changes only what the learner sees (the other filters are the same run).
+TEST(PoseCorrection, LearnerGatedOnTheParticlesSpread) {
+  dog::PoseCorrectionConfig config;
+  config.steps = 60;
+  config.filter.particles = 10;
+  const dog::PoseCorrectionResult plain = dog::runPoseCorrection(config);
+  config.learner_max_spread_m = 1000.0;
+  const dog::PoseCorrectionResult open = dog::runPoseCorrection(config);
+  config.learner_max_spread_m = 1e-12;
+  const dog::PoseCorrectionResult closed = dog::runPoseCorrection(config);
+  EXPECT_EQ(find(open, "rbpf_hmm").ate_rmse_m, find(plain, "rbpf_hmm").ate_rmse_m);
+  EXPECT_EQ(open.learned[5].mae_p_occ_given_free, plain.learned[5].mae_p_occ_given_free);
+  for (const char* name : {"rbpf_static", "rbpf_oracle", "odometry"}) {
+    EXPECT_EQ(find(closed, name).ate_rmse_m, find(plain, name).ate_rmse_m) << name;
+  }
+  for (const double bad : {-0.1, std::numeric_limits<double>::quiet_NaN(), std::numeric_limits<double>::infinity()}) {
+    config.learner_max_spread_m = bad;
+    EXPECT_THROW(dog::runPoseCorrection(config), std::invalid_argument) << bad;
   }
 }
 

@@ -49,6 +49,10 @@ struct PoseCorrectionConfig {
   /// trajectory gives them then (a fixed-lag smoother: resampling has pruned the
   /// hypotheses that lost by then).
   std::size_t learner_lag_updates = 0;
+  /// rbpf_hmm's learner (lag 0): > 0 maps a scan only while the particles agree, their
+  /// positions' RMS distance from the best particle's at the last update below this (m);
+  /// 0 maps every scan.
+  double learner_max_spread_m = 0.0;
   /// Throws std::invalid_argument naming the first bad field.
   void validate() const;
 };
