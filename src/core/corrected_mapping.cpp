@@ -62,14 +62,16 @@ ParticleBelief CorrectedMapping::bestParticleBelief() const {
   ParticleBelief belief;
   if (!filter_->started()) return belief;
   const ParticleMap& map = filter_->best().map;
-  belief.cells = map.bounds();
-  if (belief.cells.empty()) return belief;
+  const CellBox cells = map.bounds();
+  const double r = filter_->config().resolution_m;
+  belief.window = MapWindow{r, cells.min_x * r, cells.min_y * r, cells};
+  if (cells.empty()) return belief;
   const std::int64_t step = filter_->lastUpdateStep();
   const double unknown = filter_->config().unknown_p_occ;
-  belief.values.reserve(static_cast<std::size_t>(belief.cells.width() * belief.cells.height()));
+  belief.values.reserve(static_cast<std::size_t>(cells.width() * cells.height()));
   ParticleMap::Reader reader(map);
-  for (std::int32_t y = belief.cells.min_y; y <= belief.cells.max_y; ++y) {
-    for (std::int32_t x = belief.cells.min_x; x <= belief.cells.max_x; ++x) {
+  for (std::int32_t y = cells.min_y; y <= cells.max_y; ++y) {
+    for (std::int32_t x = cells.min_x; x <= cells.max_x; ++x) {
       belief.values.push_back(reader.lastStep(x, y) == kNeverObserved
                                   ? std::numeric_limits<float>::quiet_NaN()
                                   : static_cast<float>(reader.predicted(x, y, step, filter_->transitions(), unknown)));

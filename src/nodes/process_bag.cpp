@@ -225,15 +225,13 @@ int run(const Options& options) {
     if (belief.values.empty()) {
       std::printf("best_particle_belief: the best particle has no cell yet; not written\n");
     } else {
-      const double r = correction->filter().config().resolution_m;
-      const dog::core::MapWindow window{r, belief.cells.min_x * r, belief.cells.min_y * r, belief.cells};
       std::vector<std::int8_t> occupancy;
       dog::core::toOccupancyValues(belief.values, 1.0f, &occupancy);
-      dog::core::writeMapServerFiles(options.out_dir, "best_particle_belief", window, occupancy);
-      dog::core::writeNpyLayer(options.out_dir, "best_particle_belief", window, belief.values);
+      dog::core::writeMapServerFiles(options.out_dir, "best_particle_belief", belief.window, occupancy);
+      dog::core::writeNpyLayer(options.out_dir, "best_particle_belief", belief.window, belief.values);
       std::printf("best_particle_belief %lld x %lld cells -> %s/best_particle_belief.pgm (.yaml, .npy)\n",
-                  static_cast<long long>(belief.cells.width()), static_cast<long long>(belief.cells.height()),
-                  options.out_dir.c_str());
+                  static_cast<long long>(belief.window.cells.width()),
+                  static_cast<long long>(belief.window.cells.height()), options.out_dir.c_str());
     }
   }
   dog::core::saveModel(mapper, options.model_path);

@@ -848,16 +848,13 @@ void MappingNode::publishBestParticle(bool force) {
   if (!force && updates == best_particle_published_updates_) return;
   best_particle_published_updates_ = updates;
   const core::ParticleBelief belief = correction_->bestParticleBelief();
-  const double resolution = correction_->filter().config().resolution_m;
   std::vector<std::int8_t> occupancy;
   core::toOccupancyValues(belief.values, 1.0f, &occupancy);
-  const core::MapWindow window{resolution, belief.cells.min_x * resolution, belief.cells.min_y * resolution,
-                               belief.cells};
   const double step_end_s = correction_->mapper().clock().origin()
                                 ? correction_->mapper().clock().stepStart(correction_->filter().lastUpdateStep() + 1)
                                 : ros::Time::now().toSec();
   best_particle_belief_.publish(
-      toOccupancyGrid(window, std::move(occupancy), parameters_.fixed_frame, toRosTime(step_end_s)));
+      toOccupancyGrid(belief.window, std::move(occupancy), parameters_.fixed_frame, toRosTime(step_end_s)));
 }
 
 void MappingNode::publishLayers(bool force_full) {

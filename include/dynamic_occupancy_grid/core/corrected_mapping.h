@@ -28,11 +28,12 @@ namespace core {
 /// the filter can walk at that resolution (1000 cells).
 PoseFilterConfig poseFilterConfigFor(const MapperConfig& mapper, PoseFilterConfig filter);
 
-/// A particle's own map as values: p(occ) per cell of `cells`, row by row from the lowest
+/// A particle's own map as values: p(occ) per cell of `window`, row by row from the lowest
 /// row; NaN where the particle has never observed the cell. Cell (x, y) covers
-/// [x r, (x + 1) r) x [y r, (y + 1) r) of the map frame.
+/// [x r, (x + 1) r) x [y r, (y + 1) r) of the map frame, so the window's origin is its
+/// first cell's corner.
 struct ParticleBelief {
-  CellBox cells;
+  MapWindow window;
   std::vector<float> values;
 };
 
