@@ -4,6 +4,7 @@
 #include <cmath>
 #include <limits>
 
+#include "dynamic_occupancy_grid/core/model_io.h"
 #include "dynamic_occupancy_grid/core/motion_model.h"
 #include "dynamic_occupancy_grid/core/particle_map.h"
 
@@ -45,6 +46,18 @@ CorrectedScan CorrectedMapping::integrate(const Scan& odometry_scan) {
   // frame: the particles' cells are the Mapper's (MapperTransitions reads them there).
   Scan shifted = odometry_scan;
   shifted.laser_pose = wrapped(composePose(start_correction_, odometry_scan.laser_pose));
+  if (!filter_->started()) {
+    // The filter's steps are the Mapper's, moved by whole steps: step 0 starts where the
+    // Mapper's step of this scan does (at the scan on a fresh Mapper).
+    const StepClock& clock = mapper_.clock();
+    const double stamp = odometry_scan.stamp_s;
+    double origin = stamp;
+    if (clock.origin() && std::isfinite(stamp) && clock.stepOf(stamp) >= 0) {
+      const double start = clock.stepStart(clock.stepOf(stamp));
+      if (start <= stamp && stamp - start < clock.timeStep()) origin = start;  // else rounding: the stamp
+    }
+    filter_->startStepsAt(origin);
+  }
   CorrectedScan result;
   result.update = filter_->integrate(shifted);
   result.corrected = odometry_scan;
@@ -78,6 +91,47 @@ ParticleBelief CorrectedMapping::bestParticleBelief() const {
     }
   }
   return belief;
+}
+
+std::string CorrectedMapping::serializeModel(BestParticleCells* cells) const {
+  BestParticleCells counts;
+  std::string bytes;
+  if (!filter_->started() || !mapper_.clock().origin()) {
+    bytes = core::serializeModel(mapper_);
+  } else {
+    const ParticleMap& map = filter_->best().map;
+    const CellGrid& grid = mapper_.grid();
+    const StepClock& mapper_clock = mapper_.clock();
+    const double r = filter_->config().resolution_m;
+    const double unknown = filter_->config().unknown_p_occ;
+    ParticleMap::Reader reader(map);
+    bytes = core::serializeModel(
+        mapper_, [&](std::int32_t x, std::int32_t y, std::int32_t last_step) -> std::optional<float> {
+          // The particle cell holding this cell's centre, if this cell holds that one's
+          // centre in turn (MapperTransitions' rule; both hold when the Mapper's origin is
+          // on the filter's lattice, as it is unless configured otherwise).
+          const double u = std::floor((grid.anchorX() + (x + 0.5) * grid.resolution()) / r);
+          const double v = std::floor((grid.anchorY() + (y + 0.5) * grid.resolution()) / r);
+          constexpr double kLimit = 2147483647.0;
+          bool found = std::abs(u) < kLimit && std::abs(v) < kLimit;
+          const auto px = static_cast<std::int32_t>(found ? u : 0.0);
+          const auto py = static_cast<std::int32_t>(found ? v : 0.0);
+          found = found && std::floor(grid.toLatticeX((px + 0.5) * r)) == x &&
+                  std::floor(grid.toLatticeY((py + 0.5) * r)) == y;
+          // The Mapper's step in the filter's steps, read at the step's middle.
+          const std::int64_t step =
+              filter_->clock().stepOf(mapper_clock.stepStart(last_step) + 0.5 * mapper_clock.timeStep());
+          const std::int32_t particle_step = found ? reader.lastStep(px, py) : kNeverObserved;
+          if (particle_step == kNeverObserved || particle_step > step) {
+            ++counts.kept;
+            return std::nullopt;
+          }
+          ++counts.replaced;
+          return static_cast<float>(reader.predicted(px, py, step, filter_->transitions(), unknown));
+        });
+  }
+  if (cells != nullptr) *cells = counts;
+  return bytes;
 }
 
 std::vector<TrajectoryNode> CorrectedMapping::trajectory() const {

@@ -524,7 +524,9 @@ std::string readModelFile(const std::string& path) {
 
 }  // namespace
 
-std::string serializeModel(const Mapper& mapper) {
+std::string serializeModel(const Mapper& mapper) { return serializeModel(mapper, CellBeliefOverride{}); }
+
+std::string serializeModel(const Mapper& mapper, const CellBeliefOverride& belief) {
   const MapperConfig& config = mapper.config();
   const CellGrid& grid = mapper.grid();
   const std::size_t cell_count = countObservedCells(grid);
@@ -607,15 +609,31 @@ std::string serializeModel(const Mapper& mapper) {
   }
   writer.u64(cell_count);
 
-  forEachObservedCell(grid, [&writer](std::int32_t x, std::int32_t y, const CellGrid::Tile& tile, int i) {
+  const bool kinds = config.learner == TransitionLearner::kKinds;
+  forEachObservedCell(grid, [&](std::int32_t x, std::int32_t y, const CellGrid::Tile& tile, int i) {
+    const std::optional<float> p_occ = belief ? belief(x, y, tile.last_step[i]) : std::nullopt;
+    if (p_occ && !(*p_occ >= 0.0f && *p_occ <= 1.0f)) {
+      throw std::invalid_argument("serializeModel: the belief given for cell (" + std::to_string(x) + ", " +
+                                  std::to_string(y) + ") is " + std::to_string(*p_occ) + ", outside [0, 1]");
+    }
     writer.i32(x);
     writer.i32(y);
-    writer.f32(tile.p_occ[i]);
+    writer.f32(p_occ.value_or(tile.p_occ[i]));
     writer.i32(tile.last_step[i]);
     writer.f32(tile.log_odds[i]);
     writer.f32(tile.p_occ_given_free[i]);
     writer.f32(tile.p_free_given_occ[i]);
-    for (const auto& state : tile.em_stats) writer.f32(state[i]);
+    if (p_occ && kinds) {
+      // Each kind keeps its mass; its state follows the new belief (index 2 k: occupied).
+      for (int k = 0; k < kKindCount; ++k) {
+        const double mass = double{tile.em_stats[2 * k][i]} + tile.em_stats[2 * k + 1][i];
+        writer.f32(static_cast<float>(mass * *p_occ));
+        writer.f32(static_cast<float>(mass * (1.0 - *p_occ)));
+      }
+      for (int k = 2 * kKindCount; k < kLearnerStateSize; ++k) writer.f32(tile.em_stats[k][i]);
+    } else {
+      for (const auto& state : tile.em_stats) writer.f32(state[i]);
+    }
     writer.u16(tile.observed_steps[i]);
     writer.u8(tile.last_hits[i]);
     writer.u8(tile.last_misses[i]);

@@ -274,11 +274,21 @@ void PoseFilter::mapEvidence(ParticleMap& map, const std::vector<CellEvidence>& 
   }
 }
 
+void PoseFilter::startStepsAt(double origin_s) {
+  if (last_odometry_) throw std::logic_error("PoseFilter::startStepsAt: the filter has started");
+  clock_ = StepClock(config_.time_step_s);
+  clock_.startAt(origin_s);
+}
+
 PoseUpdate PoseFilter::integrate(const Scan& scan) {
   if (const auto error = scanFieldsError(scan)) throw std::invalid_argument("PoseFilter: " + *error);
   PoseUpdate result;
   const Pose2D& odometry = scan.laser_pose;
   if (!last_odometry_) {
+    if (clock_.origin() && !(scan.stamp_s >= *clock_.origin() && clock_.stepOf(scan.stamp_s) == 0)) {
+      throw std::invalid_argument("PoseFilter: the first scan's stamp " + std::to_string(scan.stamp_s) +
+                                  " is not in step 0, which starts at " + std::to_string(*clock_.origin()));
+    }
     clock_.startAt(scan.stamp_s);
     Particle first;
     first.pose = odometry;

@@ -234,8 +234,16 @@ int run(const Options& options) {
                   static_cast<long long>(belief.window.cells.height()), options.out_dir.c_str());
     }
   }
-  dog::core::saveModel(mapper, options.model_path);
-  std::printf("model -> %s\n", options.model_path.c_str());
+  if (correction && !options.offline_em) {
+    // The cells' beliefs from the best particle's own map, as the node's ~save_model.
+    dog::core::BestParticleCells cells;
+    dog::core::saveModelBytes(correction->serializeModel(&cells), options.model_path);
+    std::printf("model -> %s (beliefs of %zu cells from the best particle's map, %zu kept)\n",
+                options.model_path.c_str(), cells.replaced, cells.kept);
+  } else {
+    dog::core::saveModel(mapper, options.model_path);
+    std::printf("model -> %s\n", options.model_path.c_str());
+  }
   return 0;
 }
 

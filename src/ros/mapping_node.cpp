@@ -1194,9 +1194,13 @@ bool MappingNode::saveModel(SaveModel::Request& request, SaveModel::Response& re
   }
   // Only the in-memory part under the map's lock; the file is written after.
   std::string bytes;
+  core::BestParticleCells best_particle;
+  bool corrected = false;
   {
     std::lock_guard<std::mutex> lock(mutex_);
-    bytes = core::serializeModel(*mapper_);
+    // With pose correction, the cells' beliefs are the best particle's own map.
+    corrected = correction_ != nullptr;
+    bytes = corrected ? correction_->serializeModel(&best_particle) : core::serializeModel(*mapper_);
   }
   try {
     core::saveModelBytes(bytes, path);
@@ -1208,6 +1212,10 @@ bool MappingNode::saveModel(SaveModel::Request& request, SaveModel::Response& re
   }
   response.success = true;
   response.message = "saved " + std::to_string(bytes.size()) + " bytes to " + path;
+  if (corrected) {
+    response.message += "; beliefs of " + std::to_string(best_particle.replaced) + " cells from the best particle's map, " +
+                        std::to_string(best_particle.kept) + " kept";
+  }
   return true;
 }
 

@@ -24,6 +24,7 @@
 #include <vector>
 
 #include "dynamic_occupancy_grid/core/mapper.h"
+#include "dynamic_occupancy_grid/core/model_io.h"
 #include "dynamic_occupancy_grid/core/resampling.h"
 
 namespace dog = dynamic_occupancy_grid::core;
@@ -599,6 +600,132 @@ TEST(PoseFilter, BestAfterResamplingIsTheBestBefore) {
   EXPECT_EQ(a.resamplings(), 0u);
   expectPose(b.best().pose, a.best().pose, 0.0);
   expectPose(b.mapToOdometry(), a.mapToOdometry(), 0.0);
+}
+
+TEST(CorrectedMapping, TheModelFileHoldsTheBestParticlesMap) {
+  // A drive with a restart halfway (a new filter on the same Mapper, as the node's ~reset
+  // of the correction or a loaded model: its first scan is 0.4 of a step into the Mapper's
+  // step) and a Mapper whose lattice is 50 cells off the filter's. The saved model must
+  // hold, in each cell the best particle has observed by the Mapper's last update of it,
+  // the particle's belief (compared at a later step, each predicted its own way); in every
+  // other cell the Mapper's; and the rest of every cell unchanged.
+  for (const dog::TransitionLearner learner : {dog::TransitionLearner::kCellEm, dog::TransitionLearner::kKinds}) {
+    SCOPED_TRACE(learner == dog::TransitionLearner::kKinds ? "kinds" : "cell_em");
+    const std::vector<Box> boxes = room();
+    dog::MapperConfig mapper_config;
+    mapper_config.resolution_m = 0.1;
+    mapper_config.time_step_s = 1.0;
+    mapper_config.origin_x_m = -5.0;  // the Mapper's cell x is the filter's x - 50
+    mapper_config.origin_y_m = -5.0;
+    mapper_config.prior_transitions = {0.05, 0.05};
+    mapper_config.learner = learner;
+    dog::Mapper mapper(mapper_config);
+    dog::PoseFilterConfig config = dog::poseFilterConfigFor(mapper_config, driveConfig());
+    config.particles = 8;
+    auto mapping = std::make_unique<dog::CorrectedMapping>(mapper, config, 1);
+    EXPECT_EQ(mapping->serializeModel(), dog::serializeModel(mapper));  // nothing mapped yet
+    std::mt19937_64 rng(5);
+    dog::Pose2D truth{2.0, 2.0, 0.0};
+    constexpr int kRestart = 18;
+    const double restart_stamp = 0.3 * kRestart + 0.1;
+    for (int i = 0; i < 36; ++i) {
+      if (i == kRestart) mapping = std::make_unique<dog::CorrectedMapping>(mapper, config, 1, mapping->mapToOdometry());
+      truth = dog::applyMotion(truth, dog::OdometryMotion{0.05, 0.15, -0.02});
+      const dog::CorrectedScan result = mapping->integrate(simulatedScan(boxes, truth, 0.3 * i + 0.1, rng, 0.01));
+      ASSERT_EQ(result.mapped.status, dog::ScanStatus::kIntegrated) << result.mapped.error;
+    }
+    mapper.finishStep();
+    // The filter's steps are the Mapper's moved by the Mapper's step of the restart.
+    const std::int64_t offset = mapper.clock().stepOf(restart_stamp);
+    ASSERT_EQ(offset, 5);
+    EXPECT_NEAR(*mapping->filter().clock().origin(), mapper.clock().stepStart(offset), 1e-9);
+
+    dog::BestParticleCells cells;
+    const std::unique_ptr<dog::Mapper> loaded = dog::deserializeModel(mapping->serializeModel(&cells));
+    const std::int64_t later = *mapper.lastAppliedStep() + 3;
+    const dog::ParticleMap& map = mapping->filter().best().map;
+    std::size_t replaced = 0;
+    std::size_t kept = 0;
+    std::size_t differ = 0;
+    const dog::CellBox box = mapper.grid().bounds();
+    for (std::int32_t y = box.min_y; y <= box.max_y; ++y) {
+      for (std::int32_t x = box.min_x; x <= box.max_x; ++x) {
+        const auto cell = mapper.grid().cell(x, y);
+        if (!cell || cell->last_step == dog::kNeverObserved) continue;
+        const auto saved = loaded->grid().cell(x, y);
+        ASSERT_TRUE(saved.has_value()) << x << ", " << y;
+        EXPECT_EQ(saved->last_step, cell->last_step);
+        EXPECT_EQ(saved->log_odds, cell->log_odds);
+        EXPECT_EQ(saved->p_occ_given_free, cell->p_occ_given_free);
+        EXPECT_EQ(saved->p_free_given_occ, cell->p_free_given_occ);
+        EXPECT_EQ(saved->observed_steps, cell->observed_steps);
+        const std::int32_t particle_step = map.lastStep(x - 50, y - 50);
+        const bool from_particle = particle_step != dog::kNeverObserved && particle_step <= cell->last_step - offset;
+        if (from_particle) {
+          ++replaced;
+          const double particle = map.predicted(x - 50, y - 50, later - offset, mapping->filter().transitions(), 0.5);
+          ASSERT_NEAR(loaded->beliefAt(x, y, later), particle, 1e-5) << x << ", " << y;
+          differ += std::abs(particle - mapper.beliefAt(x, y, later)) > 1e-3 ? 1 : 0;
+        } else {
+          ++kept;
+          ASSERT_EQ(loaded->beliefAt(x, y, later), mapper.beliefAt(x, y, later)) << x << ", " << y;
+        }
+        if (from_particle && learner == dog::TransitionLearner::kKinds) {
+          // Each kind keeps its mass; its state follows the saved belief.
+          for (int k = 0; k < dog::kKindCount; ++k) {
+            const double mass = double{cell->em_stats[2 * k]} + cell->em_stats[2 * k + 1];
+            EXPECT_NEAR(saved->em_stats[2 * k] + saved->em_stats[2 * k + 1], mass, 1e-6);
+            EXPECT_NEAR(saved->em_stats[2 * k], mass * saved->p_occ, 1e-6);
+          }
+        } else {
+          EXPECT_EQ(saved->em_stats, cell->em_stats);
+        }
+      }
+    }
+    std::cout << "model cells: " << replaced << " from the best particle (" << differ << " differing from the "
+              << "Mapper's by > 0.001), " << kept << " the Mapper's\n";
+    EXPECT_EQ(cells.replaced, replaced);
+    EXPECT_EQ(cells.kept, kept);
+    EXPECT_GT(replaced, 1000u);
+    EXPECT_GT(kept, 100u);   // seen before the restart only, or at other poses
+    EXPECT_GT(differ, 100u);  // the Mapper maps every scan, the filter at its updates only
+  }
+}
+
+TEST(CorrectedMapping, ABeliefOutsideZeroOneIsNotSaved) {
+  dog::MapperConfig mapper_config;
+  mapper_config.resolution_m = 0.1;
+  dog::Mapper mapper(mapper_config);
+  std::mt19937_64 rng(1);
+  mapper.integrate(simulatedScan(room(), {2.0, 2.0, 0.0}, 0.0, rng, 0.0));
+  mapper.finishStep();
+  for (const float bad : {-0.1f, 1.5f, std::numeric_limits<float>::quiet_NaN()}) {
+    EXPECT_THROW(dog::serializeModel(mapper, [bad](std::int32_t, std::int32_t, std::int32_t) { return bad; }),
+                 std::invalid_argument);
+  }
+  EXPECT_EQ(dog::serializeModel(mapper, [](std::int32_t, std::int32_t, std::int32_t) { return std::nullopt; }),
+            dog::serializeModel(mapper));
+}
+
+TEST(PoseFilter, StepsStartWhereTheyAreTold) {
+  dog::PoseFilterConfig config = driveConfig();
+  config.time_step_s = 1.0;
+  const auto transitions = std::make_shared<dog::UniformTransitions>(dog::TransitionParams{0.0, 0.0});
+  std::mt19937_64 rng(2);
+  const dog::Scan first = simulatedScan(room(), {2.0, 2.0, 0.0}, 10.7, rng, 0.01);
+  dog::PoseFilter outside(config, transitions);
+  outside.startStepsAt(9.5);  // 10.7 is in step 1
+  EXPECT_THROW(outside.integrate(first), std::invalid_argument);
+  outside.startStepsAt(10.8);  // after the stamp
+  EXPECT_THROW(outside.integrate(first), std::invalid_argument);
+  dog::PoseFilter filter(config, transitions);
+  filter.startStepsAt(10.0);
+  filter.integrate(first);
+  EXPECT_EQ(*filter.clock().origin(), 10.0);
+  EXPECT_THROW(filter.startStepsAt(10.5), std::logic_error);
+  dog::Scan second = simulatedScan(room(), {2.6, 2.0, 0.0}, 12.2, rng, 0.01);
+  ASSERT_TRUE(filter.integrate(second).updated);
+  EXPECT_EQ(filter.lastUpdateStep(), 2);  // 12.2 from 10.0; from the stamp 10.7 it would be 1
 }
 
 TEST(CorrectedMapping, AScanTheFilterRefusesChangesNothing) {

@@ -12,6 +12,7 @@ every filter update, the belief layer in the map frame, and the parameters' chec
 
 import math
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -20,7 +21,9 @@ import threading
 import time
 import unittest
 
+import numpy as np
 import rosbag
+import rospkg
 import rospy
 import rostest
 import tf2_ros
@@ -35,6 +38,9 @@ from test_bag_tools import executable
 from wall_scene import DEFAULT_TIMEOUT, SimClock, TopicRecorder, assert_bad_parameters_stop_node
 
 import dynamic_occupancy_grid.srv as dog_srv
+
+sys.path.insert(0, os.path.join(rospkg.RosPack().get_path('dynamic_occupancy_grid'), 'scripts'))
+from read_model import load_model  # noqa: E402 (scripts/ is on the path only now)
 
 PKG = 'dynamic_occupancy_grid'
 NODE = '/mapper'
@@ -248,6 +254,41 @@ class PoseCorrectionNodeTest(unittest.TestCase):
         print('best particle belief: %d cells known to both maps, %.3f agree' % (known, agree / max(known, 1)))
         self.assertGreater(known, 1000)
         self.assertGreater(agree / known, 0.9)
+
+    def test_04b_saved_model_holds_the_best_particles_map(self):
+        """~save_model writes the best particle's own map as the cells' beliefs."""
+        path = os.path.join(self.tmp_dir, 'corrected.dogm')
+        rospy.wait_for_service(NODE + '/save_model', 10.0)
+        response = rospy.ServiceProxy(NODE + '/save_model', dog_srv.SaveModel)(path=path)
+        self.assertTrue(response.success, response.message)
+        counted = re.search(r"beliefs of (\d+) cells from the best particle's map, (\d+) kept", response.message)
+        self.assertIsNotNone(counted, response.message)
+        model = load_model(path)
+        replaced, kept = int(counted.group(1)), int(counted.group(2))
+        self.assertEqual(replaced + kept, model.cell_count)
+        self.assertGreater(replaced, 0.5 * model.cell_count)
+        # Predicted to the model's last step, the beliefs are on best_particle_belief's side of
+        # 0.5 (it is predicted to the filter's last update, at most a few steps earlier).
+        best = TopicRecorder(NODE + '/best_particle_belief', OccupancyGrid).wait_for(clock=self.clock, tick=0.0)
+        self.assertIsNotNone(best, 'no best_particle_belief')
+        p, a, b = (model[name].astype(float) for name in ('p_occ', 'p_occ_given_free', 'p_free_given_occ'))
+        moving = a + b > 0
+        stationary = np.where(moving, a / np.where(moving, a + b, 1.0), p)
+        now = stationary + (p - stationary) * (1.0 - a - b) ** (model.last_applied_step - model['last_step'])
+        resolution = model.config['resolution_m']
+        cols = np.floor((model.config['origin_x_m'] + (model.x + 0.5) * resolution - best.info.origin.position.x) /
+                        best.info.resolution).astype(np.int64)
+        rows = np.floor((model.config['origin_y_m'] + (model.y + 0.5) * resolution - best.info.origin.position.y) /
+                        best.info.resolution).astype(np.int64)
+        inside = (cols >= 0) & (cols < best.info.width) & (rows >= 0) & (rows < best.info.height)
+        values = np.asarray(best.data, dtype=np.int64).reshape(best.info.height, best.info.width)[rows[inside],
+                                                                                                cols[inside]]
+        decided = (values >= 0) & (values != 50)
+        same = int(np.count_nonzero((now[inside][decided] > 0.5) == (values[decided] > 50)))
+        print('saved model: %d cells from the best particle, %d kept; %d of %d agree with best_particle_belief' %
+              (replaced, kept, same, int(np.count_nonzero(decided))))
+        self.assertGreater(np.count_nonzero(decided), 1000)
+        self.assertGreater(same, 0.99 * np.count_nonzero(decided))
 
     def test_05_bad_parameters(self):
         assert_bad_parameters_stop_node(self, [

@@ -16,6 +16,7 @@ Tolerances are test parameters (test/ros/simulate.test).
 
 import math
 import os
+import re
 import resource
 import shutil
 import signal
@@ -502,6 +503,27 @@ class TestSimulate(unittest.TestCase):
         print(f"best_particle_belief agrees with belief on {agree} of {both} cells")
         self.assertGreater(both, 1000)
         self.assertGreater(agree, 0.9 * both)
+        # The model's beliefs are the best particle's own map where it saw the cell by the
+        # mapper's last update of it (process_bag says how many): predicted to the model's last
+        # step, they are on best_particle_belief's side of 0.5 in those cells (it is predicted
+        # to the filter's last update, a few steps earlier at most).
+        counted = re.search(r"beliefs of (\d+) cells from the best particle's map, (\d+) kept", stdout)
+        self.assertIsNotNone(counted, stdout)
+        model = load_model(os.path.join(out, "model.dogm"))
+        self.assertEqual(int(counted.group(1)) + int(counted.group(2)), model.cell_count)
+        self.assertGreater(int(counted.group(1)), 0.5 * model.cell_count)
+        p, a, b = (model[name].astype(np.float64) for name in ("p_occ", "p_occ_given_free", "p_free_given_occ"))
+        moving = a + b > 0
+        stationary = np.where(moving, a / np.where(moving, a + b, 1.0), p)
+        now = stationary + (p - stationary) * (1.0 - a - b) ** (model.last_applied_step - model["last_step"])
+        cols = model.x.astype(np.int64) + int(round((model.config["origin_x_m"] - best_origin[0]) / resolution))
+        rows = model.y.astype(np.int64) + int(round((model.config["origin_y_m"] - best_origin[1]) / resolution))
+        inside = (cols >= 0) & (cols < best.shape[1]) & (rows >= 0) & (rows < best.shape[0])
+        particle = best[rows[inside], cols[inside]]
+        seen = ~np.isnan(particle)
+        same = int(np.count_nonzero((now[inside][seen] > 0.5) == (particle[seen] > 0.5)))
+        print(f"the model's beliefs agree with best_particle_belief on {same} of {int(np.count_nonzero(seen))} cells")
+        self.assertGreater(same, 0.99 * np.count_nonzero(seen))
 
         # The options' checks.
         for args, named in ((["--pose-correction", "amcl"], "--pose-correction"),

@@ -13,8 +13,10 @@
 //
 // ROS-free: the core's Mapper and PoseFilter.
 
+#include <cstddef>
 #include <cstdint>
 #include <memory>
+#include <string>
 #include <vector>
 
 #include "dynamic_occupancy_grid/core/mapper.h"
@@ -35,6 +37,15 @@ PoseFilterConfig poseFilterConfigFor(const MapperConfig& mapper, PoseFilterConfi
 struct ParticleBelief {
   MapWindow window;
   std::vector<float> values;
+};
+
+/// The cells of a model file that CorrectedMapping::serializeModel took from the best
+/// particle's own map, and those it kept the Mapper's belief in.
+struct BestParticleCells {
+  std::size_t replaced = 0;
+  /// The particle has not observed the cell, or has observed it after the Mapper's last
+  /// update of it (the Mapper's step being gathered: the model holds the applied steps).
+  std::size_t kept = 0;
 };
 
 /// What one scan did.
@@ -65,6 +76,12 @@ class CorrectedMapping {
   /// later resampling may pick another particle: the Mapper holds the scans as they came).
   /// Empty before the first scan.
   ParticleBelief bestParticleBelief() const;
+  /// The Mapper's model file (model_io.h) with the best particle's own map: each cell's
+  /// belief is the best particle's, predicted to the cell's last update in the Mapper (with
+  /// the filter's transitions), where the particle has observed the cell by then; the rest
+  /// of the cell (transitions, learner, static baseline) and the cells the particle has not
+  /// observed are the Mapper's. Before the first scan, serializeModel(mapper()).
+  std::string serializeModel(BestParticleCells* cells = nullptr) const;
   const PoseFilter& filter() const { return *filter_; }
   const Mapper& mapper() const { return mapper_; }
 

@@ -12,7 +12,9 @@
 // ROS-free: standard library only.
 
 #include <cstdint>
+#include <functional>
 #include <memory>
+#include <optional>
 #include <string>
 
 #include "dynamic_occupancy_grid/core/mapper.h"
@@ -30,6 +32,16 @@ constexpr std::uint32_t kModelFormatVersion = 3;
 /// (call Mapper::finishStep first to include it). Needs one buffer of the file's size
 /// (72 bytes per observed cell) besides the map.
 std::string serializeModel(const Mapper& mapper);
+/// A belief to save for observed cell (x, y) instead of the mapper's: p(occ) at the cell's
+/// own last step `last_step` (a mapper step); none keeps the mapper's.
+using CellBeliefOverride =
+    std::function<std::optional<float>(std::int32_t x, std::int32_t y, std::int32_t last_step)>;
+/// serializeModel with each cell's belief from `belief` where it gives one (the pose filter's
+/// best particle: corrected_mapping.h). The cell keeps everything else; with the learner
+/// kKinds each kind keeps its mass and its state follows the new belief (as
+/// Mapper::applyOfflineEm's final beliefs do). Throws std::invalid_argument for a belief
+/// outside [0, 1] (nothing is written).
+std::string serializeModel(const Mapper& mapper, const CellBeliefOverride& belief);
 /// A Mapper holding the model in `bytes`. Throws std::runtime_error with a clear message for
 /// anything but a complete, intact file of versions 1 to kModelFormatVersion (bad magic, other version,
 /// truncated, checksum mismatch, invalid values, trailing bytes); nothing else is affected

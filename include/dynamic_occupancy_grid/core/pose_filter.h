@@ -146,6 +146,11 @@ class PoseFilter {
   /// used). Stamps must not go back past the first scan's step. Throws
   /// std::invalid_argument for a scan scanFieldsError refuses or a stamp before step 0.
   PoseUpdate integrate(const Scan& scan);
+  /// Before the first scan: step 0 starts at `origin_s` instead of at the first scan's
+  /// stamp, which must then be in step 0 (integrate throws std::invalid_argument otherwise),
+  /// so that the filter's steps are another clock's (a Mapper's) moved by whole steps.
+  /// Throws std::logic_error once started.
+  void startStepsAt(double origin_s);
 
   const PoseFilterConfig& config() const { return config_; }
   const std::vector<Particle>& particles() const { return particles_; }
@@ -170,6 +175,8 @@ class PoseFilter {
   /// The step of the last update (0 before the first scan's).
   std::int64_t lastUpdateStep() const { return last_step_; }
   std::size_t resamplings() const { return resamplings_; }
+  /// The filter's steps: step 0 starts at the first scan's stamp.
+  const StepClock& clock() const { return clock_; }
 
  private:
   /// `beams`: the ends of the scan's beams that take part in matching.
