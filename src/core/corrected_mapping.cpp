@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <stdexcept>
 
 #include "dynamic_occupancy_grid/core/model_io.h"
 #include "dynamic_occupancy_grid/core/motion_model.h"
@@ -71,7 +72,8 @@ Pose2D CorrectedMapping::mapToOdometry() const {
   return wrapped(composePose(filter_->mapToOdometry(), start_correction_));
 }
 
-ParticleBelief CorrectedMapping::bestParticleBelief() const {
+ParticleBelief CorrectedMapping::bestParticleBelief(std::int64_t horizon_steps) const {
+  if (horizon_steps < 0) throw std::invalid_argument("bestParticleBelief: horizon_steps must be >= 0");
   ParticleBelief belief;
   if (!filter_->started()) return belief;
   const ParticleMap& map = filter_->best().map;
@@ -79,7 +81,7 @@ ParticleBelief CorrectedMapping::bestParticleBelief() const {
   const double r = filter_->config().resolution_m;
   belief.window = MapWindow{r, cells.min_x * r, cells.min_y * r, cells};
   if (cells.empty()) return belief;
-  const std::int64_t step = filter_->lastUpdateStep();
+  const std::int64_t step = filter_->lastUpdateStep() + horizon_steps;
   const double unknown = filter_->config().unknown_p_occ;
   belief.values.reserve(static_cast<std::size_t>(cells.width() * cells.height()));
   ParticleMap::Reader reader(map);

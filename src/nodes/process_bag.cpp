@@ -10,6 +10,7 @@
 #include <filesystem>
 #include <optional>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "bag_tools.h"
@@ -218,20 +219,26 @@ int run(const Options& options) {
 
   exportLayers(mapper, options, options.out_dir, true);
   if (correction) {
-    // The best particle's own map (its trajectory's scans only), beside the layers of the
-    // scans at the best particle's pose of their time. Empty when no scan gave the filter a
-    // cell (every beam of the scans before the first update unusable).
-    const dog::core::ParticleBelief belief = correction->bestParticleBelief();
-    if (belief.values.empty()) {
-      std::printf("best_particle_belief: the best particle has no cell yet; not written\n");
-    } else {
+    // The best particle's own map (its trajectory's scans only) now and --prediction-horizon
+    // ahead, beside the layers of the scans at the best particle's pose of their time. Empty
+    // when no scan gave the filter a cell (every beam of the scans before the first update
+    // unusable).
+    const auto horizon_steps =
+        static_cast<std::int64_t>(std::llround(options.prediction_horizon_s / options.shared.mapper.time_step_s));
+    for (const auto& [name, horizon] : {std::pair<const char*, std::int64_t>{"best_particle_belief", 0},
+                                        std::pair<const char*, std::int64_t>{"best_particle_predicted", horizon_steps}}) {
+      const dog::core::ParticleBelief belief = correction->bestParticleBelief(horizon);
+      if (belief.values.empty()) {
+        std::printf("%s: the best particle has no cell yet; not written\n", name);
+        continue;
+      }
       std::vector<std::int8_t> occupancy;
       dog::core::toOccupancyValues(belief.values, 1.0f, &occupancy);
-      dog::core::writeMapServerFiles(options.out_dir, "best_particle_belief", belief.window, occupancy);
-      dog::core::writeNpyLayer(options.out_dir, "best_particle_belief", belief.window, belief.values);
-      std::printf("best_particle_belief %lld x %lld cells -> %s/best_particle_belief.pgm (.yaml, .npy)\n",
+      dog::core::writeMapServerFiles(options.out_dir, name, belief.window, occupancy);
+      dog::core::writeNpyLayer(options.out_dir, name, belief.window, belief.values);
+      std::printf("%s %lld x %lld cells -> %s/%s.pgm (.yaml, .npy)\n", name,
                   static_cast<long long>(belief.window.cells.width()),
-                  static_cast<long long>(belief.window.cells.height()), options.out_dir.c_str());
+                  static_cast<long long>(belief.window.cells.height()), options.out_dir.c_str(), name);
     }
   }
   if (correction && !options.offline_em) {

@@ -207,13 +207,14 @@ bool MappingNode::start() {
   if (correction_) {
     effective_sample_size_ = private_nh_.advertise<std_msgs::Float64>("effective_sample_size", 10);
     pose_entropy_ = private_nh_.advertise<std_msgs::Float64>("pose_entropy", 10);
+    const auto connected = [this](const ros::SingleSubscriberPublisher&) {
+      std::lock_guard<std::mutex> lock(mutex_);
+      publishBestParticle(true);
+    };
     best_particle_belief_ = private_nh_.advertise<nav_msgs::OccupancyGrid>(
-        "best_particle_belief", 1,
-        [this](const ros::SingleSubscriberPublisher&) {
-          std::lock_guard<std::mutex> lock(mutex_);
-          publishBestParticle(true);
-        },
-        ros::SubscriberStatusCallback(), ros::VoidConstPtr(), true);
+        "best_particle_belief", 1, connected, ros::SubscriberStatusCallback(), ros::VoidConstPtr(), true);
+    best_particle_predicted_ = private_nh_.advertise<nav_msgs::OccupancyGrid>(
+        "best_particle_predicted", 1, connected, ros::SubscriberStatusCallback(), ros::VoidConstPtr(), true);
     tf_broadcaster_ = std::make_unique<tf2_ros::TransformBroadcaster>();
     ros::NodeHandle correction_nh(private_nh_);
     correction_nh.setCallbackQueue(&correction_queue_);
@@ -844,17 +845,26 @@ void MappingNode::publishTimer(const ros::TimerEvent&) {
 
 void MappingNode::publishBestParticle(bool force) {
   const std::size_t updates = correction_->filter().updates();
-  if (updates == 0 || best_particle_belief_.getNumSubscribers() == 0) return;
+  const bool belief_wanted = best_particle_belief_.getNumSubscribers() > 0;
+  const bool predicted_wanted = best_particle_predicted_.getNumSubscribers() > 0;
+  if (updates == 0 || !(belief_wanted || predicted_wanted)) return;
   if (!force && updates == best_particle_published_updates_) return;
   best_particle_published_updates_ = updates;
-  const core::ParticleBelief belief = correction_->bestParticleBelief();
-  std::vector<std::int8_t> occupancy;
-  core::toOccupancyValues(belief.values, 1.0f, &occupancy);
-  const double step_end_s = correction_->mapper().clock().origin()
-                                ? correction_->mapper().clock().stepStart(correction_->filter().lastUpdateStep() + 1)
-                                : ros::Time::now().toSec();
-  best_particle_belief_.publish(
-      toOccupancyGrid(belief.window, std::move(occupancy), parameters_.fixed_frame, toRosTime(step_end_s)));
+  // Stamped as the layers are: the end of the last update's step, the predicted one too (the
+  // filter's steps are the Mapper's moved by whole steps: its own clock gives the time).
+  const core::StepClock& clock = correction_->filter().clock();
+  const std::int64_t last = correction_->filter().lastUpdateStep();
+  const auto publish = [&](ros::Publisher& publisher, std::int64_t horizon_steps) {
+    const core::ParticleBelief belief = correction_->bestParticleBelief(horizon_steps);
+    std::vector<std::int8_t> occupancy;
+    core::toOccupancyValues(belief.values, 1.0f, &occupancy);
+    const double stamp_s = clock.origin() ? clock.stepStart(last + 1) : ros::Time::now().toSec();
+    publisher.publish(toOccupancyGrid(belief.window, std::move(occupancy), parameters_.fixed_frame, toRosTime(stamp_s)));
+  };
+  if (belief_wanted) publish(best_particle_belief_, 0);
+  if (predicted_wanted) {
+    publish(best_particle_predicted_, horizonSteps(parameters_.prediction_horizon_s, mapper_->config().time_step_s));
+  }
 }
 
 void MappingNode::publishLayers(bool force_full) {

@@ -682,6 +682,31 @@ TEST(CorrectedMapping, TheModelFileHoldsTheBestParticlesMap) {
         }
       }
     }
+    // The best particle's map as the node publishes it, now and 7 steps ahead: the window
+    // of its tiles, each cell predicted from the particle's own state, NaN where unseen.
+    EXPECT_THROW(mapping->bestParticleBelief(-1), std::invalid_argument);
+    for (const std::int64_t horizon : {std::int64_t{0}, std::int64_t{7}}) {
+      const dog::ParticleBelief belief = mapping->bestParticleBelief(horizon);
+      const dog::CellBox tiles = map.bounds();
+      EXPECT_EQ(belief.window.cells.min_x, tiles.min_x);
+      EXPECT_EQ(belief.window.cells.max_y, tiles.max_y);
+      EXPECT_DOUBLE_EQ(belief.window.origin_x_m, tiles.min_x * 0.1);
+      ASSERT_EQ(belief.values.size(), static_cast<std::size_t>(tiles.width() * tiles.height()));
+      std::size_t seen = 0;
+      for (std::int32_t y = tiles.min_y; y <= tiles.max_y; ++y) {
+        for (std::int32_t x = tiles.min_x; x <= tiles.max_x; ++x) {
+          const float value = belief.values[static_cast<std::size_t>((y - tiles.min_y) * tiles.width() + (x - tiles.min_x))];
+          if (map.lastStep(x, y) == dog::kNeverObserved) {
+            EXPECT_TRUE(std::isnan(value));
+            continue;
+          }
+          ++seen;
+          const std::int64_t step = mapping->filter().lastUpdateStep() + horizon;
+          ASSERT_FLOAT_EQ(value, static_cast<float>(map.predicted(x, y, step, mapping->filter().transitions(), 0.5)));
+        }
+      }
+      EXPECT_GT(seen, 1000u);
+    }
     std::cout << "model cells: " << replaced << " from the best particle (" << differ << " differing from the "
               << "Mapper's by > 0.001), " << kept << " the Mapper's\n";
     EXPECT_EQ(cells.replaced, replaced);

@@ -254,6 +254,18 @@ class PoseCorrectionNodeTest(unittest.TestCase):
         print('best particle belief: %d cells known to both maps, %.3f agree' % (known, agree / max(known, 1)))
         self.assertGreater(known, 1000)
         self.assertGreater(agree / known, 0.9)
+        # Its prediction ~prediction_horizon ahead: the same cells known, the same frame, window
+        # and stamp (the layers' rule: the end of the step predicted from).
+        predicted = TopicRecorder(NODE + '/best_particle_predicted', OccupancyGrid).wait_for(clock=self.clock, tick=0.0)
+        self.assertIsNotNone(predicted, 'no best_particle_predicted')
+        self.assertEqual(predicted.header.frame_id, 'map')
+        self.assertEqual(predicted.header.stamp, best.header.stamp)
+        self.assertEqual((predicted.info.width, predicted.info.height), (best.info.width, best.info.height))
+        self.assertEqual(predicted.info.origin.position.x, best.info.origin.position.x)
+        self.assertEqual([v < 0 for v in predicted.data], [v < 0 for v in best.data])
+        print('best particle predicted: %d of %d known cells differ from its belief' %
+              (sum(1 for a, b in zip(predicted.data, best.data) if a >= 0 and a != b),
+               sum(1 for v in best.data if v >= 0)))
 
     def test_04b_saved_model_holds_the_best_particles_map(self):
         """~save_model writes the best particle's own map as the cells' beliefs."""

@@ -479,17 +479,21 @@ class TestSimulate(unittest.TestCase):
         # The layers and the model are written as without correction, and the best particle's
         # own map beside them: on the cells both know, mostly the same side of 0.5.
         for name in ("belief.pgm", "static_map.yaml", "model.dogm", "best_particle_belief.pgm",
-                     "best_particle_belief.yaml"):
+                     "best_particle_belief.yaml", "best_particle_predicted.npy", "best_particle_predicted.yaml"):
             self.assertTrue(os.path.isfile(os.path.join(out, name)), name)
         self.assertIn("best_particle_belief", stdout)
         layers = {}
-        for name in ("belief", "best_particle_belief"):
+        for name in ("belief", "best_particle_belief", "best_particle_predicted"):
             with open(os.path.join(out, name + ".yaml")) as file:
                 meta = yaml.safe_load(file)
             layers[name] = (np.load(os.path.join(out, name + ".npy")), meta["origin"], meta["resolution"])
         (belief, belief_origin, resolution), (best, best_origin, best_resolution) = \
             layers["belief"], layers["best_particle_belief"]
         self.assertEqual(best_resolution, resolution)
+        # The best particle's map --prediction-horizon ahead: its window and unknown cells.
+        predicted = layers["best_particle_predicted"]
+        self.assertEqual(predicted[1:], (best_origin, best_resolution))
+        np.testing.assert_array_equal(np.isnan(predicted[0]), np.isnan(best))
         # The best particle's cells inside the belief layer's window (both on the same lattice).
         dx = int(round((best_origin[0] - belief_origin[0]) / resolution))
         dy = int(round((best_origin[1] - belief_origin[1]) / resolution))

@@ -72,10 +72,11 @@ class CorrectedMapping {
   /// The best particle's trajectory in the map frame (its poses at the filter's updates),
   /// oldest first.
   std::vector<TrajectoryNode> trajectory() const;
-  /// The best particle's own map predicted to the filter's last update, over its tiles (a
-  /// later resampling may pick another particle: the Mapper holds the scans as they came).
-  /// Empty before the first scan.
-  ParticleBelief bestParticleBelief() const;
+  /// The best particle's own map predicted to the filter's last update plus `horizon_steps`
+  /// (>= 0; the node's `predicted` layer's horizon for its `~best_particle_predicted`), over
+  /// its tiles (a later resampling may pick another particle: the Mapper holds the scans as
+  /// they came). Empty before the first scan.
+  ParticleBelief bestParticleBelief(std::int64_t horizon_steps = 0) const;
   /// The Mapper's model file (model_io.h) with the best particle's own map: each cell's
   /// belief is the best particle's, predicted to the cell's last update in the Mapper (with
   /// the filter's transitions), where the particle has observed the cell by then; the rest

@@ -149,8 +149,8 @@ class MappingNode {
   /// (Re)starts the pose correction on mapper_ (at start, a new mapper, time jumping back),
   /// keeping the map -> odom transform in use; caller holds mutex_.
   void restartCorrection();
-  /// ~best_particle_belief when the filter has updated since it was last sent and someone
-  /// listens (or `force`); caller holds mutex_.
+  /// ~best_particle_belief and ~best_particle_predicted (each if someone listens) when the
+  /// filter has updated since they were last sent (or `force`); caller holds mutex_.
   void publishBestParticle(bool force);
   /// ~fixed_frame -> ~odom_frame, the latest correction, stamped now + ~rbpf/transform_tolerance.
   void publishCorrection(const ros::TimerEvent& event);
@@ -243,6 +243,7 @@ class MappingNode {
   ros::Publisher effective_sample_size_;  ///< ~effective_sample_size, at each filter update
   ros::Publisher pose_entropy_;           ///< ~pose_entropy, at each filter update
   ros::Publisher best_particle_belief_;   ///< ~best_particle_belief (latched), after filter updates
+  ros::Publisher best_particle_predicted_;  ///< ~best_particle_predicted (latched), with it
   std::size_t best_particle_published_updates_ = 0;  ///< the filter's updates when it was last sent
   double last_effective_sample_size_ = 0.0;  ///< of the last filter update, before resampling
 
