@@ -426,7 +426,9 @@ void MappingNode::scanCallback(const sensor_msgs::LaserScan::ConstPtr& msg) {
   scan.range_max_m = std::min(scan.range_max_m, parameters_.max_range_m);
 
   std::lock_guard<std::mutex> lock(mutex_);
-  const bool memory_integrated = memory_ && integrateMemory(scan, msg->header.frame_id);
+  // With pose correction (~model both) the memory model maps the scan after the filter, at
+  // the corrected pose.
+  const bool memory_integrated = memory_ && !correction_ && integrateMemory(scan, msg->header.frame_id);
   if (!mapper_) {
     if (memory_integrated) ++scan_counts_.integrated;
     return;
@@ -454,7 +456,9 @@ void MappingNode::scanCallback(const sensor_msgs::LaserScan::ConstPtr& msg) {
     newest_stamp_s_.reset();
     steady_since_restart_s_ = 0.0;
   }
-  const core::ScanResult result = integrateHmm(scan);
+  std::optional<core::Scan> corrected;
+  const core::ScanResult result = integrateHmm(scan, &corrected);
+  if (memory_ && corrected) integrateMemory(*corrected, msg->header.frame_id);
   if (result.status != core::ScanStatus::kIntegrated) {
     ++(result.status == core::ScanStatus::kRejectedTimeBackwards ? scan_counts_.dropped_late
                                                                   : scan_counts_.dropped_invalid);
@@ -472,7 +476,7 @@ void MappingNode::scanCallback(const sensor_msgs::LaserScan::ConstPtr& msg) {
   }
 }
 
-core::ScanResult MappingNode::integrateHmm(const core::Scan& scan) {
+core::ScanResult MappingNode::integrateHmm(const core::Scan& scan, std::optional<core::Scan>* corrected_scan) {
   if (!correction_) return mapper_->integrate(scan);
   core::CorrectedScan corrected;
   try {
@@ -483,6 +487,7 @@ core::ScanResult MappingNode::integrateHmm(const core::Scan& scan) {
     refused.error = std::string("pose correction: ") + e.what();
     return refused;
   }
+  *corrected_scan = corrected.corrected;
   if (corrected.update.updated) {
     {
       std::lock_guard<std::mutex> lock(correction_mutex_);

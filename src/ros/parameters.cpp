@@ -381,8 +381,8 @@ bool readParameters(const ros::NodeHandle& private_nh, NodeParameters* parameter
   read.require(!p.pose_correction || p.odom_frame != p.fixed_frame, "odom_frame",
                "must differ from ~fixed_frame with ~pose_correction rbpf (the node publishes " + p.fixed_frame +
                    " -> " + p.odom_frame + ")");
-  read.require(!p.pose_correction || p.model == MapModel::kHmm, "pose_correction",
-               "rbpf needs ~model hmm: the pose filter's transitions are the cell HMM's");
+  read.require(!p.pose_correction || p.model != MapModel::kMemory, "pose_correction",
+               "rbpf needs ~model hmm or both: the pose filter's transitions are the cell HMM's");
   read.require(p.transform_publish_period_s > 0.0 && p.transform_publish_period_s <= 3600.0,
                "rbpf/transform_publish_period", "must be in (0, 3600] s");
   read.require(p.transform_tolerance_s >= 0.0 && p.transform_tolerance_s <= 60.0, "rbpf/transform_tolerance",

@@ -145,7 +145,9 @@ class MappingNode {
   /// ~fixed_frame.
   const std::string& laserPoseFrame() const;
   /// The scan into the cell HMM, through the pose correction if on; caller holds mutex_.
-  core::ScanResult integrateHmm(const core::Scan& scan);
+  /// With pose correction, `corrected_scan` gets the scan at the corrected pose once the
+  /// filter has taken it (whatever the map then does with it).
+  core::ScanResult integrateHmm(const core::Scan& scan, std::optional<core::Scan>* corrected_scan);
   /// (Re)starts the pose correction on mapper_ (at start, a new mapper, time jumping back),
   /// keeping the map -> odom transform in use; caller holds mutex_.
   void restartCorrection();
