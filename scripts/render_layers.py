@@ -11,7 +11,8 @@ nav_msgs/OccupancyGrid), NaN for cells never observed (drawn light grey). The ma
 <layer>.yaml next to it gives resolution and origin: the axes are then in metres of the fixed
 frame, with a scale bar; without it they count cells.
 
-Colour scales: the probabilities (belief, predicted, stationary, static_map, ltm, stm)
+Colour scales: the probabilities (belief, predicted, stationary, static_map, ltm, stm,
+best_particle_belief, best_particle_predicted)
 linear from 0 to 1; the transition layers (p_occ_given_free, p_free_given_occ: probability
 of a change per time step) logarithmic, from the smallest positive value (at least 1e-6) to
 the largest (at least ten times more); values below (0) are black, the bar's arrow.
@@ -46,6 +47,8 @@ PROBABILITY_LAYERS = {
     "static_map": "p(occ), static occupancy grid",
     "ltm": "p(occ), long-term memory",
     "stm": "p(occ), short-term memory",
+    "best_particle_belief": "p(occ) now, the pose filter's best particle",
+    "best_particle_predicted": "p(occ) at the prediction horizon, the best particle",
 }
 UNKNOWN_COLOUR = "#d9d9d9"
 MIN_LOG_VALUE = 1e-6

@@ -107,6 +107,11 @@ class TestRenderLayers(unittest.TestCase):
         self.assertEqual(norm.vmin, 2.0 ** -16)
         self.assertEqual(norm.vmax, 0.5)
         self.assertIn("log", label)
+        # The pose filter's best particle's layers (process_bag --pose-correction) are named.
+        for name in ("best_particle_belief", "best_particle_predicted"):
+            norm, _, label = render_layers.colour_scale(name, np.array([[0.2, 0.9]]))
+            self.assertEqual((norm.vmin, norm.vmax), (0.0, 1.0))
+            self.assertIn("best particle", label)
         self.assertEqual(render_layers.read_geometry(os.path.join(self.layers, "belief.npy")),
                          (0.1, -0.3, 1.2))
         self.assertEqual(render_layers.nice_length(0.7), 0.1)
