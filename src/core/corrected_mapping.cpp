@@ -48,8 +48,9 @@ CorrectedScan CorrectedMapping::integrate(const Scan& odometry_scan) {
   Scan shifted = odometry_scan;
   shifted.laser_pose = wrapped(composePose(start_correction_, odometry_scan.laser_pose));
   if (!filter_->started()) {
-    // The filter's steps are the Mapper's, moved by whole steps: step 0 starts where the
-    // Mapper's step of this scan does (at the scan on a fresh Mapper).
+    // The filter's steps are the Mapper's, moved by whole steps (up to rounding at a step's
+    // border): step 0 starts where the Mapper's step of this scan does (at the scan on a
+    // fresh Mapper).
     const StepClock& clock = mapper_.clock();
     const double stamp = odometry_scan.stamp_s;
     double origin = stamp;

@@ -623,14 +623,17 @@ std::string serializeModel(const Mapper& mapper, const CellBeliefOverride& belie
     writer.f32(tile.log_odds[i]);
     writer.f32(tile.p_occ_given_free[i]);
     writer.f32(tile.p_free_given_occ[i]);
-    if (p_occ && kinds) {
-      // Each kind keeps its mass; its state follows the new belief (index 2 k: occupied).
-      for (int k = 0; k < kKindCount; ++k) {
+    if (p_occ) {
+      // The learner's state is a joint with the cell's state now: each kind (kinds) or each
+      // pair of states of a past transition (online EM's S(i, j, m), m last) keeps its mass,
+      // split over the state now by the new belief (index 0 of each pair: occupied).
+      const int pairs = kinds ? kKindCount : 4;
+      for (int k = 0; k < pairs; ++k) {
         const double mass = double{tile.em_stats[2 * k][i]} + tile.em_stats[2 * k + 1][i];
         writer.f32(static_cast<float>(mass * *p_occ));
         writer.f32(static_cast<float>(mass * (1.0 - *p_occ)));
       }
-      for (int k = 2 * kKindCount; k < kLearnerStateSize; ++k) writer.f32(tile.em_stats[k][i]);
+      for (int k = 2 * pairs; k < kLearnerStateSize; ++k) writer.f32(tile.em_stats[k][i]);
     } else {
       for (const auto& state : tile.em_stats) writer.f32(state[i]);
     }

@@ -276,8 +276,7 @@ void PoseFilter::mapEvidence(ParticleMap& map, const std::vector<CellEvidence>& 
 
 void PoseFilter::startStepsAt(double origin_s) {
   if (last_odometry_) throw std::logic_error("PoseFilter::startStepsAt: the filter has started");
-  clock_ = StepClock(config_.time_step_s);
-  clock_.startAt(origin_s);
+  steps_origin_s_ = origin_s;
 }
 
 PoseUpdate PoseFilter::integrate(const Scan& scan) {
@@ -285,15 +284,19 @@ PoseUpdate PoseFilter::integrate(const Scan& scan) {
   PoseUpdate result;
   const Pose2D& odometry = scan.laser_pose;
   if (!last_odometry_) {
-    if (clock_.origin() && !(scan.stamp_s >= *clock_.origin() && clock_.stepOf(scan.stamp_s) == 0)) {
+    // Nothing changes before the scan is known to be usable (a refused first scan leaves the
+    // filter as it was).
+    StepClock clock(config_.time_step_s);
+    clock.startAt(steps_origin_s_.value_or(scan.stamp_s));
+    if (!(scan.stamp_s >= *clock.origin() && clock.stepOf(scan.stamp_s) == 0)) {
       throw std::invalid_argument("PoseFilter: the first scan's stamp " + std::to_string(scan.stamp_s) +
-                                  " is not in step 0, which starts at " + std::to_string(*clock_.origin()));
+                                  " is not in step 0, which starts at " + std::to_string(*clock.origin()));
     }
-    clock_.startAt(scan.stamp_s);
     Particle first;
     first.pose = odometry;
     const std::vector<CellEvidence> evidence =
         scanEvidence(scan, odometry, config_.resolution_m, config_.max_free_range_m, config_.max_range_m);
+    clock_ = clock;
     mapEvidence(first.map, evidence, 0);
     first.trajectory = std::make_shared<const TrajectoryNode>(TrajectoryNode{scan.stamp_s, odometry, nullptr});
     std::fill(particles_.begin(), particles_.end(), first);  // every map shares the first's tiles

@@ -605,31 +605,44 @@ TEST(PoseFilter, BestAfterResamplingIsTheBestBefore) {
 TEST(CorrectedMapping, TheModelFileHoldsTheBestParticlesMap) {
   // A drive with a restart halfway (a new filter on the same Mapper, as the node's ~reset
   // of the correction or a loaded model: its first scan is 0.4 of a step into the Mapper's
-  // step) and a Mapper whose lattice is 50 cells off the filter's. The saved model must
+  // step) and a Mapper lattice 50 (or 50.3) cells off the filter's. The saved model must
   // hold, in each cell the best particle has observed by the Mapper's last update of it,
-  // the particle's belief (compared at a later step, each predicted its own way); in every
-  // other cell the Mapper's; and the rest of every cell unchanged.
-  for (const dog::TransitionLearner learner : {dog::TransitionLearner::kCellEm, dog::TransitionLearner::kKinds}) {
-    SCOPED_TRACE(learner == dog::TransitionLearner::kKinds ? "kinds" : "cell_em");
+  // the particle's belief; in every other cell the Mapper's; the learner's state split over
+  // the state now by the saved belief, each part keeping its mass; the rest of every cell
+  // unchanged. With every cell's transitions in use (gate 1) the saved belief is compared
+  // with the particle's at a later step, each predicted its own way; with a gate of 3
+  // observed steps (cells seen less are static to the filter) at the cell's last step.
+  struct Run {
+    dog::TransitionLearner learner;
+    std::uint32_t min_observed_steps;
+    double origin_m;
+  };
+  for (const Run run : {Run{dog::TransitionLearner::kCellEm, 1, -5.0}, Run{dog::TransitionLearner::kKinds, 1, -5.0},
+                        Run{dog::TransitionLearner::kCellEm, 3, -5.03}}) {
+    const dog::TransitionLearner learner = run.learner;
+    SCOPED_TRACE(std::string(learner == dog::TransitionLearner::kKinds ? "kinds" : "cell_em") + ", gate " +
+                 std::to_string(run.min_observed_steps));
     const std::vector<Box> boxes = room();
     dog::MapperConfig mapper_config;
     mapper_config.resolution_m = 0.1;
     mapper_config.time_step_s = 1.0;
-    mapper_config.origin_x_m = -5.0;  // the Mapper's cell x is the filter's x - 50
-    mapper_config.origin_y_m = -5.0;
+    mapper_config.origin_x_m = run.origin_m;
+    mapper_config.origin_y_m = run.origin_m;
     mapper_config.prior_transitions = {0.05, 0.05};
     mapper_config.learner = learner;
     dog::Mapper mapper(mapper_config);
     dog::PoseFilterConfig config = dog::poseFilterConfigFor(mapper_config, driveConfig());
     config.particles = 8;
-    auto mapping = std::make_unique<dog::CorrectedMapping>(mapper, config, 1);
+    auto mapping = std::make_unique<dog::CorrectedMapping>(mapper, config, run.min_observed_steps);
     EXPECT_EQ(mapping->serializeModel(), dog::serializeModel(mapper));  // nothing mapped yet
     std::mt19937_64 rng(5);
     dog::Pose2D truth{2.0, 2.0, 0.0};
     constexpr int kRestart = 18;
     const double restart_stamp = 0.3 * kRestart + 0.1;
     for (int i = 0; i < 36; ++i) {
-      if (i == kRestart) mapping = std::make_unique<dog::CorrectedMapping>(mapper, config, 1, mapping->mapToOdometry());
+      if (i == kRestart) {
+        mapping = std::make_unique<dog::CorrectedMapping>(mapper, config, run.min_observed_steps, mapping->mapToOdometry());
+      }
       truth = dog::applyMotion(truth, dog::OdometryMotion{0.05, 0.15, -0.02});
       const dog::CorrectedScan result = mapping->integrate(simulatedScan(boxes, truth, 0.3 * i + 0.1, rng, 0.01));
       ASSERT_EQ(result.mapped.status, dog::ScanStatus::kIntegrated) << result.mapped.error;
@@ -644,6 +657,7 @@ TEST(CorrectedMapping, TheModelFileHoldsTheBestParticlesMap) {
     const std::unique_ptr<dog::Mapper> loaded = dog::deserializeModel(mapping->serializeModel(&cells));
     const std::int64_t later = *mapper.lastAppliedStep() + 3;
     const dog::ParticleMap& map = mapping->filter().best().map;
+    const dog::TransitionSource& transitions = mapping->filter().transitions();
     std::size_t replaced = 0;
     std::size_t kept = 0;
     std::size_t differ = 0;
@@ -659,25 +673,35 @@ TEST(CorrectedMapping, TheModelFileHoldsTheBestParticlesMap) {
         EXPECT_EQ(saved->p_occ_given_free, cell->p_occ_given_free);
         EXPECT_EQ(saved->p_free_given_occ, cell->p_free_given_occ);
         EXPECT_EQ(saved->observed_steps, cell->observed_steps);
-        const std::int32_t particle_step = map.lastStep(x - 50, y - 50);
+        // The filter's cell holding this cell's centre (the lattices' corners differ by 50 or
+        // 50.3 cells).
+        const auto px = static_cast<std::int32_t>(std::floor((run.origin_m + (x + 0.5) * 0.1) / 0.1));
+        const auto py = static_cast<std::int32_t>(std::floor((run.origin_m + (y + 0.5) * 0.1) / 0.1));
+        ASSERT_EQ(px, x - 50);
+        const std::int32_t particle_step = map.lastStep(px, py);
         const bool from_particle = particle_step != dog::kNeverObserved && particle_step <= cell->last_step - offset;
         if (from_particle) {
           ++replaced;
-          const double particle = map.predicted(x - 50, y - 50, later - offset, mapping->filter().transitions(), 0.5);
-          ASSERT_NEAR(loaded->beliefAt(x, y, later), particle, 1e-5) << x << ", " << y;
-          differ += std::abs(particle - mapper.beliefAt(x, y, later)) > 1e-3 ? 1 : 0;
+          if (run.min_observed_steps == 1) {
+            const double particle = map.predicted(px, py, later - offset, transitions, 0.5);
+            ASSERT_NEAR(loaded->beliefAt(x, y, later), particle, 1e-5) << x << ", " << y;
+            differ += std::abs(particle - mapper.beliefAt(x, y, later)) > 1e-3 ? 1 : 0;
+          } else {
+            const double particle = map.predicted(px, py, cell->last_step - offset, transitions, 0.5);
+            ASSERT_FLOAT_EQ(saved->p_occ, static_cast<float>(particle)) << x << ", " << y;
+            differ += std::abs(particle - cell->p_occ) > 1e-3 ? 1 : 0;
+          }
+          // The learner's state: each kind, or each past transition i -> j, keeps its mass,
+          // split over the state now by the saved belief.
+          const int pairs = learner == dog::TransitionLearner::kKinds ? dog::kKindCount : 4;
+          for (int k = 0; k < pairs; ++k) {
+            const double mass = double{cell->em_stats[2 * k]} + cell->em_stats[2 * k + 1];
+            EXPECT_NEAR(saved->em_stats[2 * k] + saved->em_stats[2 * k + 1], mass, 1e-5 * std::max(1.0, mass));
+            EXPECT_NEAR(saved->em_stats[2 * k], mass * saved->p_occ, 1e-5 * std::max(1.0, mass));
+          }
         } else {
           ++kept;
           ASSERT_EQ(loaded->beliefAt(x, y, later), mapper.beliefAt(x, y, later)) << x << ", " << y;
-        }
-        if (from_particle && learner == dog::TransitionLearner::kKinds) {
-          // Each kind keeps its mass; its state follows the saved belief.
-          for (int k = 0; k < dog::kKindCount; ++k) {
-            const double mass = double{cell->em_stats[2 * k]} + cell->em_stats[2 * k + 1];
-            EXPECT_NEAR(saved->em_stats[2 * k] + saved->em_stats[2 * k + 1], mass, 1e-6);
-            EXPECT_NEAR(saved->em_stats[2 * k], mass * saved->p_occ, 1e-6);
-          }
-        } else {
           EXPECT_EQ(saved->em_stats, cell->em_stats);
         }
       }
@@ -743,6 +767,21 @@ TEST(PoseFilter, StepsStartWhereTheyAreTold) {
   EXPECT_THROW(outside.integrate(first), std::invalid_argument);
   outside.startStepsAt(10.8);  // after the stamp
   EXPECT_THROW(outside.integrate(first), std::invalid_argument);
+  outside.startStepsAt(10.5);  // replaces the earlier origins
+  outside.integrate(first);
+  EXPECT_EQ(*outside.clock().origin(), 10.5);
+  // A first scan refused (a laser beyond any lattice) leaves the filter unstarted, its
+  // clock too: a later first scan in another step starts it.
+  dog::PoseFilter untold(config, transitions);
+  dog::Scan far = first;
+  far.laser_pose.x_m = 2.0e9;
+  EXPECT_THROW(untold.integrate(far), std::invalid_argument);
+  EXPECT_FALSE(untold.started());
+  EXPECT_FALSE(untold.clock().origin().has_value());
+  dog::Scan later_first = first;
+  later_first.stamp_s = 15.0;
+  untold.integrate(later_first);
+  EXPECT_EQ(*untold.clock().origin(), 15.0);
   dog::PoseFilter filter(config, transitions);
   filter.startStepsAt(10.0);
   filter.integrate(first);

@@ -312,7 +312,8 @@ class PoseCorrectionNodeTest(unittest.TestCase):
         self.assertEqual(replaced + kept, model.cell_count)
         self.assertGreater(replaced, 0.5 * model.cell_count)
         # Predicted to the model's last step, the beliefs are on best_particle_belief's side of
-        # 0.5 (it is predicted to the filter's last update, at most a few steps earlier).
+        # 0.5 (it is predicted to the filter's last update, at most a few steps earlier) in
+        # more cells than the node's belief layer is (what a model without them would hold).
         best = TopicRecorder(NODE + '/best_particle_belief', OccupancyGrid).wait_for(clock=self.clock, tick=0.0)
         self.assertIsNotNone(best, 'no best_particle_belief')
         p, a, b = (model[name].astype(float) for name in ('p_occ', 'p_occ_given_free', 'p_free_given_occ'))
@@ -329,10 +330,19 @@ class PoseCorrectionNodeTest(unittest.TestCase):
                                                                                                 cols[inside]]
         decided = (values >= 0) & (values != 50)
         same = int(np.count_nonzero((now[inside][decided] > 0.5) == (values[decided] > 50)))
-        print('saved model: %d cells from the best particle, %d kept; %d of %d agree with best_particle_belief' %
-              (replaced, kept, same, int(np.count_nonzero(decided))))
+        belief = self.belief.wait_for(lambda msg: msg.header.stamp.to_sec() >= self.records[-1][0].header.stamp.to_sec() - 2,
+                                      clock=self.clock, tick=0.05)
+        x_m = (model.config['origin_x_m'] + (model.x + 0.5) * resolution)[inside][decided]
+        y_m = (model.config['origin_y_m'] + (model.y + 0.5) * resolution)[inside][decided]
+        bx = np.floor((x_m - belief.info.origin.position.x) / belief.info.resolution).astype(np.int64)
+        by = np.floor((y_m - belief.info.origin.position.y) / belief.info.resolution).astype(np.int64)
+        layer = np.asarray(belief.data, dtype=np.int64).reshape(belief.info.height, belief.info.width)[by, bx]
+        layer_same = int(np.count_nonzero((layer > 50) == (values[decided] > 50)))
+        print('saved model: %d cells from the best particle, %d kept; %d of %d agree with best_particle_belief, '
+              'the belief layer %d' % (replaced, kept, same, int(np.count_nonzero(decided)), layer_same))
         self.assertGreater(np.count_nonzero(decided), 1000)
         self.assertGreater(same, 0.99 * np.count_nonzero(decided))
+        self.assertGreater(same, layer_same)
 
     def test_05_bad_parameters(self):
         assert_bad_parameters_stop_node(self, [

@@ -509,8 +509,10 @@ class TestSimulate(unittest.TestCase):
         self.assertGreater(agree, 0.9 * both)
         # The model's beliefs are the best particle's own map where it saw the cell by the
         # mapper's last update of it (process_bag says how many): predicted to the model's last
-        # step, they are on best_particle_belief's side of 0.5 in those cells (it is predicted
-        # to the filter's last update, a few steps earlier at most).
+        # step, they are on best_particle_belief's side of 0.5 (predicted to the filter's last
+        # update, a few steps earlier at most) in more cells than the belief layer is (the
+        # map along the best particle's poses as the scans came, which a model without the
+        # particle's beliefs would hold).
         counted = re.search(r"beliefs of (\d+) cells from the best particle's map, (\d+) kept", stdout)
         self.assertIsNotNone(counted, stdout)
         model = load_model(os.path.join(out, "model.dogm"))
@@ -526,8 +528,14 @@ class TestSimulate(unittest.TestCase):
         particle = best[rows[inside], cols[inside]]
         seen = ~np.isnan(particle)
         same = int(np.count_nonzero((now[inside][seen] > 0.5) == (particle[seen] > 0.5)))
-        print(f"the model's beliefs agree with best_particle_belief on {same} of {int(np.count_nonzero(seen))} cells")
+        layer_cols = model.x.astype(np.int64) + int(round((model.config["origin_x_m"] - belief_origin[0]) / resolution))
+        layer_rows = model.y.astype(np.int64) + int(round((model.config["origin_y_m"] - belief_origin[1]) / resolution))
+        layer = belief[layer_rows[inside][seen], layer_cols[inside][seen]]
+        layer_same = int(np.count_nonzero((layer > 0.5) == (particle[seen] > 0.5)))
+        print(f"the model's beliefs agree with best_particle_belief on {same} of {int(np.count_nonzero(seen))} cells, "
+              f"the belief layer on {layer_same}")
         self.assertGreater(same, 0.99 * np.count_nonzero(seen))
+        self.assertGreater(same, layer_same)
 
         # The options' checks.
         for args, named in ((["--pose-correction", "amcl"], "--pose-correction"),

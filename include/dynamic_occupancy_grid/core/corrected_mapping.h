@@ -43,8 +43,9 @@ struct ParticleBelief {
 /// particle's own map, and those it kept the Mapper's belief in.
 struct BestParticleCells {
   std::size_t replaced = 0;
-  /// The particle has not observed the cell, or has observed it after the Mapper's last
-  /// update of it (the Mapper's step being gathered: the model holds the applied steps).
+  /// The particle had not observed the cell by the Mapper's last update of it: never, or
+  /// only later (its last update of the cell is in the Mapper's step being gathered, which
+  /// a model does not hold).
   std::size_t kept = 0;
 };
 
@@ -80,8 +81,9 @@ class CorrectedMapping {
   /// The Mapper's model file (model_io.h) with the best particle's own map: each cell's
   /// belief is the best particle's, predicted to the cell's last update in the Mapper (with
   /// the filter's transitions), where the particle has observed the cell by then; the rest
-  /// of the cell (transitions, learner, static baseline) and the cells the particle has not
-  /// observed are the Mapper's. Before the first scan, serializeModel(mapper()).
+  /// of the cell (transitions, static baseline; the learner state split over the state now
+  /// by the new belief: serializeModel's CellBeliefOverride) and the other cells are the
+  /// Mapper's. Before the first scan, serializeModel(mapper()).
   std::string serializeModel(BestParticleCells* cells = nullptr) const;
   const PoseFilter& filter() const { return *filter_; }
   const Mapper& mapper() const { return mapper_; }

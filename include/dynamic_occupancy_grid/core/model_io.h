@@ -37,9 +37,10 @@ std::string serializeModel(const Mapper& mapper);
 using CellBeliefOverride =
     std::function<std::optional<float>(std::int32_t x, std::int32_t y, std::int32_t last_step)>;
 /// serializeModel with each cell's belief from `belief` where it gives one (the pose filter's
-/// best particle: corrected_mapping.h). The cell keeps everything else; with the learner
-/// kKinds each kind keeps its mass and its state follows the new belief (as
-/// Mapper::applyOfflineEm's final beliefs do). Throws std::invalid_argument for a belief
+/// best particle: corrected_mapping.h). The cell keeps everything else but its learner
+/// state's split over the state now: each kind (kKinds, as Mapper::applyOfflineEm's final
+/// beliefs do) or each past transition i -> j (kCellEm's S(i, j, m)) keeps its mass, split
+/// by the new belief. Throws std::invalid_argument for a belief
 /// outside [0, 1] (nothing is written).
 std::string serializeModel(const Mapper& mapper, const CellBeliefOverride& belief);
 /// A Mapper holding the model in `bytes`. Throws std::runtime_error with a clear message for

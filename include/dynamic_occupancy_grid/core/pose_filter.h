@@ -144,12 +144,14 @@ class PoseFilter {
   /// scan puts every particle at that pose (the map frame starts at odometry's) and maps
   /// it; a later one updates the particles once odometry has moved enough (else it is not
   /// used). Stamps must not go back past the first scan's step. Throws
-  /// std::invalid_argument for a scan scanFieldsError refuses or a stamp before step 0.
+  /// std::invalid_argument (nothing changed) for a scan scanFieldsError or scanEvidence
+  /// refuses, a stamp before the last update's step, or a first scan outside step 0 of
+  /// startStepsAt's origin.
   PoseUpdate integrate(const Scan& scan);
   /// Before the first scan: step 0 starts at `origin_s` instead of at the first scan's
   /// stamp, which must then be in step 0 (integrate throws std::invalid_argument otherwise),
-  /// so that the filter's steps are another clock's (a Mapper's) moved by whole steps.
-  /// Throws std::logic_error once started.
+  /// so that the filter's steps are another clock's (a Mapper's) moved by whole steps. A
+  /// later call before the first scan replaces it. Throws std::logic_error once started.
   void startStepsAt(double origin_s);
 
   const PoseFilterConfig& config() const { return config_; }
@@ -175,7 +177,8 @@ class PoseFilter {
   /// The step of the last update (0 before the first scan's).
   std::int64_t lastUpdateStep() const { return last_step_; }
   std::size_t resamplings() const { return resamplings_; }
-  /// The filter's steps: step 0 starts at the first scan's stamp.
+  /// The filter's steps (started by the first scan): step 0 starts at startStepsAt's origin,
+  /// or else at the first scan's stamp.
   const StepClock& clock() const { return clock_; }
 
  private:
@@ -202,6 +205,7 @@ class PoseFilter {
   std::vector<Particle> particles_;
   std::optional<Pose2D> last_odometry_;  ///< at the last update
   std::int64_t last_step_ = 0;           ///< the last update's step
+  std::optional<double> steps_origin_s_;  ///< startStepsAt's, until the first scan
   std::size_t updates_ = 0;
   std::size_t resamplings_ = 0;
 };
