@@ -371,6 +371,17 @@ class WallScene(object):
         frame = scan.header.frame_id
         self._published_by_frame[frame] = self._published_by_frame.get(frame, 0) + 1
 
+    def rebase_after_untracked(self):
+        """After scans published past publish() (a frame without a transform, which the tf
+        filter drops when its queue overflows): the node's processed count then includes those
+        drops, and sync would count them for scans it should still wait for (a later step's
+        scan then dropped as late, seen under the sanitizers). Re-reads the count as the
+        base of the scans publish() counted so far."""
+        self.sync()
+        tracked = sum(count for frame, count in self._published_by_frame.items() if frame in self._static_transforms)
+        self._processed = self._node_processed()
+        self._processed_base = self._processed - tracked
+
     def _node_processed(self):
         status = self.service('get_status')()
         return (status.scans_integrated + status.scans_dropped_tf + status.scans_dropped_invalid +
