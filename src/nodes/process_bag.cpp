@@ -93,13 +93,18 @@ Options parseArguments(int argc, char** argv) {
   return options;
 }
 
+// --prediction-horizon in the mapper's time steps.
+std::int64_t horizonSteps(const Options& options) {
+  return static_cast<std::int64_t>(std::llround(options.prediction_horizon_s / options.shared.mapper.time_step_s));
+}
+
 // All six layers at the mapper's last applied step into `directory` (PGM + YAML + .npy);
 // with `report`, one line per layer on stdout.
 void exportLayers(const dog::core::Mapper& mapper, const Options& options, const std::string& directory, bool report) {
   using dog::core::Layer;
   std::filesystem::create_directories(directory);
   const std::int64_t step = *mapper.lastAppliedStep();
-  const auto horizon_steps = static_cast<std::int64_t>(std::llround(options.prediction_horizon_s / options.shared.mapper.time_step_s));
+  const std::int64_t horizon_steps = horizonSteps(options);
   const dog::core::CellBox box = mapper.grid().bounds();
   const dog::core::MapWindow window = mapper.grid().window(box);
   std::vector<float> values;
@@ -223,10 +228,8 @@ int run(const Options& options) {
     // ahead, beside the layers of the scans at the best particle's pose of their time. Empty
     // when no scan gave the filter a cell (every beam of the scans before the first update
     // unusable).
-    const auto horizon_steps =
-        static_cast<std::int64_t>(std::llround(options.prediction_horizon_s / options.shared.mapper.time_step_s));
     for (const auto& [name, horizon] : {std::pair<const char*, std::int64_t>{"best_particle_belief", 0},
-                                        std::pair<const char*, std::int64_t>{"best_particle_predicted", horizon_steps}}) {
+                                        std::pair<const char*, std::int64_t>{"best_particle_predicted", horizonSteps(options)}}) {
       const dog::core::ParticleBelief belief = correction->bestParticleBelief(horizon);
       if (belief.values.empty()) {
         std::printf("%s: the best particle has no cell yet; not written\n", name);
