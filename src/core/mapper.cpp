@@ -111,6 +111,8 @@ void MapperConfig::validate() const {
               std::to_string(sensor_model_mixed_step_probability));
   require(clipped_corner_chord >= 0.0 && clipped_corner_chord <= 1.5,
           "clipped_corner_chord must be in [0, 1.5], got " + std::to_string(clipped_corner_chord));
+  require(end_miss_margin_cells >= 0 && end_miss_margin_cells <= 16,
+          "end_miss_margin_cells must be in [0, 16], got " + std::to_string(end_miss_margin_cells));
   require(std::isfinite(prior_population_weight) && prior_population_weight > 0.0,
           "prior_population_weight must be > 0, got " + std::to_string(prior_population_weight));
   require(online_em.min_observed_steps <= std::numeric_limits<std::uint16_t>::max(),
@@ -229,14 +231,22 @@ ScanResult Mapper::integrate(const Scan& scan) {
     CellGrid::Tile* tile = tile_of(end.x, end.y);
     // The last pending cell is the one just before the end cell when no cell of the beam
     // was outside the map (a beam that leaves the map, or ends outside it, clips nothing).
-    bool clipped = false;
-    if (beam.hit && config_.clipped_corner_chord > 0.0 && pending_count > 0 && tile != nullptr &&
-        result.cells_outside == outside_before) {
-      const auto& [last_tile, last_offset] = pending[(pending_count - 1) % kMissLookahead];
-      clipped = chordThroughCell(last_tile->cellX(last_offset), last_tile->cellY(last_offset), u0, v0, beam.u1,
-                                 beam.v1) < config_.clipped_corner_chord;
+    // A beam without return drops its end cell's miss and N - 1 of the cells before it.
+    const bool margin = config_.end_miss_margin_cells > 0 && tile != nullptr && result.cells_outside == outside_before;
+    const bool drop_end = margin && !beam.hit;
+    std::size_t dropped = 0;
+    if (margin) {
+      dropped = std::min(pending_count, static_cast<std::size_t>(config_.end_miss_margin_cells - (drop_end ? 1 : 0)));
+    } else if (beam.hit && pending_count > 0 && tile != nullptr && result.cells_outside == outside_before) {
+      if (config_.clipped_corner_chord > 0.0) {
+        const auto& [last_tile, last_offset] = pending[(pending_count - 1) % kMissLookahead];
+        dropped = chordThroughCell(last_tile->cellX(last_offset), last_tile->cellY(last_offset), u0, v0, beam.u1,
+                                   beam.v1) < config_.clipped_corner_chord
+                      ? 1
+                      : 0;
+      }
     }
-    const std::size_t counted = clipped ? pending_count - 1 : pending_count;
+    const std::size_t counted = pending_count - dropped;
     for (std::size_t k = pending_count > kMissLookahead ? pending_count - kMissLookahead : 0; k < counted; ++k) {
       const auto& slot = pending[k % kMissLookahead];
       markMiss(*slot.first, slot.second);
@@ -246,7 +256,7 @@ ScanResult Mapper::integrate(const Scan& scan) {
       ++result.cells_outside;
     } else if (beam.hit) {
       markHit(*tile, CellGrid::offsetOf(end.x, end.y));
-    } else {
+    } else if (!drop_end) {
       markMiss(*tile, CellGrid::offsetOf(end.x, end.y));
     }
   }

@@ -128,6 +128,9 @@ void PoseCorrectionConfig::validate() const {
   if (!(learner_max_spread_m >= 0.0) || !std::isfinite(learner_max_spread_m)) {
     throw std::invalid_argument("PoseCorrectionConfig: learner_max_spread_m must be finite and >= 0");
   }
+  if (learner_end_miss_margin_cells < 0 || learner_end_miss_margin_cells > 16) {
+    throw std::invalid_argument("PoseCorrectionConfig: learner_end_miss_margin_cells must be in [0, 16]");
+  }
   odometry_noise.validate();
   if (relative_error_scans < 1) throw std::invalid_argument("PoseCorrectionConfig: relative_error_scans must be >= 1");
   filter.validate();
@@ -143,7 +146,9 @@ PoseCorrectionResult runPoseCorrection(const PoseCorrectionConfig& config) {
   const MapperConfig mapper_config = evaluationMapperConfig(scenario);
   Mapper known(mapper_config);
   Mapper dead_reckoning(mapper_config);
-  Mapper learner(mapper_config);  // the package's learner on the scans at rbpf_hmm's poses
+  MapperConfig learner_config = mapper_config;
+  learner_config.end_miss_margin_cells = config.learner_end_miss_margin_cells;
+  Mapper learner(learner_config);  // the package's learner on the scans at rbpf_hmm's poses
 
   PoseFilterConfig filter_config = config.filter;
   filter_config.resolution_m = scenario.resolution_m;

@@ -60,6 +60,7 @@ struct Options {
   std::string pose_correction_scenario = "patrol_office";
   int pose_correction_steps = 400;
   double pose_correction_learner_max_spread = 0.0;
+  int pose_correction_learner_miss_margin = 0;
   std::uint64_t seed = 1;
   unsigned threads = 0;
 };
@@ -151,6 +152,10 @@ Options parseOptions(int argc, char** argv) {
        cl::number(&options.pose_correction_learner_max_spread, cl::between(0.0, 1000.0))->value_name("M"),
        "rbpf_hmm's learner maps a scan only while the particles' positions are within M m (RMS) of the best "
        "particle's at the last update (default 0: every scan)")
+      ("pose-correction-learner-miss-margin",
+       cl::number(&options.pose_correction_learner_miss_margin, cl::between(0, 16))->value_name("N"),
+       "rbpf_hmm's learner counts no miss in the last N cells a beam that hits crosses before its end "
+       "(MapperConfig::end_miss_margin_cells; default 0: every miss)")
       ("pose-correction-steps", cl::number(&options.pose_correction_steps, cl::between(2, 1000000))->value_name("N"),
        "steps of each run of the pose filter's comparison (default 400: four loops of patrol_office)")
       ("pose-correction-learner-lag", cl::number(&options.pose_correction_learner_lag, cl::between(0, 100000))->value_name("N"),
@@ -1084,6 +1089,7 @@ int main(int argc, char** argv) {
       config.scenario = options.pose_correction_scenario;
       config.steps = options.pose_correction_steps;
       config.learner_max_spread_m = options.pose_correction_learner_max_spread;
+      config.learner_end_miss_margin_cells = options.pose_correction_learner_miss_margin;
       std::vector<core::PoseCorrectionResult> runs;
       for (int r = 0; r < options.pose_correction_runs; ++r) {
         config.world_seed = options.seed;

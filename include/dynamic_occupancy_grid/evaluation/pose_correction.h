@@ -53,6 +53,9 @@ struct PoseCorrectionConfig {
   /// positions' RMS distance from the best particle's at the last update below this (m);
   /// 0 maps every scan.
   double learner_max_spread_m = 0.0;
+  /// rbpf_hmm's learner: MapperConfig::end_miss_margin_cells (0: every miss, as the other
+  /// Mappers; the filters read every miss).
+  int learner_end_miss_margin_cells = 0;
   /// Throws std::invalid_argument naming the first bad field.
   void validate() const;
 };
