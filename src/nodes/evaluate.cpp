@@ -57,6 +57,7 @@ struct Options {
   int pose_correction_runs = 0;
   int pose_correction_learner_lag = 0;
   int pose_correction_particles = 30;
+  double pose_correction_temperature = 1.0;
   std::string pose_correction_scenario = "patrol_office";
   int pose_correction_steps = 400;
   double pose_correction_learner_max_spread = 0.0;
@@ -141,6 +142,10 @@ Options parseOptions(int argc, char** argv) {
        "runs of the pose filter's comparison with drifting odometry (docs/pose_correction.md: known pose, "
        "odometry, the RBPF with a static, learned and true-transition map; on patrol_office 400 steps, about a "
        "minute each with 30 particles; default 0 skips it)")
+      ("pose-correction-temperature",
+       cl::number(&options.pose_correction_temperature, cl::between(1.0, 1e6))->value_name("T"),
+       "every filter of the pose filter's comparison divides the scan's log-likelihood by T "
+       "(PoseFilterConfig::likelihood_temperature; default 1: the model's own)")
       ("pose-correction-particles", cl::number(&options.pose_correction_particles, cl::between(1, 10000))->value_name("N"),
        "particles of each filter in the pose filter's comparison (default 30)")
       ("pose-correction-scenario",
@@ -1085,6 +1090,7 @@ int main(int argc, char** argv) {
       core::PoseCorrectionConfig config;
       config.filter.threads = options.threads;
       config.filter.particles = static_cast<std::size_t>(options.pose_correction_particles);
+      config.filter.likelihood_temperature = options.pose_correction_temperature;
       config.learner_lag_updates = static_cast<std::size_t>(options.pose_correction_learner_lag);
       config.scenario = options.pose_correction_scenario;
       config.steps = options.pose_correction_steps;

@@ -142,4 +142,34 @@ TEST(PoseCorrection, LearnerGatedOnTheParticlesSpread) {
   }
 }
 
+// rbpf_hmm's learner counting no miss near a beam's end (MapperConfig::end_miss_margin_cells,
+// tested cell by cell in test_mapper): only what the learner learns changes, the other
+// filters are the same run; values outside [0, 16] are refused.
+TEST(PoseCorrection, LearnerCountsNoMissNearTheBeamsEnd) {
+  dog::PoseCorrectionConfig config;
+  config.steps = 60;
+  config.filter.particles = 10;
+  config.learned_min_observed_steps = 1;  // every learned cell read as learned
+  const dog::PoseCorrectionResult plain = dog::runPoseCorrection(config);
+  config.learner_end_miss_margin_cells = 2;
+  const dog::PoseCorrectionResult margin = dog::runPoseCorrection(config);
+  for (const char* name : {"rbpf_static", "rbpf_oracle", "odometry"}) {
+    EXPECT_EQ(find(margin, name).ate_rmse_m, find(plain, name).ate_rmse_m) << name;
+  }
+  ASSERT_EQ(margin.learned.size(), 6u);
+  for (std::size_t k = 0; k < 3; ++k) {  // the known-pose learner reads every miss in both
+    EXPECT_EQ(margin.learned[k].mae_p_occ_given_free, plain.learned[k].mae_p_occ_given_free) << k;
+  }
+  bool learned_differs = false;
+  for (std::size_t k = 3; k < 6; ++k) {
+    learned_differs = learned_differs || margin.learned[k].mae_p_occ_given_free != plain.learned[k].mae_p_occ_given_free ||
+                      margin.learned[k].mae_p_free_given_occ != plain.learned[k].mae_p_free_given_occ;
+  }
+  EXPECT_TRUE(learned_differs);
+  for (const int bad : {-1, 17}) {
+    config.learner_end_miss_margin_cells = bad;
+    EXPECT_THROW(dog::runPoseCorrection(config), std::invalid_argument) << bad;
+  }
+}
+
 }  // namespace
