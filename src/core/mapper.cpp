@@ -232,19 +232,18 @@ ScanResult Mapper::integrate(const Scan& scan) {
     // The last pending cell is the one just before the end cell when no cell of the beam
     // was outside the map (a beam that leaves the map, or ends outside it, clips nothing).
     // A beam without return drops its end cell's miss and N - 1 of the cells before it.
-    const bool margin = config_.end_miss_margin_cells > 0 && tile != nullptr && result.cells_outside == outside_before;
+    const bool inside = tile != nullptr && result.cells_outside == outside_before;
+    const bool margin = config_.end_miss_margin_cells > 0 && inside;
     const bool drop_end = margin && !beam.hit;
     std::size_t dropped = 0;
     if (margin) {
       dropped = std::min(pending_count, static_cast<std::size_t>(config_.end_miss_margin_cells - (drop_end ? 1 : 0)));
-    } else if (beam.hit && pending_count > 0 && tile != nullptr && result.cells_outside == outside_before) {
-      if (config_.clipped_corner_chord > 0.0) {
-        const auto& [last_tile, last_offset] = pending[(pending_count - 1) % kMissLookahead];
-        dropped = chordThroughCell(last_tile->cellX(last_offset), last_tile->cellY(last_offset), u0, v0, beam.u1,
-                                   beam.v1) < config_.clipped_corner_chord
-                      ? 1
-                      : 0;
-      }
+    } else if (beam.hit && pending_count > 0 && inside && config_.clipped_corner_chord > 0.0) {
+      const auto& [last_tile, last_offset] = pending[(pending_count - 1) % kMissLookahead];
+      dropped = chordThroughCell(last_tile->cellX(last_offset), last_tile->cellY(last_offset), u0, v0, beam.u1,
+                                 beam.v1) < config_.clipped_corner_chord
+                    ? 1
+                    : 0;
     }
     const std::size_t counted = pending_count - dropped;
     for (std::size_t k = pending_count > kMissLookahead ? pending_count - kMissLookahead : 0; k < counted; ++k) {

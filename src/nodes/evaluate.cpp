@@ -159,8 +159,8 @@ Options parseOptions(int argc, char** argv) {
        "particle's at the last update (default 0: every scan)")
       ("pose-correction-learner-miss-margin",
        cl::number(&options.pose_correction_learner_miss_margin, cl::between(0, 16))->value_name("N"),
-       "rbpf_hmm's learner counts no miss in the last N cells a beam that hits crosses before its end "
-       "(MapperConfig::end_miss_margin_cells; default 0: every miss)")
+       "rbpf_hmm's learner counts no miss in the last N cells a beam that hits crosses before its end, nor in "
+       "the last N cells a beam without return clears (MapperConfig::end_miss_margin_cells; default 0: every miss)")
       ("pose-correction-steps", cl::number(&options.pose_correction_steps, cl::between(2, 1000000))->value_name("N"),
        "steps of each run of the pose filter's comparison (default 400: four loops of patrol_office)")
       ("pose-correction-learner-lag", cl::number(&options.pose_correction_learner_lag, cl::between(0, 100000))->value_name("N"),
