@@ -4,8 +4,8 @@
 // occupancy grid of the same mapper. Reads the bag twice (labels, then maps and scores;
 // evaluation/prediction_check.h). At the end it also reports the map the second pass built:
 // the sensor model in use (learned or fixed), the cells the static map classifies and how
-// many of them the belief keeps, and the static walls learned as changing, edge cells apart.
-// See docs/self_check.md.
+// many of them the belief keeps (and the stationary and predicted layers), and the static walls
+// learned as changing, edge cells apart. See docs/self_check.md.
 
 #include <unistd.h>
 
@@ -27,6 +27,7 @@
 #include "bag_tools.h"
 #include "dynamic_occupancy_grid/core/cell_model.h"
 #include "dynamic_occupancy_grid/core/corrected_mapping.h"
+#include "dynamic_occupancy_grid/core/layers.h"
 #include "dynamic_occupancy_grid/core/map_export.h"
 #include "dynamic_occupancy_grid/core/mapper.h"
 #include "dynamic_occupancy_grid/evaluation/prediction_check.h"
@@ -56,6 +57,10 @@ struct Options {
   /// end (in whole steps).
   double retention_after_s = kDefaultRetentionAfter_s;
   std::int64_t retention_after_steps = 0;
+  /// The end-of-run retention of the `predicted` layer looks this far ahead of the last step
+  /// (the node's ~prediction_horizon by default; in whole steps).
+  double prediction_horizon_s = dog::ros_layer::NodeParameters{}.prediction_horizon_s;
+  std::int64_t prediction_horizon_steps = 0;
   /// --pose-correction rbpf: every pass corrects the scans' odometry poses the same way (its
   /// own filter and learner, deterministic) before the map being scored sees them.
   dog::bag_tools::PoseCorrectionOptions correction;
@@ -117,7 +122,10 @@ Options parseArguments(int argc, char** argv) {
        "Polyak-Ruppert averaging of a cell's M-step results from its observed step N on (default 0 = off)")
       ("retention-after", cl::number(&options.retention_after_s, cl::atLeast(0.0))->value_name("S"),
        "the end-of-run retention is also reported on the cells last observed at least S seconds before the "
-       "end (default 10)");
+       "end (default 10)")
+      ("prediction-horizon", cl::number(&options.prediction_horizon_s, cl::between(0.0, 1.0e9))->value_name("S"),
+       "the end-of-run retention of the 'predicted' layer looks S seconds ahead of the last step, rounded to "
+       "whole steps (default 60, the node's ~prediction_horizon)");
   dog::bag_tools::addMappingOptions(line, &options.shared);
   dog::bag_tools::addPoseCorrectionOptions(line, &options.correction);
   // The options that tune offline EM are read (so that they are refused by name) but not
@@ -187,6 +195,8 @@ Options parseArguments(int argc, char** argv) {
   const double retention_steps = std::round(options.retention_after_s / time_step_s);
   if (retention_steps > 1.0e15) line.fail("--retention-after is too many time steps");
   options.retention_after_steps = static_cast<std::int64_t>(retention_steps);
+  // As process_bag's --prediction-horizon (the node rounds ~prediction_horizon the same way).
+  options.prediction_horizon_steps = std::llround(options.prediction_horizon_s / time_step_s);
   return options;
 }
 
@@ -232,6 +242,13 @@ struct EndOfRun {
   std::size_t left_static_occupied = 0;
   std::size_t left_kept_free = 0;
   std::size_t left_kept_occupied = 0;
+  // Of the static map's free / occupied cells, those the `stationary` layer (long-run p(occ))
+  // and the `predicted` layer (prediction_horizon_steps after the last step) classify the
+  // same way: the layers' own values (core::evaluateLayer), as the node publishes them.
+  std::size_t stationary_kept_free = 0;
+  std::size_t stationary_kept_occupied = 0;
+  std::size_t predicted_kept_free = 0;
+  std::size_t predicted_kept_occupied = 0;
   // Static-occupied cells with a static-free 8-neighbour (a wall's edge).
   std::size_t occupied_edge = 0;
   // Static-occupied cells with p_free_given_occ > 0.05 (walls learned as changing), and of
@@ -239,6 +256,9 @@ struct EndOfRun {
   std::size_t occupied_changing = 0;
   std::size_t occupied_changing_edge = 0;
   std::size_t free_changing = 0;
+  // Of the walls learned as changing, those last observed at least retention_after_steps
+  // before the end (of left_static_occupied).
+  std::size_t left_occupied_changing = 0;
 };
 
 // map_server's trinary reading of a probability: 1 occupied, 0 free, -1 unknown (NaN too).
@@ -257,7 +277,8 @@ int staticClass(const dog::core::CellGrid& grid, std::int32_t x, std::int32_t y)
   return trinary(dog::core::logOddsToProbability(tile->log_odds[i]));
 }
 
-EndOfRun summarizeEnd(const dog::core::Mapper& mapper, std::int64_t retention_after_steps) {
+EndOfRun summarizeEnd(const dog::core::Mapper& mapper, std::int64_t retention_after_steps,
+                      std::int64_t prediction_horizon_steps) {
   namespace core = dog::core;
   EndOfRun end;
   end.p_hit_given_occ = mapper.sensor().pHitGivenOcc();
@@ -272,6 +293,17 @@ EndOfRun summarizeEnd(const dog::core::Mapper& mapper, std::int64_t retention_af
   if (!last) return end;
   end.step = *last;
   const core::CellGrid& grid = mapper.grid();
+  // The two layers over every cell that may hold data, row-major from box's lower-left cell.
+  const core::CellBox box = grid.bounds();
+  std::vector<float> stationary;
+  std::vector<float> predicted;
+  core::evaluateLayer(grid, core::Layer::kStationary, *last, 0, box, &stationary);
+  core::evaluateLayer(grid, core::Layer::kPredicted, *last, prediction_horizon_steps, box, &predicted);
+  const auto layer_class = [&box](const std::vector<float>& values, std::int32_t x, std::int32_t y) {
+    const std::size_t index = static_cast<std::size_t>((std::int64_t{y} - box.min_y) * box.width() +
+                                                       (std::int64_t{x} - box.min_x));
+    return trinary(values[index]);  // NaN (never observed) is -1
+  };
   grid.forEachTile([&](const core::CellGrid::Tile& tile) {
     for (int i = 0; i < core::CellGrid::kTileCells; ++i) {
       if (tile.last_step[i] == core::kNeverObserved) continue;
@@ -283,9 +315,15 @@ EndOfRun summarizeEnd(const dog::core::Mapper& mapper, std::int64_t retention_af
       const double belief = core::predictOccupancy(tile.p_occ[i], params, *last - tile.last_step[i]);
       const bool kept = trinary(belief) == expected;
       const bool left = tile.last_step[i] <= *last - retention_after_steps;
+      const std::int32_t x = tile.cellX(i);
+      const std::int32_t y = tile.cellY(i);
+      const bool stationary_kept = layer_class(stationary, x, y) == expected;
+      const bool predicted_kept = layer_class(predicted, x, y) == expected;
       if (expected == 0) {
         ++end.static_free;
         end.kept_free += kept ? 1 : 0;
+        end.stationary_kept_free += stationary_kept ? 1 : 0;
+        end.predicted_kept_free += predicted_kept ? 1 : 0;
         if (left) {
           ++end.left_static_free;
           end.left_kept_free += kept ? 1 : 0;
@@ -295,12 +333,12 @@ EndOfRun summarizeEnd(const dog::core::Mapper& mapper, std::int64_t retention_af
       }
       ++end.static_occupied;
       end.kept_occupied += kept ? 1 : 0;
+      end.stationary_kept_occupied += stationary_kept ? 1 : 0;
+      end.predicted_kept_occupied += predicted_kept ? 1 : 0;
       if (left) {
         ++end.left_static_occupied;
         end.left_kept_occupied += kept ? 1 : 0;
       }
-      const std::int32_t x = tile.cellX(i);
-      const std::int32_t y = tile.cellY(i);
       bool edge = false;
       for (int dy = -1; dy <= 1 && !edge; ++dy) {
         for (int dx = -1; dx <= 1 && !edge; ++dx) {
@@ -311,6 +349,7 @@ EndOfRun summarizeEnd(const dog::core::Mapper& mapper, std::int64_t retention_af
       if (params.p_free_given_occ > kChangingThreshold) {
         ++end.occupied_changing;
         end.occupied_changing_edge += edge ? 1 : 0;
+        end.left_occupied_changing += left ? 1 : 0;
       }
     }
   });
@@ -357,10 +396,23 @@ void printEnd(const EndOfRun& end, const Options& options) {
                   .c_str(),
               share(end.left_kept_free, end.left_static_free).c_str(),
               share(end.left_kept_occupied, end.left_static_occupied).c_str());
+  std::printf("  retention by the stationary layer (long-run p(occ), same thresholds): free %s, occupied %s\n",
+              share(end.stationary_kept_free, end.static_free).c_str(),
+              share(end.stationary_kept_occupied, end.static_occupied).c_str());
+  std::printf("  retention by the predicted layer (%s ahead of the last step, same thresholds): free %s, occupied "
+              "%s\n",
+              dog::bag_tools::secondsName(static_cast<double>(options.prediction_horizon_steps) * mapper.time_step_s)
+                  .c_str(),
+              share(end.predicted_kept_free, end.static_free).c_str(),
+              share(end.predicted_kept_occupied, end.static_occupied).c_str());
   std::printf("  walls learned as changing (static occupied, p_free_given_occ > %g): %zu of %zu, %zu of them edge "
               "cells (edge: a free 8-neighbour; %zu occupied cells are edge cells)\n",
               kChangingThreshold, end.occupied_changing, end.static_occupied, end.occupied_changing_edge,
               end.occupied_edge);
+  std::printf("  walls last observed >= %s before the end learned as changing: %s\n",
+              dog::bag_tools::secondsName(static_cast<double>(options.retention_after_steps) * mapper.time_step_s)
+                  .c_str(),
+              share(end.left_occupied_changing, end.left_static_occupied).c_str());
   std::printf("  free cells learned as changing (static free, p_occ_given_free > %g): %zu of %zu\n",
               kChangingThreshold, end.free_changing, end.static_free);
 }
@@ -401,7 +453,9 @@ void writeCsv(std::ostream& file, const dog::core::PredictionCheckResult& result
   file << ",end_step,end_p_hit_given_occ,end_p_hit_given_free,end_observed_cells,end_static_free,"
           "end_static_occupied,end_kept_free,end_kept_occupied,end_retention_after_s,end_left_static_free,"
           "end_left_static_occupied,end_left_kept_free,end_left_kept_occupied,end_occupied_edge,"
-          "end_occupied_changing,end_occupied_changing_edge,end_free_changing";
+          "end_occupied_changing,end_occupied_changing_edge,end_free_changing,end_stationary_kept_free,"
+          "end_stationary_kept_occupied,end_prediction_horizon_s,end_predicted_kept_free,end_predicted_kept_occupied,"
+          "end_left_occupied_changing";
   file << '\n';
   std::ostringstream end_columns;
   end_columns << ',' << end.step << ',' << csvNumber(end.p_hit_given_occ) << ',' << csvNumber(end.p_hit_given_free)
@@ -410,7 +464,11 @@ void writeCsv(std::ostream& file, const dog::core::PredictionCheckResult& result
               << csvNumber(static_cast<double>(options.retention_after_steps) * options.shared.mapper.time_step_s)
               << ',' << end.left_static_free << ',' << end.left_static_occupied << ',' << end.left_kept_free << ','
               << end.left_kept_occupied << ',' << end.occupied_edge << ',' << end.occupied_changing << ','
-              << end.occupied_changing_edge << ',' << end.free_changing;
+              << end.occupied_changing_edge << ',' << end.free_changing << ',' << end.stationary_kept_free << ','
+              << end.stationary_kept_occupied << ','
+              << csvNumber(static_cast<double>(options.prediction_horizon_steps) * options.shared.mapper.time_step_s)
+              << ',' << end.predicted_kept_free << ',' << end.predicted_kept_occupied << ','
+              << end.left_occupied_changing;
   for (const dog::core::HorizonScore& score : result.horizons) {
     file << csvNumber(static_cast<double>(score.horizon_steps) * options.shared.mapper.time_step_s) << ','
          << score.horizon_steps << ',' << score.labels << ',' << score.unseen << ',' << score.occupied_labels;
@@ -503,7 +561,7 @@ void checkAndReport(dog::ros_layer::BagScanSource& source, const Options& option
   const auto start = std::chrono::steady_clock::now();
   const dog::core::PredictionCheckResult result = dog::core::checkPredictions(mapper, replay, options.horizons_steps);
   final_map.finishStep();
-  const EndOfRun end = summarizeEnd(final_map, options.retention_after_steps);
+  const EndOfRun end = summarizeEnd(final_map, options.retention_after_steps, options.prediction_horizon_steps);
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 
   std::printf("scans read: %zu, integrated: %zu, rejected: %zu", first_pass.scans_read, result.scans_integrated,

@@ -16,12 +16,15 @@ bags; and the error paths (missing bag, bag without tf, no usable scan, bad opti
 unwritable CSV).
 
 The end-of-run report (the learned sensor model, the static map's classes and how many the
-belief keeps, walls learned as changing and their edge cells): stdout and CSV agree, counts
-are consistent (parts at most their wholes, edge cells among occupied ones), the learned
-sensor model is a sensor model (in (0, 1), a hit more likely in occupied cells), learning off
-learns no changing cell, and with the sensor model fixed every count equals an independent
-computation with numpy on the layers process_bag writes for the same bag (process_bag maps
-with the sensor model fixed).
+belief, the stationary and the predicted layers keep, walls learned as changing and their
+edge cells): stdout and CSV agree, counts are consistent (parts at most their wholes, edge
+cells among occupied ones), the learned sensor model is a sensor model (in (0, 1), a hit more
+likely in occupied cells), learning off learns no changing cell and leaves the stationary and
+60 s predicted layers with no cell classified (the prior's pi = 0.5, lambda^60 < 0.3),
+--prediction-horizon 0 makes the predicted layer the belief, and with the sensor model fixed
+every count equals an independent computation with numpy on the layers process_bag writes
+for the same bag (process_bag maps with the sensor model fixed; its predicted layer looks
+60 s ahead, the node's default and check_bag's).
 """
 
 import csv
@@ -99,7 +102,8 @@ def read_csv(path):
         for key, value in row.items():
             integer = key in ("horizon_steps", "labels", "unseen", "occupied_labels", "dynamic_unclassified",
                               "static_unclassified") or (key.startswith("end_") and not key.startswith("end_p_")
-                                                         and key != "end_retention_after_s")
+                                                         and key not in ("end_retention_after_s",
+                                                                         "end_prediction_horizon_s"))
             row[key] = int(value) if integer else float(value)
     return rows
 
@@ -112,6 +116,12 @@ END_LINES = {
                        r"occupied (\d+) of (\d+) \(\S+\)$"),
     "left": re.compile(r"^  retention of the cells last observed >= (\S+)s before the end: "
                        r"free (\d+) of (\d+) \(\S+\), occupied (\d+) of (\d+) \(\S+\)$"),
+    "stationary": re.compile(r"^  retention by the stationary layer \(long-run p\(occ\), same thresholds\): "
+                             r"free (\d+) of (\d+) \(\S+\), occupied (\d+) of (\d+) \(\S+\)$"),
+    "predicted": re.compile(r"^  retention by the predicted layer \((\S+)s ahead of the last step, same thresholds\): "
+                            r"free (\d+) of (\d+) \(\S+\), occupied (\d+) of (\d+) \(\S+\)$"),
+    "walls_left": re.compile(r"^  walls last observed >= (\S+)s before the end learned as changing: (\d+) of (\d+) "
+                             r"\(\S+\)$"),
     "walls": re.compile(r"^  walls learned as changing \(static occupied, p_free_given_occ > 0.05\): (\d+) of (\d+), "
                         r"(\d+) of them edge cells \(edge: a free 8-neighbour; (\d+) occupied cells are edge cells\)$"),
     "free": re.compile(r"^  free cells learned as changing \(static free, p_occ_given_free > 0.05\): (\d+) of (\d+)$"),
@@ -141,9 +151,16 @@ def parse_end(stdout):
         "left_kept_occupied": int(found["left"][3]), "left_static_occupied": int(found["left"][4]),
         "occupied_changing": int(found["walls"][0]), "occupied_changing_edge": int(found["walls"][2]),
         "occupied_edge": int(found["walls"][3]), "free_changing": int(found["free"][0]),
+        "stationary_kept_free": int(found["stationary"][0]), "stationary_kept_occupied": int(found["stationary"][2]),
+        "prediction_horizon_s": float(found["predicted"][0]),
+        "predicted_kept_free": int(found["predicted"][1]), "predicted_kept_occupied": int(found["predicted"][3]),
+        "left_occupied_changing": int(found["walls_left"][1]),
         # consistency of the lines themselves
         "_kept_free_of": int(found["kept"][1]), "_kept_occupied_of": int(found["kept"][3]),
         "_walls_of": int(found["walls"][1]), "_free_of": int(found["free"][1]),
+        "_stationary_free_of": int(found["stationary"][1]), "_stationary_occupied_of": int(found["stationary"][3]),
+        "_predicted_free_of": int(found["predicted"][2]), "_predicted_occupied_of": int(found["predicted"][4]),
+        "_walls_left_after_s": float(found["walls_left"][0]), "_walls_left_of": int(found["walls_left"][2]),
     }
 
 
@@ -333,6 +350,11 @@ class TestCheckBag(unittest.TestCase):
         self.assertEqual(end["_kept_occupied_of"], end["static_occupied"])
         self.assertEqual(end["_walls_of"], end["static_occupied"])
         self.assertEqual(end["_free_of"], end["static_free"])
+        for layer in ("stationary", "predicted"):
+            self.assertEqual(end[f"_{layer}_free_of"], end["static_free"], layer)
+            self.assertEqual(end[f"_{layer}_occupied_of"], end["static_occupied"], layer)
+        self.assertEqual(end["_walls_left_after_s"], end["retention_after_s"])
+        self.assertEqual(end["_walls_left_of"], end["left_static_occupied"])
         # The map at the end is the map after the last step (steps = last applied step + 1).
         steps = int(re.search(r"time steps: (\d+) of", stdout).group(1))
         self.assertEqual(row["end_step"], steps - 1)
@@ -358,6 +380,11 @@ class TestCheckBag(unittest.TestCase):
         self.assertLessEqual(end["occupied_changing_edge"], end["occupied_changing"])
         self.assertLessEqual(end["occupied_changing_edge"], end["occupied_edge"])
         self.assertLessEqual(end["free_changing"], end["static_free"])
+        for layer in ("stationary", "predicted"):
+            self.assertLessEqual(end[f"{layer}_kept_free"], end["static_free"], layer)
+            self.assertLessEqual(end[f"{layer}_kept_occupied"], end["static_occupied"], layer)
+        self.assertLessEqual(end["left_occupied_changing"], end["occupied_changing"])
+        self.assertLessEqual(end["left_occupied_changing"], end["left_static_occupied"])
         return end
 
     def test_end_report_default_learns_the_sensor_model(self):
@@ -377,6 +404,10 @@ class TestCheckBag(unittest.TestCase):
         # Learned from the bag: it moved away from its start (0.7 / 0.2).
         self.assertNotEqual((end["p_hit_given_occ"], end["p_hit_given_free"]), (0.7, 0.2))
         self.assertEqual(end["retention_after_s"], 10.0)
+        # The predicted layer looks the node's ~prediction_horizon (60 s) ahead.
+        self.assertEqual(end["prediction_horizon_s"], 60.0)
+        # Learned transitions: the stationary layer classifies cells (it would not at pi = 0.5).
+        self.assertGreater(end["stationary_kept_free"], 0)
         # Cells seen at the very end are also seen 10 s before it: the left ones are fewer.
         self.assertLess(end["left_static_free"], end["static_free"])
 
@@ -396,10 +427,16 @@ class TestCheckBag(unittest.TestCase):
         self.assertFalse(fixed["sensor_learned"])
         self.assertEqual((fixed["p_hit_given_occ"], fixed["p_hit_given_free"]), (0.7, 0.2))
         # Learning off: every cell keeps the prior 0.01 / 0.01, none is learned as changing.
+        # The prior's stationary p(occ) is 0.01 / (0.01 + 0.01) = 0.5 and lambda = 0.98: the
+        # stationary layer is 0.5 everywhere, the predicted one within 0.5 +- 0.5 * 0.98^60 =
+        # [0.351, 0.649], between the thresholds: neither classifies any cell.
         for run in (self.neato(learning=False), self.neato(learning=False, fixed_sensor=True)):
             end = self.assert_end_report(run)
             self.assertEqual(end["occupied_changing"], 0)
+            self.assertEqual(end["left_occupied_changing"], 0)
             self.assertEqual(end["free_changing"], 0)
+            for layer in ("stationary", "predicted"):
+                self.assertEqual((end[f"{layer}_kept_free"], end[f"{layer}_kept_occupied"]), (0, 0), layer)
 
     def test_end_report_matches_process_bag_layers(self):
         """With the sensor model fixed (in both tools), the counts equal numpy's on the
@@ -410,13 +447,18 @@ class TestCheckBag(unittest.TestCase):
                                 capture_output=True, text=True, errors="replace", timeout=PARAMS["timeout_s"])
         self.assertEqual(result.returncode, 0, result.stderr)
         layer = {name: np.load(os.path.join(out, name + ".npy"))
-                 for name in ("static_map", "belief", "p_occ_given_free", "p_free_given_occ")}
+                 for name in ("static_map", "belief", "stationary", "predicted", "p_occ_given_free",
+                              "p_free_given_occ")}
         static = layer["static_map"]
         with np.errstate(invalid="ignore"):
             free = static < 0.196
             occupied = static > 0.65
             belief_free = layer["belief"] < 0.196
             belief_occupied = layer["belief"] > 0.65
+            stationary_free = layer["stationary"] < 0.196
+            stationary_occupied = layer["stationary"] > 0.65
+            predicted_free = layer["predicted"] < 0.196
+            predicted_occupied = layer["predicted"] > 0.65
             walls_changing = occupied & (layer["p_free_given_occ"] > 0.05)
             free_changing = free & (layer["p_occ_given_free"] > 0.05)
         padded = np.pad(free, 1)
@@ -430,11 +472,32 @@ class TestCheckBag(unittest.TestCase):
             "observed_cells": int(np.count_nonzero(~np.isnan(static))),
             "static_free": int(free.sum()), "static_occupied": int(occupied.sum()),
             "kept_free": int((free & belief_free).sum()), "kept_occupied": int((occupied & belief_occupied).sum()),
+            "stationary_kept_free": int((free & stationary_free).sum()),
+            "stationary_kept_occupied": int((occupied & stationary_occupied).sum()),
+            "predicted_kept_free": int((free & predicted_free).sum()),
+            "predicted_kept_occupied": int((occupied & predicted_occupied).sum()),
             "occupied_edge": int(edge.sum()), "occupied_changing": int(walls_changing.sum()),
             "occupied_changing_edge": int((walls_changing & edge).sum()), "free_changing": int(free_changing.sum()),
         }
         self.assertEqual({key: end[key] for key in expected}, expected)
         self.assertGreater(expected["occupied_edge"], 0)
+        # Neither layer is trivially all or nothing here (the check would then prove little).
+        for key in ("stationary_kept_free", "predicted_kept_free", "predicted_kept_occupied"):
+            self.assertGreater(expected[key], 0, key)
+        self.assertLess(expected["stationary_kept_occupied"], expected["static_occupied"])
+
+    def test_prediction_horizon(self):
+        """--prediction-horizon 0: the predicted layer is the belief at the last step (the same
+        counts); the horizon is rounded to steps and said in stdout and the CSV."""
+        end = self.assert_end_report(self.run_once("neato_prediction_0", NEATO_BAG,
+                                                   NEATO_ARGS + ["--prediction-horizon", "0"]))
+        self.assertEqual(end["prediction_horizon_s"], 0.0)
+        self.assertEqual((end["predicted_kept_free"], end["predicted_kept_occupied"]),
+                         (end["kept_free"], end["kept_occupied"]))
+        stdout, _, rows = self.run_once("neato_prediction_5", NEATO_BAG, NEATO_ARGS + ["--prediction-horizon", "4.6"])
+        end = self.assert_end_report((stdout, None, rows))
+        self.assertEqual(end["prediction_horizon_s"], 5.0)
+        self.assertIn("retention by the predicted layer (5s ahead of the last step", stdout)
 
     def test_horizon_rounded_to_steps(self):
         path = os.path.join(self.tmp, "half.csv")
@@ -481,7 +544,7 @@ class TestCheckBag(unittest.TestCase):
                      [NEATO_BAG, "--resolution", "0"], [NEATO_BAG, "--no-such-option"], [NEATO_BAG, NEATO_BAG],
                      [NEATO_BAG, "--csv", ""], [NEATO_BAG, "--horizon", "0.4"], [],
                      [NEATO_BAG, "--schedule", "constant"], [NEATO_BAG, "--averaging-start", "-1"],
-                     [NEATO_BAG, "--retention-after", "-1"],
+                     [NEATO_BAG, "--retention-after", "-1"], [NEATO_BAG, "--prediction-horizon", "-1"],
                      [NEATO_BAG, "--schedule", "robbins_monro", "--step-size-exponent", "0.5"],
                      [NEATO_BAG, "--schedule", "robbins_monro", "--step-size-exponent", "1.1"],
                      [NEATO_BAG, "--schedule", "robbins_monro", "--step-size-offset", "-1"]):
@@ -502,7 +565,8 @@ class TestCheckBag(unittest.TestCase):
         rc, stdout, _ = check_bag(["--help"])
         self.assertEqual(rc, 0)
         for option in ("--learn-sensor-model", "--no-learn-sensor-model", "--learn-prior", "--schedule",
-                       "--step-size-exponent", "--step-size-offset", "--averaging-start", "--retention-after"):
+                       "--step-size-exponent", "--step-size-offset", "--averaging-start", "--retention-after",
+                       "--prediction-horizon"):
             self.assertIn(option, stdout)
         self.assertIn("(default: on, as the node's ~learn_sensor_model)", " ".join(stdout.split()))
 
