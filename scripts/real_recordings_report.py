@@ -57,7 +57,8 @@ KNOWN_BAGS = [
 VARIANTS = [('default', []), ('`--no-learning`', ['--no-learning'])]
 HORIZONS_S = [1.0, 5.0, 30.0]
 # The columns of check_bag's CSV the tables read (an older check_bag lacks some).
-CSV_COLUMNS = ['horizon_s', 'dynamic_brier', 'static_brier', 'dynamic_occupied_accuracy', 'static_occupied_accuracy',
+CSV_COLUMNS = ['horizon_s', 'labels', 'unseen', 'occupied_labels', 'dynamic_brier', 'static_brier',
+               'dynamic_occupied_accuracy', 'static_occupied_accuracy',
                'end_retention_after_s', 'end_static_free', 'end_static_occupied', 'end_kept_free', 'end_kept_occupied',
                'end_left_static_free', 'end_left_static_occupied', 'end_left_kept_free', 'end_left_kept_occupied',
                'end_occupied_changing', 'end_left_occupied_changing', 'end_stationary_kept_free',
@@ -347,6 +348,12 @@ def main(argv):
         if variant == VARIANTS[0][0]:
             note = '%s (`%s`): %s' % (name, ' '.join(shlex.quote(o) for o in bag_options + options.extra) or
                                       'no options', run.get('scans') or run.get('error', ''))
+            if 'csv' in run:
+                scored = [run['csv'].get(h) for h in HORIZONS_S]
+                note += '; scored labels %s s: %s (occupied %s)' % (
+                    ' / '.join('%g' % h for h in HORIZONS_S),
+                    ' / '.join('-' if r is None else '%d' % (r['labels'] - r['unseen']) for r in scored),
+                    ' / '.join('-' if r is None else '%d' % r['occupied_labels'] for r in scored))
             stderr = run.get('stderr', [])
             if stderr and 'error' not in run:
                 note += '; %d lines on stderr, the first: "%s"' % (len(stderr), stderr[0].strip()[:100])
@@ -369,7 +376,7 @@ def main(argv):
         '',
         markdown(LAYERS_HEADER, layer_rows),
         '',
-        'Scans per bag (default run):',
+        'Scans and scored labels per bag (default run; few occupied labels make occ.acc coarse):',
         '',
     ] + ['- ' + note for note in notes]) + '\n'
     sys.stdout.write(text)

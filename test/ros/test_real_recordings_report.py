@@ -142,6 +142,10 @@ class TestRealRecordingsReport(unittest.TestCase):
             percent(end["end_predicted_kept_free"], end["end_static_free"])])
         # Learning off: no wall learned as changing.
         self.assertEqual(main[2][4], "0.0 %")
+        # The labels the scores rest on.
+        self.assertIn("scored labels 1 / 5 / 30 s: %s (occupied %s)" % (
+            " / ".join("%d" % (default[h]["labels"] - default[h]["unseen"]) for h in (1.0, 5.0, 30.0)),
+            " / ".join("%d" % default[h]["occupied_labels"] for h in (1.0, 5.0, 30.0))), self.stdout)
 
     def test_bag_options_and_options_for_every_run(self):
         rc, stdout, stderr = report(["--data-dir", self.empty,
