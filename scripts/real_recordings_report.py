@@ -18,7 +18,8 @@ For each bag and variant (default; --no-learning) it runs check_bag once with --
 
 A second table gives how many of the static map's occupied / free cells the `stationary`
 and `predicted` layers classify the same way. Exit status 0 when every run worked, 1 when a
-check_bag run failed (its row says why), 2 on bad arguments or a missing data directory.
+check_bag run failed (its row says why), 2 on bad arguments, a missing data directory, no
+bag or an unwritable --out directory.
 
 Bags: every *.bag in --data-dir (default ../shared/data/real next to the package's checkout),
 then those named on the command line. A bag's check_bag options (how to get its poses) come
