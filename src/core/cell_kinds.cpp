@@ -18,6 +18,10 @@ void require(bool ok, const std::string& message) {
 // the normaliser positive and changes nothing else.
 constexpr double kMaxLogLikelihoodRatio = 700.0;
 
+// summary(): the stable kind's state q enters its rates as q / min(q, 1 - q) and
+// (1 - q) / min(q, 1 - q) times its own, q kept this far from 0 and 1 (at most 99 times).
+constexpr double kStableStateFloor = 0.01;
+
 // The distance bins: 1..16 steps one each, then four per octave.
 constexpr int kExactBins = 16;
 constexpr double kBinsPerOctave = 4.0;
@@ -75,6 +79,8 @@ void KindsConfig::validate() const {
           "kinds weight_prior_cells must be > 0, got " + std::to_string(weight_prior_cells));
   require(switch_probability >= 0.0 && switch_probability < 1.0,
           "kinds switch_probability must be in [0, 1), got " + std::to_string(switch_probability));
+  require(view_switch_probability >= 0.0 && view_switch_probability < 0.5,
+          "kinds view_switch_probability must be in [0, 0.5), got " + std::to_string(view_switch_probability));
   require(forgetting >= 0.0 && forgetting < 1.0, "kinds forgetting must be in [0, 1), got " + std::to_string(forgetting));
 }
 
@@ -117,11 +123,11 @@ void CellKinds::skip(KindJoint& joint, std::int64_t steps) const {
   }
 }
 
-double CellKinds::observe(KindJoint& joint, std::int64_t gap, double log_likelihood_ratio) const {
-  return observe(joint, gap, KindEvidence(log_likelihood_ratio));
+double CellKinds::observe(KindJoint& joint, std::int64_t gap, double log_likelihood_ratio, double view_change) const {
+  return observe(joint, gap, KindEvidence(log_likelihood_ratio), view_change);
 }
 
-double CellKinds::observe(KindJoint& joint, std::int64_t gap, const KindEvidence& evidence) const {
+double CellKinds::observe(KindJoint& joint, std::int64_t gap, const KindEvidence& evidence, double view_change) const {
   // The kind switch over the gap and this step: mass (1 - keep) redrawn from w, state kept.
   const double keep =
       gap + 1 <= kTabulatedSteps ? keep_powers_[gap + 1] : std::exp(log_keep_ * static_cast<double>(gap + 1));
@@ -135,14 +141,17 @@ double CellKinds::observe(KindJoint& joint, std::int64_t gap, const KindEvidence
     }
   }
   const double b[2] = {evidence.occ, evidence.free};
+  const double flip = observedStepSwitch(view_change);
   double next[2 * kKindCount];
   double c = 0.0;
   for (int k = 0; k < kKindCount; ++k) {
     const TransitionParams& t = transitions_[k];
     const double to_occ = joint.p[2 * k] * (1.0 - t.p_free_given_occ) + joint.p[2 * k + 1] * t.p_occ_given_free;
     const double to_free = joint.p[2 * k] * t.p_free_given_occ + joint.p[2 * k + 1] * (1.0 - t.p_occ_given_free);
-    next[2 * k] = to_occ * b[0];
-    next[2 * k + 1] = to_free * b[1];
+    // The observed step's switch (the stable kind's only way to change).
+    const double occ_now = to_occ + flip * (to_free - to_occ);
+    next[2 * k] = occ_now * b[0];
+    next[2 * k + 1] = (to_occ + to_free - occ_now) * b[1];
     c += next[2 * k] + next[2 * k + 1];
   }
   const double scale = 1.0 / c;
@@ -170,6 +179,17 @@ TransitionParams CellKinds::summary(const KindJoint& joint) const {
       log_of += mass * log_p_of_[k];
       log_fo += mass * log_p_fo_[k];
     }
+    // The stable kind keeps its state: its two rates in the ratio of its state q to 1 - q,
+    // the smaller of them its own, so that the summary's long-run state (the stationary
+    // layer) and prediction hold a stable cell where it is, not at its transitions' 1/2, and
+    // no rate falls below the learner's bounds.
+    const double stable = joint.kind(kStableKind);
+    if (stable > 0.0) {
+      const double q = std::clamp(joint.p[2 * kStableKind] / stable, kStableStateFloor, 1.0 - kStableStateFloor);
+      const double smaller = std::min(q, 1.0 - q);
+      log_of += stable * std::log(q / smaller);
+      log_fo += stable * std::log((1.0 - q) / smaller);
+    }
     return TransitionParams{std::exp(log_of / total), std::exp(log_fo / total)};
   }
   if (config_.summary == KindSummary::kMostProbable) {
@@ -190,13 +210,13 @@ TransitionParams CellKinds::summary(const KindJoint& joint) const {
 }
 
 CellKinds::PairPosterior CellKinds::pairPosterior(const KindJoint& last, std::int64_t steps,
-                                                  double log_likelihood_ratio) const {
-  return pairPosterior(last, steps, KindEvidence(log_likelihood_ratio));
+                                                  double log_likelihood_ratio, double view_change) const {
+  return pairPosterior(last, steps, KindEvidence(log_likelihood_ratio), view_change);
 }
 
 CellKinds::PairPosterior CellKinds::pairPosterior(const KindJoint& last, std::int64_t steps,
-                                                  const KindEvidence& evidence) const {
-  PairPosterior pair = pairWeights(last, steps, evidence);
+                                                  const KindEvidence& evidence, double view_change) const {
+  PairPosterior pair = pairWeights(last, steps, evidence, view_change);
   double total = 0.0;
   for (const auto& kind : pair) total += kind[0][0] + kind[0][1] + kind[1][0] + kind[1][1];
   if (!(total > 0.0)) return PairPosterior{};
@@ -210,27 +230,33 @@ CellKinds::PairPosterior CellKinds::pairPosterior(const KindJoint& last, std::in
 }
 
 CellKinds::PairPosterior CellKinds::pairWeights(const KindJoint& last, std::int64_t steps,
-                                                const KindEvidence& evidence) const {
+                                                const KindEvidence& evidence, double view_change) const {
   const double b[2] = {evidence.occ, evidence.free};
   PairPosterior pair;
   for (int k = 0; k < kKindCount; ++k) {
-    double p[2][2];
-    nStep(pi_[k], lambdaPower(k, steps), p);  // lambda_k^n from the table
     for (int i = 0; i < 2; ++i) {
-      for (int j = 0; j < 2; ++j) pair[k][i][j] = last.p[2 * k + i] * p[i][j] * b[j];
+      const double to_occ = occupiedAfter(k, i, steps, view_change);
+      pair[k][i][0] = last.p[2 * k + i] * to_occ * b[0];
+      pair[k][i][1] = last.p[2 * k + i] * (1.0 - to_occ) * b[1];
     }
   }
   return pair;
 }
 
-void CellKinds::addPair(const KindJoint& last, std::int64_t steps, double log_likelihood_ratio) {
-  addPair(last, steps, KindEvidence(log_likelihood_ratio));
+double CellKinds::occupiedAfter(int k, int s, std::int64_t steps, double view_change) const {
+  double p[2][2];
+  nStep(pi_[k], lambdaPower(k, steps), p);  // lambda_k^n from the table
+  return p[s][0] + observedStepSwitch(view_change) * (p[s][1] - p[s][0]);
 }
 
-void CellKinds::addPair(const KindJoint& last, std::int64_t steps, const KindEvidence& evidence) {
+void CellKinds::addPair(const KindJoint& last, std::int64_t steps, double log_likelihood_ratio, double view_change) {
+  addPair(last, steps, KindEvidence(log_likelihood_ratio), view_change);
+}
+
+void CellKinds::addPair(const KindJoint& last, std::int64_t steps, const KindEvidence& evidence, double view_change) {
   if (steps < 1 || (!config_.learn_from_gaps && steps != 1)) return;
   // The posterior up to its normaliser, which each counting divides out in its own way.
-  const PairPosterior pair = pairWeights(last, steps, evidence);
+  const PairPosterior pair = pairWeights(last, steps, evidence, view_change);
   double mass[kKindCount];
   double total = 0.0;
   int best = 0;
@@ -253,6 +279,13 @@ void CellKinds::addPair(const KindJoint& last, std::int64_t steps, const KindEvi
   }
 }
 
+void CellKinds::setViewSwitchProbability(double view_switch_probability) {
+  KindsConfig changed = config_;
+  changed.view_switch_probability = view_switch_probability;
+  changed.validate();
+  config_ = changed;
+}
+
 void CellKinds::addMembership(const std::array<double, kKindCount>& delta, bool new_cell) {
   for (int k = 0; k < kKindCount; ++k) sums_.membership[k] += delta[k];
   if (new_cell) sums_.cells += 1.0;
@@ -265,7 +298,9 @@ void CellKinds::update() {
       for (double& value : bin) value *= decay;
     }
   }
-  for (int k = 0; k < kKindCount; ++k) transitions_[k] = fitPairs(k, transitions_[k]);
+  for (int k = 0; k < kKindCount; ++k) {
+    if (k != kStableKind) transitions_[k] = fitPairs(k, transitions_[k]);
+  }
   recompute();
 }
 
@@ -282,7 +317,11 @@ void CellKinds::restore(const Sums& sums, const std::array<TransitionParams, kKi
   }
   require(ok, "kinds: saved sums must be finite and >= 0, transitions within the bounds");
   sums_ = sums;
+  // The stable kind is never learned: it keeps the configured transitions, whatever a file
+  // written before it existed says.
+  const TransitionParams stable = transitions_[kStableKind];
   transitions_ = transitions;
+  transitions_[kStableKind] = stable;
   recompute();
 }
 
@@ -294,6 +333,7 @@ TransitionParams CellKinds::fitPairs(int k, TransitionParams start) const {
   const TransitionParams& prior = config_.initial_transitions[k];
   const double w = config_.transition_prior_weight;
   const auto& bins = sums_.pairs[k];
+  const double flip = observedStepSwitch(1.0);
   const auto objective = [&](double u, double v) {
     const double a = std::exp(u);
     const double b = std::exp(v);
@@ -305,8 +345,12 @@ TransitionParams CellKinds::fitPairs(int k, TransitionParams start) const {
       double p[2][2];
       nStep(TransitionParams{a, b}, gapBinSteps(bin), p);
       for (int i = 0; i < 2; ++i) {
+        // Then the observed step's switch, from a new view: a pair's change that the view
+        // explains is not the kind's (pairs do not keep their view; most are new ones).
+        const double to_occ = p[i][0] + flip * (p[i][1] - p[i][0]);
+        const double now[2] = {to_occ, 1.0 - to_occ};
         for (int j = 0; j < 2; ++j) {
-          if (c[2 * i + j] > 0.0) value += c[2 * i + j] * std::log(std::max(p[i][j], 1e-300));
+          if (c[2 * i + j] > 0.0) value += c[2 * i + j] * std::log(std::max(now[j], 1e-300));
         }
       }
     }

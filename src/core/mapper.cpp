@@ -39,6 +39,11 @@ double chordThroughCell(std::int32_t x, std::int32_t y, double u0, double v0, do
 
 using ScanRecord = CellGrid::ScanRecord;
 
+// The laser's turns count into its motion (Mapper::viewChangeSince) as the arc they sweep at
+// this distance: a cell a metre away is seen along another line after a turn of one cell's
+// width in metres.
+constexpr double kViewRadiusM = 1.0;
+
 // addSensorEvidence: the smallest lambda^k between a step and the next observation for the
 // step to count (docs/online_learning.md, "The sensor model").
 constexpr double kSensorModelMinCorrelation = 0.95;
@@ -184,6 +189,13 @@ ScanResult Mapper::integrate(const Scan& scan) {
   clock_.startAt(scan.stamp_s);
   if (gathering_step_ && step > *gathering_step_) applyGatheredStep();
   gathering_step_ = step;
+  if (last_laser_pose_) {
+    const double turn = std::remainder(pose.yaw_rad - last_laser_pose_->yaw_rad, 2.0 * M_PI);
+    motion_cells_ += (std::hypot(pose.x_m - last_laser_pose_->x_m, pose.y_m - last_laser_pose_->y_m) +
+                      kViewRadiusM * std::abs(turn)) /
+                     config_.resolution_m;
+  }
+  last_laser_pose_ = pose;
   nextScanId();
   grid_.reserve(box);
 
@@ -311,6 +323,8 @@ void Mapper::markHit(CellGrid::Tile& tile, int offset) {
 void Mapper::applyGatheredStep() {
   if (!gathering_step_) return;
   const auto step = static_cast<std::int32_t>(*gathering_step_);
+  motion_at_step_[step % kMotionSteps] = motion_cells_;
+  motion_step_[step % kMotionSteps] = step;
   for (const TouchedTile& touched : touched_tiles_) {
     CellGrid::Tile& tile = *touched.tile;
     tile_versions_.bump(tile.tile_x, tile.tile_y);
@@ -343,8 +357,11 @@ void Mapper::applyCellEvidence(CellGrid::Tile& tile, int i, std::int32_t step, s
     // The evidence's two likelihoods once, for the sensor model's statistics, the pair and
     // the filter.
     const KindEvidence kind_evidence(evidence);
-    if (config_.learn_sensor_model && observed_before) addKindsSensorEvidence(tile, i, step, kind_evidence);
-    learnKindsStep(tile, i, step, kind_evidence);
+    const double view_change = observed_before ? viewChangeSince(tile.last_step[i]) : 1.0;
+    if (config_.learn_sensor_model && observed_before) {
+      addKindsSensorEvidence(tile, i, step, kind_evidence, view_change);
+    }
+    learnKindsStep(tile, i, step, kind_evidence, view_change);
   } else {
     if (config_.learn_sensor_model && observed_before) addSensorEvidence(tile, i, step, evidence);
     if (config_.learn_transitions) {
@@ -497,7 +514,14 @@ void Mapper::learnStep(CellGrid::Tile& tile, int i, std::int32_t step, double ev
   tile.p_free_given_occ[i] = static_cast<float>(cell.params.p_free_given_occ);
 }
 
-void Mapper::learnKindsStep(CellGrid::Tile& tile, int i, std::int32_t step, const KindEvidence& evidence) {
+double Mapper::viewChangeSince(std::int32_t last_step) const {
+  const std::int32_t slot = last_step % kMotionSteps;
+  if (!gathering_step_ || motion_step_[slot] != last_step) return 1.0;
+  return std::min(1.0, motion_cells_ - motion_at_step_[slot]);
+}
+
+void Mapper::learnKindsStep(CellGrid::Tile& tile, int i, std::int32_t step, const KindEvidence& evidence,
+                            double view_change) {
   const std::int32_t last = tile.last_step[i];
   const bool first = last == kNeverObserved;
   KindJoint joint;
@@ -514,9 +538,9 @@ void Mapper::learnKindsStep(CellGrid::Tile& tile, int i, std::int32_t step, cons
   }
   // The pair (its state at its last observed step, its state now) teaches the kinds
   // (cell_kinds.h), from the joint before the gap is crossed.
-  if (!first) kinds_.addPair(joint, gap + 1, evidence);
+  if (!first) kinds_.addPair(joint, gap + 1, evidence, view_change);
   kinds_.skip(joint, gap);
-  tile.p_occ[i] = static_cast<float>(kinds_.observe(joint, gap, evidence));
+  tile.p_occ[i] = static_cast<float>(kinds_.observe(joint, gap, evidence, view_change));
   std::array<double, kKindCount> delta{};
   for (int k = 0; k < kKindCount; ++k) delta[k] = joint.kind(k) - before[k];
   kinds_.addMembership(delta, first);
@@ -528,7 +552,7 @@ void Mapper::learnKindsStep(CellGrid::Tile& tile, int i, std::int32_t step, cons
 }
 
 void Mapper::addKindsSensorEvidence(const CellGrid::Tile& tile, int i, std::int32_t step,
-                                    const KindEvidence& evidence) {
+                                    const KindEvidence& evidence, double view_change) {
   // As addSensorEvidence, per kind: p(k, x_last = s | z up to this step) ∝ p(k, s | z up to
   // last) * sum_m A_k^n(s, m) p(z|m), n the transitions in between, counted only for the
   // kinds expected to keep their state in between (lambda_k^n >= 0.95), and only once the
@@ -543,9 +567,8 @@ void Mapper::addKindsSensorEvidence(const CellGrid::Tile& tile, int i, std::int3
   double total = 0.0;
   for (int k = 0; k < kKindCount; ++k) {
     const double lambda_n = kinds_.lambdaPower(k, n);
-    const double pi = kinds_.stationary(k);
-    const double occ_to_occ = pi + lambda_n * (1.0 - pi);
-    const double free_to_occ = pi - lambda_n * pi;
+    const double occ_to_occ = kinds_.occupiedAfter(k, 0, n, view_change);
+    const double free_to_occ = kinds_.occupiedAfter(k, 1, n, view_change);
     const double w_occ = tile.em_stats[2 * k][i] * (occ_to_occ * like_occ + (1.0 - occ_to_occ) * like_free);
     const double w_free = tile.em_stats[2 * k + 1][i] * (free_to_occ * like_occ + (1.0 - free_to_occ) * like_free);
     total += w_occ + w_free;
@@ -801,6 +824,11 @@ void Mapper::setClippedCornerChord(double clipped_corner_chord) {
   config.clipped_corner_chord = clipped_corner_chord;
   config.validate();  // throws for a value outside [0, 1.5]
   config_.clipped_corner_chord = clipped_corner_chord;
+}
+
+void Mapper::setViewSwitchProbability(double view_switch_probability) {
+  kinds_.setViewSwitchProbability(view_switch_probability);
+  config_.kinds.view_switch_probability = view_switch_probability;
 }
 
 void Mapper::setMixedStepProbability(double mixed_step_probability) {

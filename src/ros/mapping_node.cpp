@@ -64,8 +64,10 @@ void logLearners(const core::MapperConfig& config) {
   const core::OnlineEmConfig& em = config.online_em;
   if (config.learn_transitions && config.learner == core::TransitionLearner::kKinds) {
     ROS_INFO("online learning of the transitions: %d kinds of cells learned from the whole map (kind switch "
-             "probability %g per step, forgetting %g per step)",
-             core::kKindCount, config.kinds.switch_probability, config.kinds.forgetting);
+             "probability %g per step, forgetting %g per step, a cell's state switches with probability %g at an "
+             "observed step from a new view: kinds/view_switch_probability)",
+             core::kKindCount, config.kinds.switch_probability, config.kinds.forgetting,
+             config.kinds.view_switch_probability);
   } else if (config.learn_transitions) {
     std::ostringstream line;
     line << "online EM of the transitions: schedule ";
@@ -110,8 +112,9 @@ void logLearners(const core::MapperConfig& config) {
 }
 
 // A loaded model takes this node's settings for what model files leave out: how a step's
-// beams are read and which misses a scan counts.
+// beams are read, which misses a scan counts and how readings change with the view.
 void applySettingsModelFilesLeaveOut(core::Mapper& mapper, const core::MapperConfig& config) {
+  mapper.setViewSwitchProbability(config.kinds.view_switch_probability);
   mapper.setMixedStepProbability(config.sensor_model_mixed_step_probability);
   mapper.setClippedCornerChord(config.clipped_corner_chord);
 }

@@ -258,6 +258,7 @@ bool readParameters(const ros::NodeHandle& private_nh, NodeParameters* parameter
     read.fail("learner", "must be \"kinds\" or \"cell_em\", got \"" + learner + "\"");
   }
   read.number("kinds/switch_probability", &m.kinds.switch_probability);
+  read.number("kinds/view_switch_probability", &m.kinds.view_switch_probability);
   read.number("kinds/forgetting", &m.kinds.forgetting);
   read.number("kinds/transition_prior_weight", &m.kinds.transition_prior_weight);
   read.number("kinds/weight_prior_cells", &m.kinds.weight_prior_cells);

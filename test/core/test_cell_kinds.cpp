@@ -3,8 +3,8 @@
 // The oracle is a plain reference written here in long double: the model of cell_kinds.h as
 // a hidden Markov model on (kind, state), one loop iteration per time step, no closed forms
 // (the unobserved steps move each kind's state by its A_k, the kind switch redraws the kind
-// from the shares with the state kept, the observed step moves the state and weighs it by
-// the evidence). No reference calls CellKinds. The M-step is checked against its formula
+// from the shares with the state kept, the observed step moves the state, switches it with
+// the configured probability for the step's view change, and weighs it by the evidence). No reference calls CellKinds' model. The M-step is checked against its formula
 // by hand, and the learning against a simulated population whose kinds are known.
 
 #include "dynamic_occupancy_grid/core/cell_kinds.h"
@@ -74,9 +74,16 @@ void referenceSwitch(Joint& joint, const dog::CellKinds& kinds, std::int64_t ste
   }
 }
 
+// The state's switch at an observed step whose view changed by `view_change`, in every kind:
+// view_switch_probability from a new view, half of it from the same pose.
+LD referenceSwitchAtObservation(const dog::CellKinds& kinds, LD view_change) {
+  return static_cast<LD>(kinds.config().view_switch_probability) * (1.0L + view_change) / 2.0L;
+}
+
 // An observed step after `gap` unobserved ones; fills xi[k][i][j] = p(k, x_{t-1} = i,
 // x_t = j | z_1:t). Returns p(occ).
-LD referenceObserve(Joint& joint, const dog::CellKinds& kinds, std::int64_t gap, LD ratio, LD xi[K][2][2]) {
+LD referenceObserve(Joint& joint, const dog::CellKinds& kinds, std::int64_t gap, LD ratio, LD xi[K][2][2],
+                    LD view_change = 1.0L) {
   for (std::int64_t i = 0; i < gap; ++i) referenceStep(joint, kinds);
   referenceSwitch(joint, kinds, gap + 1);
   const LD b[2] = {std::exp(ratio), 1.0L};  // p(z | occ) / p(z | free), p(z | free) / p(z | free)
@@ -84,7 +91,13 @@ LD referenceObserve(Joint& joint, const dog::CellKinds& kinds, std::int64_t gap,
   for (int k = 0; k < K; ++k) {
     const LD of = kinds.transitions(k).p_occ_given_free;
     const LD fo = kinds.transitions(k).p_free_given_occ;
-    const LD a[2][2] = {{1.0L - fo, fo}, {of, 1.0L - of}};
+    const LD step[2][2] = {{1.0L - fo, fo}, {of, 1.0L - of}};
+    const LD sigma = referenceSwitchAtObservation(kinds, view_change);
+    const LD flip[2][2] = {{1.0L - sigma, sigma}, {sigma, 1.0L - sigma}};
+    LD a[2][2];
+    for (int i = 0; i < 2; ++i) {
+      for (int j = 0; j < 2; ++j) a[i][j] = step[i][0] * flip[0][j] + step[i][1] * flip[1][j];
+    }
     for (int i = 0; i < 2; ++i) {
       for (int j = 0; j < 2; ++j) {
         xi[k][i][j] = joint[2 * k + i] * a[i][j] * b[j];
@@ -114,11 +127,12 @@ Joint toReference(const dog::KindJoint& joint) {
 
 // One observed step after `gap` unobserved ones, by CellKinds (skip, observe) and by the
 // reference: p(occ) and the joint must agree.
-void observeBoth(const dog::CellKinds& kinds, std::int64_t gap, double ratio, dog::KindJoint& joint, Joint& reference) {
+void observeBoth(const dog::CellKinds& kinds, std::int64_t gap, double ratio, dog::KindJoint& joint, Joint& reference,
+                 double view_change = 1.0) {
   kinds.skip(joint, gap);
-  const double p = kinds.observe(joint, gap, ratio);
+  const double p = kinds.observe(joint, gap, ratio, view_change);
   LD xi[K][2][2];
-  const LD expected = referenceObserve(reference, kinds, gap, ratio, xi);
+  const LD expected = referenceObserve(reference, kinds, gap, ratio, xi, view_change);
   ASSERT_NEAR(p, static_cast<double>(expected), 1e-12);
   for (int i = 0; i < 2 * K; ++i) ASSERT_NEAR(joint.p[i], static_cast<double>(reference[i]), 1e-12) << i;
 }
@@ -127,15 +141,19 @@ TEST(CellKinds, ObserveAndSkipEqualTheStepByStepReference) {
   std::mt19937_64 rng(11);
   std::uniform_int_distribution<int> gaps(0, 40);
   std::uniform_real_distribution<double> ratios(-6.0, 6.0);
+  std::uniform_real_distribution<double> unit(0.0, 1.0);
   for (int trial = 0; trial < 20; ++trial) {
     SCOPED_TRACE(trial);
-    const dog::CellKinds kinds(randomConfig(rng, trial % 2 == 0 ? 1e-3 : 0.0), 1e-4, 0.5);
+    dog::KindsConfig config = randomConfig(rng, trial % 2 == 0 ? 1e-3 : 0.0);
+    config.view_switch_probability = trial % 5 == 0 ? 0.0 : 0.3 * unit(rng);
+    const dog::CellKinds kinds(config, 1e-4, 0.5);
     dog::KindJoint joint = kinds.newCell(0.3);
     Joint reference = toReference(joint);
     for (int step = 0; step < 60; ++step) {
       const std::int64_t gap = step == 0 ? 0 : gaps(rng);
       const double ratio = ratios(rng);
-      ASSERT_NO_FATAL_FAILURE(observeBoth(kinds, gap, ratio, joint, reference));
+      const double view_change = step % 3 == 0 ? 1.0 : unit(rng);
+      ASSERT_NO_FATAL_FAILURE(observeBoth(kinds, gap, ratio, joint, reference, view_change));
     }
   }
 }
@@ -157,7 +175,8 @@ TEST(CellKinds, GapsAtAndBeyondTheTablesEqualTheStepByStepReference) {
 
 TEST(CellKinds, PairPosteriorIsTheChainStepByStepFromEachState) {
   // p(k, x_last = i, x_now = j | z): the joint at the last step, each (kind, state) moved n
-  // steps by its A_k one step at a time, weighed by this step's evidence.
+  // steps by its A_k one step at a time, switched at the observed step, weighed by this
+  // step's evidence.
   std::mt19937_64 rng(13);
   std::uniform_real_distribution<double> ratios(-6.0, 6.0);
   const dog::CellKinds kinds(randomConfig(rng, 1e-3), 1e-4, 0.5);
@@ -167,16 +186,20 @@ TEST(CellKinds, PairPosteriorIsTheChainStepByStepFromEachState) {
   for (const std::int64_t n : {1, 2, 7, 40, 64, 65, 333}) {
     SCOPED_TRACE(n);
     const double ratio = ratios(rng);
-    const dog::CellKinds::PairPosterior pair = kinds.pairPosterior(last, n, ratio);
+    const double view_change = n % 2 == 0 ? 1.0 : 0.25;
+    const dog::CellKinds::PairPosterior pair = kinds.pairPosterior(last, n, ratio, view_change);
     LD expected[K][2][2];
     LD total = 0.0L;
     for (int k = 0; k < K; ++k) {
+      const LD sigma = referenceSwitchAtObservation(kinds, view_change);
       for (int i = 0; i < 2; ++i) {
         Joint chain{};
         chain[2 * k + i] = 1.0L;
         for (std::int64_t step = 0; step < n; ++step) referenceStep(chain, kinds);
+        const LD occ = chain[2 * k] * (1.0L - sigma) + chain[2 * k + 1] * sigma;
+        const LD now[2] = {occ, chain[2 * k] + chain[2 * k + 1] - occ};
         for (int j = 0; j < 2; ++j) {
-          expected[k][i][j] = static_cast<LD>(last.p[2 * k + i]) * chain[2 * k + j] * (j == 0 ? std::exp(static_cast<LD>(ratio)) : 1.0L);
+          expected[k][i][j] = static_cast<LD>(last.p[2 * k + i]) * now[j] * (j == 0 ? std::exp(static_cast<LD>(ratio)) : 1.0L);
           total += expected[k][i][j];
         }
       }
@@ -232,9 +255,11 @@ TEST(CellKinds, NoKindDiesOfEvidence) {
 }
 
 TEST(CellKinds, OneStepPairsGiveTheCountRatioAndForget) {
-  // With pairs one step apart only, the likelihood's maximum is the ratio of the expected
-  // transitions with the start's pseudo-transitions; the sums decay first.
+  // With pairs one step apart only and no switch at the observed step, the likelihood's
+  // maximum is the ratio of the expected transitions with the start's pseudo-transitions;
+  // the sums decay first.
   dog::KindsConfig config;
+  config.view_switch_probability = 0.0;
   config.transition_prior_weight = 10.0;
   config.weight_prior_cells = 4.0;
   config.forgetting = 0.5;
@@ -266,19 +291,23 @@ TEST(CellKinds, OneStepPairsGiveTheCountRatioAndForget) {
 }
 
 TEST(CellKinds, PairsAtManyDistancesGiveTheChainBack) {
-  // The expected pairs of a chain (0.03, 0.07) in its stationary distribution, a million at
-  // each of several distances, some of them longer than the chain's memory: the maximum is
-  // that chain (the start's 100 pseudo-pairs move it by less than 0.1 %).
+  // The expected pairs of a chain (0.03, 0.07) in its stationary distribution, each pair's
+  // state switched at its observed step from a new view (view_switch_probability), a million
+  // at each of several distances, some of them longer than the chain's memory: the maximum
+  // is that chain (the start's 100 pseudo-pairs move it by less than 0.1 %).
   const double a = 0.03;
   const double b = 0.07;
   const double pi = a / (a + b);
+  const double flip = dog::KindsConfig{}.view_switch_probability;
   dog::CellKinds kinds(dog::KindsConfig{}, 1e-4, 0.5);
   dog::CellKinds::Sums sums;
   for (const int bin : {dog::gapBin(1), dog::gapBin(3), dog::gapBin(9), dog::gapBin(40), dog::gapBin(300)}) {
     const double n = dog::gapBinSteps(bin);
     const double decay = std::pow(1.0 - a - b, n);
-    const double occ_to_occ = pi + decay * (1.0 - pi);
-    const double free_to_occ = pi * (1.0 - decay);
+    const double chain_occ_to_occ = pi + decay * (1.0 - pi);
+    const double chain_free_to_occ = pi * (1.0 - decay);
+    const double occ_to_occ = chain_occ_to_occ + flip * (1.0 - 2.0 * chain_occ_to_occ);
+    const double free_to_occ = chain_free_to_occ + flip * (1.0 - 2.0 * chain_free_to_occ);
     auto& c = sums.pairs[3][bin];
     c[0] = 1e6 * pi * occ_to_occ;
     c[1] = 1e6 * pi * (1.0 - occ_to_occ);
@@ -293,9 +322,10 @@ TEST(CellKinds, PairsAtManyDistancesGiveTheChainBack) {
   EXPECT_NEAR(kinds.transitions(3).p_free_given_occ, b, 1e-3 * b);
   // Only pairs far apart (the chain forgotten between them) still give its long-run
   // occupancy.
+  const double seen = pi + flip * (1.0 - 2.0 * pi);  // the long-run state, switched
   dog::CellKinds::Sums far;
-  far.pairs[3][dog::gapBin(2000)] = {1e6 * pi * pi, 1e6 * pi * (1.0 - pi), 1e6 * (1.0 - pi) * pi,
-                                     1e6 * (1.0 - pi) * (1.0 - pi)};
+  far.pairs[3][dog::gapBin(2000)] = {1e6 * pi * seen, 1e6 * pi * (1.0 - seen), 1e6 * (1.0 - pi) * seen,
+                                     1e6 * (1.0 - pi) * (1.0 - seen)};
   dog::CellKinds forgetful(dog::KindsConfig{}, 1e-4, 0.5);
   forgetful.restore(far, start);
   forgetful.update();
@@ -315,7 +345,9 @@ TEST(CellKinds, MostProbableCountingGivesThePairToTheLikeliestKind) {
   const auto& hard = kinds.sums().pairs;
   const double to_kind_3 = hard[3][0][2] + hard[3][0][3];
   EXPECT_NEAR(to_kind_3, 1.0, 1e-12);  // the whole pair, given kind 3
-  EXPECT_NEAR(hard[3][0][2], kinds.transitions(3).p_occ_given_free, 1e-12);
+  // Free to occupied: kind 3's transition, then the observed step's switch.
+  const double of = kinds.transitions(3).p_occ_given_free;
+  EXPECT_NEAR(hard[3][0][2], of + config.view_switch_probability * (1.0 - 2.0 * of), 1e-12);
   EXPECT_EQ(hard[1][0][2] + hard[1][0][3], 0.0);
   config.counting = dog::KindCounting::kPosterior;
   dog::CellKinds soft(config, 1e-4, 0.5);
@@ -376,6 +408,59 @@ TEST(CellKinds, SummariesOfAKnownPosterior) {
   }
 }
 
+TEST(CellKinds, TheStableKindIsNeverLearned) {
+  // Pairs that would teach any other kind fast rates leave the stable kind where it was
+  // configured; a saved model with other transitions for it is read with the configured ones.
+  dog::KindsConfig config;
+  config.initial_transitions[dog::kStableKind] = {2e-4, 3e-4};
+  dog::CellKinds kinds(config, 1e-4, 0.5);
+  dog::KindJoint last;
+  last.p[2 * dog::kStableKind] = 1.0;  // all of it occupied, on the stable kind
+  for (int i = 0; i < 200; ++i) kinds.addPair(last, 1 + i % 5, -5.0);  // and seen free every time
+  kinds.update();
+  EXPECT_GT(kinds.sums().pairs[dog::kStableKind][0][1], 0.0);  // the pairs were its
+  EXPECT_EQ(kinds.transitions(dog::kStableKind).p_occ_given_free, 2e-4);
+  EXPECT_EQ(kinds.transitions(dog::kStableKind).p_free_given_occ, 3e-4);
+  std::array<dog::TransitionParams, K> saved;
+  for (int k = 0; k < K; ++k) saved[k] = kinds.transitions(k);
+  saved[dog::kStableKind] = {0.01, 0.2};
+  dog::CellKinds restored(config, 1e-4, 0.5);
+  restored.restore(kinds.sums(), saved);
+  EXPECT_EQ(restored.transitions(dog::kStableKind).p_free_given_occ, 3e-4);
+  EXPECT_EQ(restored.transitions(1).p_free_given_occ, kinds.transitions(1).p_free_given_occ);
+}
+
+TEST(CellKinds, AStableCellKeepsItsStateInTheSummary) {
+  // A cell all on the stable kind: the summary's long-run occupancy is the cell's state, and
+  // predicting it any number of steps ahead with the summary keeps it there; its rates stay
+  // as small as the stable kind's.
+  const dog::CellKinds kinds(dog::KindsConfig{}, 1e-4, 0.5);
+  for (const double q : {0.02, 0.3, 0.97}) {
+    SCOPED_TRACE(q);
+    dog::KindJoint joint;
+    joint.p[2 * dog::kStableKind] = q;
+    joint.p[2 * dog::kStableKind + 1] = 1.0 - q;
+    const dog::TransitionParams t = kinds.summary(joint);
+    EXPECT_NEAR(*dog::stationaryOccupancy(t), q, 1e-12);
+    EXPECT_NEAR(dog::predictOccupancy(q, t, 100000), q, 1e-12);
+    // The smaller rate is the stable kind's own (the learner's lower bound), the other one
+    // in the state's ratio.
+    EXPECT_NEAR(std::min(t.p_occ_given_free, t.p_free_given_occ), kinds.transitions(dog::kStableKind).p_occ_given_free,
+                1e-15);
+  }
+  // Half on the stable kind (occupied), half on kind 4 (at 0.2 / 0.4 in the defaults' start):
+  // the geometric mean of the kinds' rates, the stable kind's in the ratio of its state.
+  dog::KindJoint mixed;
+  mixed.p[2 * dog::kStableKind] = 0.45;
+  mixed.p[2 * dog::kStableKind + 1] = 0.05;
+  mixed.p[2 * 4 + 1] = 0.5;
+  const dog::TransitionParams stable = kinds.transitions(dog::kStableKind);
+  const dog::TransitionParams fast = kinds.transitions(4);
+  const dog::TransitionParams t = kinds.summary(mixed);
+  EXPECT_NEAR(t.p_occ_given_free, std::sqrt(9.0 * stable.p_occ_given_free * fast.p_occ_given_free), 1e-15);
+  EXPECT_NEAR(t.p_free_given_occ, std::sqrt(stable.p_free_given_occ * fast.p_free_given_occ), 1e-15);
+}
+
 TEST(CellKinds, SavedSumsRestoreTheKinds) {
   dog::CellKinds kinds(dog::KindsConfig{}, 1e-4, 0.5);
   dog::KindJoint last;
@@ -422,20 +507,26 @@ TEST(CellKinds, ConfigurationIsValidated) {
   refuses([](dog::KindsConfig& c) { c.weight_prior_cells = -1.0; });
   refuses([](dog::KindsConfig& c) { c.switch_probability = 1.0; });
   refuses([](dog::KindsConfig& c) { c.forgetting = -0.1; });
+  refuses([](dog::KindsConfig& c) { c.view_switch_probability = 0.5; });
+  refuses([](dog::KindsConfig& c) { c.view_switch_probability = -0.01; });
   EXPECT_THROW(dog::CellKinds(dog::KindsConfig{}, 0.0, 0.5), std::invalid_argument);
   EXPECT_THROW(dog::CellKinds(dog::KindsConfig{}, 1e-4, 0.75), std::invalid_argument);
 }
 
-TEST(CellKinds, LearnsTheKindsOfASimulatedPopulation) {
-  // 2000 cells that never change (a third occupied), 200 slow (0.01 / 0.02 per step) and 100
-  // fast ones (0.15 / 0.3), each observed every step by one beam of a 0.95 / 0.02 sensor,
-  // 1500 steps: the map learns a kind at each of the three truths, and each cell's summary
-  // lands near its own truth.
-  struct Truth {
-    double of, fo;
-    int cells;
-  };
-  const std::array<Truth, 3> truths{{{0.0, 0.0, 2000}, {0.01, 0.02, 200}, {0.15, 0.3, 100}}};
+namespace {
+
+struct PopulationTruth {
+  double of, fo;
+  int cells;
+};
+
+// The population of LearnsTheKinds...: cells of the given truths (a third occupied at the
+// start), observed by one beam of a 0.95 / 0.02 sensor in `visit` consecutive steps of every
+// `loop` steps (a robot driving past), a new view at each observed step, `steps` steps.
+// Returns each truth's mean absolute error of the cells' summaries, and the kinds.
+std::array<double, 3> learnPopulation(const dog::KindsConfig& config, const std::array<PopulationTruth, 3>& truths,
+                                      int visit, int loop, int steps, dog::CellKinds& kinds,
+                                      double* stable_share_of_static = nullptr) {
   const double hit_occ = 0.95;
   const double hit_free = 0.02;
   const double hit_ratio = std::log(hit_occ / hit_free);
@@ -450,31 +541,50 @@ TEST(CellKinds, LearnsTheKindsOfASimulatedPopulation) {
       occupied.push_back(u(rng) < 1.0 / 3.0);
     }
   }
-  dog::CellKinds kinds(dog::KindsConfig{}, 1e-4, 0.5);
+  kinds = dog::CellKinds(config, 1e-4, 0.5);
   std::vector<dog::KindJoint> joints(truth_of.size());
-  for (int step = 0; step < 1500; ++step) {
+  std::vector<int> last_seen(truth_of.size(), -1);
+  for (int step = 0; step < steps; ++step) {
+    const bool in_view = step % loop < visit;
     for (std::size_t c = 0; c < truth_of.size(); ++c) {
-      const Truth& truth = truths[static_cast<std::size_t>(truth_of[c])];
+      const PopulationTruth& truth = truths[static_cast<std::size_t>(truth_of[c])];
       if (step > 0 && u(rng) < (occupied[c] ? truth.fo : truth.of)) occupied[c] = !occupied[c];
+      if (!in_view) continue;
       const bool hit = u(rng) < (occupied[c] ? hit_occ : hit_free);
       std::array<double, K> before{};
       const double ratio = hit ? hit_ratio : miss_ratio;
-      if (step == 0) {
+      std::int64_t gap = 0;
+      if (last_seen[c] < 0) {
         joints[c] = kinds.newCell(0.5);
       } else {
         for (int k = 0; k < K; ++k) before[k] = joints[c].kind(k);
-        kinds.addPair(joints[c], 1, ratio);
+        gap = step - last_seen[c] - 1;
+        kinds.addPair(joints[c], gap + 1, ratio);
+        kinds.skip(joints[c], gap);
       }
-      kinds.observe(joints[c], 0, ratio);
+      kinds.observe(joints[c], gap, ratio);
       std::array<double, K> delta{};
       for (int k = 0; k < K; ++k) delta[k] = joints[c].kind(k) - before[k];
-      kinds.addMembership(delta, step == 0);
+      kinds.addMembership(delta, last_seen[c] < 0);
+      last_seen[c] = step;
     }
-    kinds.update();
+    if (in_view) kinds.update();
   }
-  // A kind within 50 % of each changing truth (measured: 0.0131 / 0.0297 for the slow cells,
-  // which share their data with a second kind at 0.0076 / 0.0061, and 0.153 / 0.305 for the
-  // fast ones).
+  std::array<double, 3> error{};
+  double stable = 0.0;
+  for (std::size_t c = 0; c < truth_of.size(); ++c) {
+    const PopulationTruth& truth = truths[static_cast<std::size_t>(truth_of[c])];
+    const dog::TransitionParams summary = kinds.summary(joints[c]);
+    error[static_cast<std::size_t>(truth_of[c])] +=
+        0.5 * (std::abs(summary.p_occ_given_free - truth.of) + std::abs(summary.p_free_given_occ - truth.fo)) / truth.cells;
+    if (truth_of[c] == 0) stable += joints[c].kind(dog::kStableKind) / truth.cells;
+  }
+  if (stable_share_of_static != nullptr) *stable_share_of_static = stable;
+  return error;
+}
+
+// A learned kind within 50 % of each changing truth.
+void expectAKindAtEachChangingTruth(const dog::CellKinds& kinds, const std::array<PopulationTruth, 3>& truths) {
   for (std::size_t t = 1; t < truths.size(); ++t) {
     bool found = false;
     for (int k = 0; k < K; ++k) {
@@ -484,16 +594,45 @@ TEST(CellKinds, LearnsTheKindsOfASimulatedPopulation) {
     }
     EXPECT_TRUE(found) << "no kind near " << truths[t].of << " / " << truths[t].fo;
   }
-  // Each cell's published transitions against its own truth: mean absolute error per truth.
-  std::array<double, 3> error{};
-  for (std::size_t c = 0; c < truth_of.size(); ++c) {
-    const Truth& truth = truths[static_cast<std::size_t>(truth_of[c])];
-    const dog::TransitionParams summary = kinds.summary(joints[c]);
-    error[static_cast<std::size_t>(truth_of[c])] +=
-        0.5 * (std::abs(summary.p_occ_given_free - truth.of) + std::abs(summary.p_free_given_occ - truth.fo)) / truth.cells;
-  }
-  // Measured: 0.00017, 0.0051, 0.0079.
-  EXPECT_LT(error[0], 0.001);
+}
+
+}  // namespace
+
+TEST(CellKinds, LearnsTheKindsOfASimulatedPopulation) {
+  // 2000 cells that never change, 200 slow (0.01 / 0.02 per step) and 100 fast ones (0.15 /
+  // 0.3), each observed every step, 1500 steps, by a laser whose readings do not change with
+  // the view (view_switch_probability 0): the map learns a kind at each of the three truths,
+  // and each cell's summary lands near its own truth.
+  const std::array<PopulationTruth, 3> truths{{{0.0, 0.0, 2000}, {0.01, 0.02, 200}, {0.15, 0.3, 100}}};
+  dog::KindsConfig config;
+  config.view_switch_probability = 0.0;
+  dog::CellKinds kinds(config, 1e-4, 0.5);
+  const std::array<double, 3> error = learnPopulation(config, truths, 1, 1, 1500, kinds);
+  expectAKindAtEachChangingTruth(kinds, truths);
+  // Measured: 0.0050, 0.0051, 0.0079. A static cell's summary holds its state with rates in
+  // its state's ratio, the larger at most 99 times the learner's lower bound (about 0.01):
+  // its error against 0 / 0 is about 0.005.
+  EXPECT_LT(error[0], 0.006);
   EXPECT_LT(error[1], 0.008);
   EXPECT_LT(error[2], 0.02);
+}
+
+TEST(CellKinds, LearnsWhatChangesBetweenVisitsWhileViewsSwitch) {
+  // The same population seen as a patrolling robot sees it, six steps every hundred, every
+  // observed step a new view (view_switch_probability 0.05, the default): what changes
+  // between visits is learned as changing, and the cells that never change stay in the
+  // stable kind, whose summary keeps them still.
+  const std::array<PopulationTruth, 3> truths{{{0.0, 0.0, 2000}, {0.01, 0.02, 200}, {0.15, 0.3, 100}}};
+  const dog::KindsConfig config;
+  dog::CellKinds kinds(config, 1e-4, 0.5);
+  double stable_share = 0.0;
+  const std::array<double, 3> error = learnPopulation(config, truths, 6, 100, 6000, kinds, &stable_share);
+  expectAKindAtEachChangingTruth(kinds, truths);
+  // Measured: 99.6 % of the static cells' posterior on the stable kind; errors 0.0048 (the
+  // stable kind's summary, see above), 0.0067, 0.077 (the fast cells' summaries are pulled
+  // down by what stays on the stable kind: a geometric mean).
+  EXPECT_GT(stable_share, 0.95);
+  EXPECT_LT(error[0], 0.006);
+  EXPECT_LT(error[1], 0.01);
+  EXPECT_LT(error[2], 0.1);
 }

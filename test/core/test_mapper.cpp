@@ -2016,10 +2016,12 @@ dog::KindJoint roundedToFloat(dog::KindJoint joint) {
 }  // namespace
 
 TEST(MapperKinds, CellsAndKindsFollowAReferenceStepForStep) {
-  // Random beams along +x with gaps between steps, the sensor model learned too. A second
-  // CellKinds fed each touched cell's step as Mapper documents it (the joint rounded to
-  // float between steps, each observed step's pair with the cell's last one, the M-step
-  // after each applied step) must agree with the grid and the mapper's kinds.
+  // Random beams along +x with gaps between steps, the sensor model learned too, the laser
+  // moved along x by up to 2 cm between scans in some rounds (within its cell: the same
+  // cells, views changed by a fraction). A second CellKinds fed each touched cell's step as
+  // Mapper documents it (the joint rounded to float between steps, each observed step's pair
+  // with the cell's last one, the view's change since the cell's last step, the M-step after
+  // each applied step) must agree with the grid and the mapper's kinds.
   dog::MapperConfig config = kindsConfig();
   config.learn_sensor_model = true;
   config.sensor_model_prior_weight = 20.0;
@@ -2037,23 +2039,37 @@ TEST(MapperKinds, CellsAndKindsFollowAReferenceStepForStep) {
   std::map<std::int32_t, std::int64_t> last_step;
   std::map<std::int32_t, Evidence> last_evidence;
   std::map<std::int32_t, int> observed;
+  std::map<std::int64_t, double> motion_at;  // the laser's motion (cells) up to each applied step
+  std::uniform_real_distribution<double> shift(-0.01, 0.01);
+  double laser_x = kLaserX;
+  double motion = 0.0;
+  bool moved_once = false;
   std::int64_t step = 0;
   for (int round = 0; round < 150; ++round) {
     const int n = round == 0 ? 1 : scans_per_step(rng);
     std::map<std::int32_t, Evidence> counts;
     for (int k = 0; k < n; ++k) {
       const int end = cells(rng);
-      ASSERT_EQ(mapper.integrate(makeScan(step + 0.2 * k, {0.25f * static_cast<float>(end)})).status,
+      const double x = round % 3 == 0 ? kLaserX + shift(rng) : laser_x;
+      if (round > 0 || k > 0) motion += std::abs(x - laser_x) / config.resolution_m;
+      moved_once = moved_once || x != laser_x;
+      laser_x = x;
+      ASSERT_EQ(mapper.integrate(makeScan(step + 0.2 * k, {static_cast<float>(0.25 * end + kLaserX - x)}, 0.0, 0.0,
+                                          2.0 * kPi, 0.0, 20.0, x))
+                    .status,
                 dog::ScanStatus::kIntegrated);
       for (std::int32_t x = 0; x < end; ++x) counts[x].misses++;
       counts[end].hits++;
     }
     const dog::ObservationModel sensor = mapper.sensor();  // the model this step is weighed with
     mapper.finishStep();
+    if (n > 0) motion_at[step] = motion;
     for (const auto& [x, ev] : counts) {
       const double evidence = sensor.logLikelihoodRatio(ev.hits, ev.misses);
       const bool first = joints.count(x) == 0;
       const std::int64_t gap = first ? 0 : step - 1 - last_step[x];
+      const double view_change = first ? 1.0 : std::min(1.0, motion - motion_at[last_step[x]]);
+      const LD flip = static_cast<LD>(config.kinds.view_switch_probability) * (1.0L + view_change) / 2.0L;
       if (!first && observed[x] >= static_cast<int>(config.online_em.min_observed_steps)) {
         // The sensor model's sums: the cell's last step, weighed by p(state then | this step).
         const Evidence& previous = last_evidence[x];
@@ -2065,8 +2081,8 @@ TEST(MapperKinds, CellsAndKindsFollowAReferenceStepForStep) {
           const dog::TransitionParams t = reference.transitions(k);
           const LD lambda_n = reference.lambdaPower(k, gap + 1);
           const LD pi = t.p_occ_given_free / (t.p_occ_given_free + t.p_free_given_occ);
-          const LD occ_to_occ = pi + lambda_n * (1.0L - pi);
-          const LD free_to_occ = pi - lambda_n * pi;
+          const LD occ_to_occ = pi + lambda_n * (1.0L - pi) + flip * (1.0L - 2.0L * (pi + lambda_n * (1.0L - pi)));
+          const LD free_to_occ = pi - lambda_n * pi + flip * (1.0L - 2.0L * (pi - lambda_n * pi));
           const LD w_occ = joints[x].p[2 * k] * (occ_to_occ * like_occ + (1.0L - occ_to_occ) * like_free);
           const LD w_free = joints[x].p[2 * k + 1] * (free_to_occ * like_occ + (1.0L - free_to_occ) * like_free);
           all += w_occ + w_free;
@@ -2086,9 +2102,9 @@ TEST(MapperKinds, CellsAndKindsFollowAReferenceStepForStep) {
       } else {
         for (int k = 0; k < dog::kKindCount; ++k) before[k] = joints[x].kind(k);
       }
-      if (!first) reference.addPair(joints[x], gap + 1, evidence);
+      if (!first) reference.addPair(joints[x], gap + 1, evidence, view_change);
       reference.skip(joints[x], gap);
-      reference.observe(joints[x], gap, evidence);
+      reference.observe(joints[x], gap, evidence, view_change);
       std::array<double, dog::kKindCount> delta{};
       for (int k = 0; k < dog::kKindCount; ++k) delta[k] = joints[x].kind(k) - before[k];
       reference.addMembership(delta, first);
@@ -2123,6 +2139,7 @@ TEST(MapperKinds, CellsAndKindsFollowAReferenceStepForStep) {
     EXPECT_NEAR(mapper.sensorModelStats().hits[s], static_cast<double>(hits[s]), 1e-5 * static_cast<double>(trials[0] + trials[1]));
   }
   EXPECT_GT(mapper.sensorModelStats().trials[1], 50.0);
+  EXPECT_TRUE(moved_once);
   // The cells that flip between hit and miss moved the kinds off their start.
   bool moved = false;
   for (int k = 0; k < dog::kKindCount; ++k) {

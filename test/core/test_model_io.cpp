@@ -816,7 +816,9 @@ TEST(ModelIoFormat, KindsBlockHoldsEveryValueAtItsOffset) {
   std::array<dog::TransitionParams, dog::kKindCount> learned{};
   for (std::size_t k = 0; k < 5; ++k) learned[k] = dog::TransitionParams{0.0011 + 0.01 * k, 0.0013 + 0.02 * k};
   learned[4].p_free_given_occ = config.online_em.p_max;  // the bounds are allowed
-  learned[0].p_occ_given_free = config.online_em.p_min;
+  learned[1].p_occ_given_free = config.online_em.p_min;
+  // The stable kind is not learned: it keeps the configured transitions (cell_kinds.h).
+  learned[dog::kStableKind] = mapper.kinds().transitions(dog::kStableKind);
   mapper.restoreKinds(sums, learned);
   const std::string bytes = dog::serializeModel(mapper);
   EXPECT_EQ(getLE<std::uint8_t>(bytes, kKindCountingOffset), 0);

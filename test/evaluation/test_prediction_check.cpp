@@ -427,10 +427,12 @@ TEST(PredictionCheck, HugeGapsBetweenSteps) {
   EXPECT_EQ(result.horizons[0].labels, 2 * per_step);
   EXPECT_EQ(result.horizons[3].labels, per_step);
   EXPECT_EQ(result.horizons[4].labels, 0U);
-  // Two billion steps after the first, the dynamic map has mixed to its stationary
-  // distribution (pi = 0.5 with the symmetric prior): Brier 0.25; the static map still
-  // knows the walls.
-  EXPECT_NEAR(result.horizons[3].dynamic_model.brier(), 0.25, 1e-6);
+  // Two billion steps after the first, what the cells' learned kinds change with time has
+  // mixed to its stationary distribution; what is on the stable kind (most of a cell seen
+  // once) has not: the dynamic map still knows the walls and the free cells (Brier 0.090,
+  // against the 0.25 of a map mixed to 1/2), as the static map does.
+  EXPECT_LT(result.horizons[3].dynamic_model.brier(), 0.15);
+  EXPECT_EQ(result.horizons[3].dynamic_model.accuracy(), 1.0);
   EXPECT_EQ(result.horizons[3].static_model.accuracy(), 1.0);
 }
 
@@ -442,7 +444,9 @@ TEST(PredictionCheck, DynamicModelPredictsATogglingDoorBetterThanTheStaticMap) {
   // Brier score on cells that never change small (0.03^2 per label), so what separates the
   // models is the door, not the clamp: the static map's excess over a world without the door
   // alone exceeds the dynamic model's whole Brier score (measured at horizons 4 and 8:
-  // dynamic 0.013 and 0.016, static 0.020 and 0.036, static without door 0.001).
+  // dynamic 0.015 and 0.024, static 0.020 and 0.036, static without door 0.001; before the
+  // view's switch at an observed step (cell_kinds.h) the dynamic model's were 0.013 and
+  // 0.016: a toggle now also has the view to explain it, and the door cells hedge less).
   dog::MapperConfig config = testConfig(true);
   config.static_clamp = dog::LogOddsClamp{-3.5, 3.5};
   const auto recording = [](bool toggling) {
@@ -464,7 +468,7 @@ TEST(PredictionCheck, DynamicModelPredictsATogglingDoorBetterThanTheStaticMap) {
     const dog::HorizonScore& moving = with_door.horizons[k];
     const dog::HorizonScore& still = without.horizons[k];
     const std::string at = "horizon " + std::to_string(horizons[k]);
-    EXPECT_LT(moving.dynamic_model.brier(), 0.75 * moving.static_model.brier()) << at;
+    EXPECT_LT(moving.dynamic_model.brier(), 0.85 * moving.static_model.brier()) << at;
     EXPECT_LT(moving.dynamic_model.brier(), moving.static_model.brier() - still.static_model.brier()) << at;
     // Without the door both models are right everywhere, and the dynamic one is confident.
     EXPECT_EQ(still.static_model.accuracy(), 1.0) << at;

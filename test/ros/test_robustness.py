@@ -152,6 +152,7 @@ class TestRobustness(unittest.TestCase):
             (('clipped_corner_chord', '[0, 1.5]'), '_clipped_corner_chord:=2'),
             (('learner', '"kinds" or "cell_em", got "em"'), '_learner:=em'),
             (('kinds/switch_probability', '[0, 1)'), '_kinds/switch_probability:=1'),
+            (('kinds/view_switch_probability', '[0, 0.5)'), '_kinds/view_switch_probability:=0.5'),
             (('kinds/forgetting', '[0, 1)'), '_kinds/forgetting:=-0.1'),
             (('kinds/transition_prior_weight', '> 0'), '_kinds/transition_prior_weight:=0'),
             (('kinds/weight_prior_cells', 'must be a number'), '_kinds/weight_prior_cells:=many'),
@@ -189,14 +190,17 @@ class TestRobustness(unittest.TestCase):
                                                         'online learning of the sensor model'))
         self.assertIn('transitions learned online, sensor model learned online', output)
         self.assertIn('online learning of the transitions: 5 kinds of cells learned from the whole map (kind '
-                      'switch probability 0.0001 per step, forgetting 0.001 per step)', output)
+                      'switch probability 0.0001 per step, forgetting 0.001 per step, a cell\'s state switches with '
+                      'probability 0.05 at an observed step from a new view: kinds/view_switch_probability)', output)
         # The kinds' options are read too.
         output = ''.join(wall_scene.node_startup_output(
             self, 'kinds_parameters', ['_kinds/switch_probability:=0.001', '_kinds/forgetting:=0.0002',
-                                       '_kinds/transition_prior_weight:=50', '_kinds/weight_prior_cells:=20'],
+                                       '_kinds/transition_prior_weight:=50', '_kinds/weight_prior_cells:=20',
+                                       '_kinds/view_switch_probability:=0.02'],
             'online learning of the sensor model'))
         self.assertNotIn('is not one of this node\'s parameters', output)
-        self.assertIn('(kind switch probability 0.001 per step, forgetting 0.0002 per step)', output)
+        self.assertIn('(kind switch probability 0.001 per step, forgetting 0.0002 per step, a cell\'s state switches '
+                      'with probability 0.02 at an observed step', output)
         # Each cell's online EM at its defaults: the harmonic schedule, no averaging, a fixed prior.
         output = ''.join(wall_scene.node_startup_output(self, 'cell_em_learner', ['_learner:=cell_em'],
                                                         'online learning of the sensor model'))

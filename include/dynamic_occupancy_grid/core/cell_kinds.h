@@ -12,9 +12,24 @@
 // occupied, free, occupied is "people" with the rates the map learned from all such spots,
 // after a handful of observations instead of thousands.
 //
+// What a moving laser reads of a place that does not change still changes with where it
+// looks from: a 5 cm wall cell is hit from one pose and passed through from the next, a
+// little further along the wall or under the pose's error. On a robot driving through a
+// building most of what looks like change is that. The model explains it as a switch of the
+// state at an observed step (view_switch_probability), the same for every kind, which costs
+// the same after a second as after an hour and which the cell keeps until it is seen again.
+// Kinds then differ in what changes with time. One kind is not learned: kind 0, the stable
+// kind, does not change between observations at all. A place that changed once and then
+// held keeps its new state, and a wall the robot left stays a wall; a place seen occupied,
+// free, occupied on revisits minutes apart is one of the learned kinds. Without the switch,
+// the kind that held walls and floor learned the floor's fast p_free_given_occ (people
+// passing) and walls faded within seconds of being left (docs/online_learning.md, "Views
+// that change").
+//
 // The model per cell (index s: 0 = occ, 1 = free):
 //   kind k ~ w (the population's shares), state x_0 ~ (initial_p_occ, 1 - initial_p_occ);
-//   every step, x_t ~ A_k(x_{t-1}, .); observations as in THEORY.md §1;
+//   every step, x_t ~ A_k(x_{t-1}, .), then at an observed step the state switches with
+//   observedStepSwitch (view_switch_probability); observations as in THEORY.md §1;
 //   before each observed step the kind is redrawn from w with probability
 //   1 - (1 - switch_probability)^(steps since the last observed step), the state kept:
 //   places can change what they are (a new door, a moved shelf), and no kind's posterior
@@ -25,7 +40,8 @@
 // Learning the kinds (population M-step after every applied step):
 //   Each observed step of a cell seen before adds the pair (its state at its last observed
 //   step, its state now), n steps apart, to the cell's most probable kind, given that kind:
-//     p(kind = k, x_last = i, x_now = j | z_1:now)  ∝  f(k, i) (A_k^n)_ij b_j(z_now),
+//     p(kind = k, x_last = i, x_now = j | z_1:now)  ∝  f(k, i) (A_k^n S)_ij b_j(z_now),
+//   S the observed step's switch,
 //   binned by n (gapBin). A_k then maximises the likelihood of its pairs,
 //     sum over bins and (i, j) of c_k(n, i, j) log (A_k^n)_ij,
 //   plus transition_prior_weight one-step pseudo-pairs per from-state at the kind's start,
@@ -37,6 +53,7 @@
 //   With consecutive steps only (learn_from_gaps false) the maximum is the ratio of expected
 //   transitions. The sums decay by 1 - forgetting per step.
 //   w_k = (sum over cells of p(kind = k | z) + weight_prior_cells * w0_k) / (cells + weight_prior_cells).
+//   The stable kind's pairs teach nothing: its transitions stay initial_transitions[0].
 //
 // ROS-free: standard library only.
 
@@ -50,6 +67,8 @@ namespace core {
 
 /// Number of kinds. A cell stores its joint posterior in 2 x kKindCount floats.
 constexpr int kKindCount = 5;
+/// The stable kind: no change between observations, never learned (cell_kinds.h above).
+constexpr int kStableKind = 0;
 
 /// How a cell's kind posterior becomes the two transition probabilities it publishes
 /// (the transition layers, the belief layers' prediction, the model file).
@@ -76,8 +95,8 @@ enum class KindCounting {
 };
 
 struct KindsConfig {
-  /// Where each kind's transitions start, per step. Learned from there; the order has no
-  /// meaning to the model.
+  /// Where each kind's transitions start, per step. Learned from there, except kind 0's:
+  /// kind 0 is the stable kind and keeps them.
   std::array<TransitionParams, kKindCount> initial_transitions{
       {{1e-4, 1e-4}, {2e-3, 2e-3}, {0.01, 0.01}, {0.05, 0.05}, {0.25, 0.25}}};
   /// The kinds' shares of the cells before the map has any (sums to 1).
@@ -89,6 +108,12 @@ struct KindsConfig {
   double weight_prior_cells = 100.0;
   /// Per step: the chance that a cell's kind is redrawn from the population (see above).
   double switch_probability = 1e-4;
+  /// Per observed step from a new view: the chance that the cell's state switches, in every
+  /// kind (observedStepSwitch; half of it when the laser has not moved): what a moving laser
+  /// reads of a place changes with where it looks from (a wall cell read from one pose,
+  /// passed through from the next under pose and range error), not with the time since it
+  /// last looked (docs/online_learning.md, "Views that change"). In [0, 0.5).
+  double view_switch_probability = 0.05;
   /// Per applied step, the kinds' transition sums decay by 1 - forgetting (0 = never).
   double forgetting = 1e-3;
   KindSummary summary = KindSummary::kGeometricMean;
@@ -146,6 +171,17 @@ class CellKinds {
   double lambdaPower(int k, std::int64_t steps) const;
   /// The kind's stationary occupancy p_occ_given_free / (p_occ_given_free + p_free_given_occ).
   double stationary(int k) const { return pi_[k]; }
+  /// The chance that a cell's state switches at an observed step whose view changed by
+  /// `view_change` in [0, 1] since the cell's last observed step (1: a new view; 0: the same
+  /// laser pose): view_switch_probability from a new view, half of it from the same pose
+  /// (the laser's own noise at a surface's edge). The same for every kind: how a reading
+  /// varies with the view is the laser's, not the place's.
+  double observedStepSwitch(double view_change) const {
+    return config_.view_switch_probability * 0.5 * (1.0 + view_change);
+  }
+  /// p(x_now = occ | x_then = s) of kind k, `steps` (>= 1) apart with an observation at the
+  /// end: `steps` transitions (THEORY.md §3), then the observed step's switch.
+  double occupiedAfter(int k, int s, std::int64_t steps, double view_change) const;
 
 
   /// A cell observed for the first time: the population's shares, the state as given.
@@ -153,9 +189,10 @@ class CellKinds {
   /// Crosses `steps` (>= 0) unobserved steps: each kind's state in closed form (THEORY.md §3).
   void skip(KindJoint& joint, std::int64_t steps) const;
   /// An observed step after `gap` (>= 0) unobserved ones: the kind switch for gap + 1 steps,
-  /// one transition, the evidence (log p(z|occ)/p(z|free)). Returns p(occ).
-  double observe(KindJoint& joint, std::int64_t gap, double log_likelihood_ratio) const;
-  double observe(KindJoint& joint, std::int64_t gap, const KindEvidence& evidence) const;
+  /// one transition, the state's switch for a view changed by `view_change` (see
+  /// observedStepSwitch), the evidence (log p(z|occ)/p(z|free)). Returns p(occ).
+  double observe(KindJoint& joint, std::int64_t gap, double log_likelihood_ratio, double view_change = 1.0) const;
+  double observe(KindJoint& joint, std::int64_t gap, const KindEvidence& evidence, double view_change = 1.0) const;
   /// p(occ) `steps` (>= 0) steps after the joint's step, exact (a mixture of closed forms).
   double predict(const KindJoint& joint, std::int64_t steps) const;
   /// The cell's two transition probabilities as the configured summary.
@@ -165,13 +202,18 @@ class CellKinds {
   /// (>= 1) apart, from its joint at the last step and this step's evidence; and the change
   /// of a cell's kind posterior (new minus old; a new cell adds its whole posterior and
   /// `new_cell`).
-  void addPair(const KindJoint& last, std::int64_t steps, double log_likelihood_ratio);
-  void addPair(const KindJoint& last, std::int64_t steps, const KindEvidence& evidence);
+  void addPair(const KindJoint& last, std::int64_t steps, double log_likelihood_ratio, double view_change = 1.0);
+  void addPair(const KindJoint& last, std::int64_t steps, const KindEvidence& evidence, double view_change = 1.0);
   void addMembership(const std::array<double, kKindCount>& delta, bool new_cell);
   /// p(k, x_last = i, x_now = j | z) of a pair at [k][i][j] (addPair's posterior).
   using PairPosterior = std::array<std::array<std::array<double, 2>, 2>, kKindCount>;
-  PairPosterior pairPosterior(const KindJoint& last, std::int64_t steps, double log_likelihood_ratio) const;
-  PairPosterior pairPosterior(const KindJoint& last, std::int64_t steps, const KindEvidence& evidence) const;
+  PairPosterior pairPosterior(const KindJoint& last, std::int64_t steps, double log_likelihood_ratio,
+                              double view_change = 1.0) const;
+  PairPosterior pairPosterior(const KindJoint& last, std::int64_t steps, const KindEvidence& evidence,
+                              double view_change = 1.0) const;
+  /// A new view_switch_probability (KindsConfig); throws std::invalid_argument (and changes
+  /// nothing) outside [0, 0.5).
+  void setViewSwitchProbability(double view_switch_probability);
   /// The M-step after an applied step: decays the pair sums, then recomputes the kinds'
   /// transitions (from where they are) and shares.
   void update();
@@ -192,7 +234,8 @@ class CellKinds {
  private:
   void recompute();
   /// f(k, i) (A_k^n)_ij b_j(z) at [k][i][j]: the pair posterior up to its normaliser.
-  PairPosterior pairWeights(const KindJoint& last, std::int64_t steps, const KindEvidence& evidence) const;
+  PairPosterior pairWeights(const KindJoint& last, std::int64_t steps, const KindEvidence& evidence,
+                            double view_change) const;
   /// The kind's transitions that maximise its pairs' likelihood, from `start`.
   TransitionParams fitPairs(int k, TransitionParams start) const;
 

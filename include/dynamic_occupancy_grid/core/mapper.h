@@ -230,6 +230,11 @@ class Mapper {
   /// sensor_model_mixed_step_probability). Model files do not hold it: whoever loads one
   /// sets the reader's own. Throws std::invalid_argument (and changes nothing) outside [0, 0.5].
   void setMixedStepProbability(double mixed_step_probability);
+  /// How much a cell's reading changes with the view from now on
+  /// (KindsConfig::view_switch_probability; model files do not hold it: whoever loads one
+  /// sets the reader's own). Throws std::invalid_argument (and changes nothing) outside
+  /// [0, 0.5).
+  void setViewSwitchProbability(double view_switch_probability);
   /// How scans count misses from now on (MapperConfig::clipped_corner_chord; model files do
   /// not hold it). Throws std::invalid_argument (and changes nothing) outside [0, 1.5].
   void setClippedCornerChord(double clipped_corner_chord);
@@ -260,9 +265,14 @@ class Mapper {
   void applyGatheredStep();
   void learnStep(CellGrid::Tile& tile, int offset, std::int32_t step, double evidence);
   /// learner kKinds: the cell's joint posterior over (kind, state), stored in em_stats.
-  void learnKindsStep(CellGrid::Tile& tile, int offset, std::int32_t step, const KindEvidence& evidence);
+  void learnKindsStep(CellGrid::Tile& tile, int offset, std::int32_t step, const KindEvidence& evidence,
+                      double view_change);
   void addKindsSensorEvidence(const CellGrid::Tile& tile, int offset, std::int32_t step,
-                              const KindEvidence& evidence);
+                              const KindEvidence& evidence, double view_change);
+  /// How much the laser's view changed between a cell's last observed step and the step
+  /// being applied, in [0, 1] (KindsConfig::view_switch_probability): the laser's motion
+  /// between the two, in cells, at most 1; 1 when the last step is no longer remembered.
+  double viewChangeSince(std::int32_t last_step) const;
   /// Writes a cell's statistics, keeping the population's pooled transitions up to date.
   void storeStats(CellGrid::Tile& tile, int offset, const TransitionStats& stats);
   void updatePrior();
@@ -308,6 +318,13 @@ class Mapper {
   TransitionParams current_prior_;
   CellKinds kinds_;
   SensorModelStats sensor_stats_;
+  /// The laser's motion since the first scan, in cells: its path plus kViewRadiusM times its
+  /// turns (viewChangeSince), and at which step it was, for the last kMotionSteps steps.
+  double motion_cells_ = 0.0;
+  std::optional<Pose2D> last_laser_pose_;
+  static constexpr std::int32_t kMotionSteps = 4096;
+  std::vector<double> motion_at_step_ = std::vector<double>(kMotionSteps, 0.0);
+  std::vector<std::int32_t> motion_step_ = std::vector<std::int32_t>(kMotionSteps, kNeverObserved);
 };
 
 }  // namespace core
