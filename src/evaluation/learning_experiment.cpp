@@ -72,6 +72,7 @@ struct KindSamples {
   TransitionParams truth;
   std::vector<double> p_of;
   std::vector<double> p_fo;
+  std::array<double, kKindCount> most_probable_kind{};  // cells per most probable kind
 };
 struct MethodRun {
   double accuracy_all = 0.0;
@@ -86,6 +87,9 @@ struct MethodRun {
   double static_free_cells = 0.0;
   double p_hit_given_occ = 0.0;
   double p_hit_given_free = 0.0;
+  bool learns_kinds = false;
+  std::array<TransitionParams, kKindCount> kind_transitions{};
+  std::array<double, kKindCount> kind_weights{};
 };
 struct RepetitionRun {
   std::vector<MethodRun> methods;
@@ -250,6 +254,14 @@ RepetitionRun runRepetition(const ScenarioConfig& scenario, const LearningExperi
     result.accuracy_by_kind = by_kind[m];
     result.p_hit_given_occ = methods[m].mapper->sensor().pHitGivenOcc();
     result.p_hit_given_free = methods[m].mapper->sensor().pHitGivenFree();
+    const MapperConfig& mapper_config = methods[m].mapper->config();
+    result.learns_kinds = mapper_config.learn_transitions && mapper_config.learner == TransitionLearner::kKinds;
+    if (result.learns_kinds) {
+      for (int k = 0; k < kKindCount; ++k) {
+        result.kind_transitions[k] = methods[m].mapper->kinds().transitions(k);
+        result.kind_weights[k] = methods[m].mapper->kinds().weight(k);
+      }
+    }
     double kept = 0.0;
     double classified = 0.0;
     double dynamic_error = 0.0;
@@ -273,6 +285,15 @@ RepetitionRun runRepetition(const ScenarioConfig& scenario, const LearningExperi
       kind.truth = truth;
       kind.p_of.push_back(cell->p_occ_given_free);
       kind.p_fo.push_back(cell->p_free_given_occ);
+      if (result.learns_kinds) {
+        int most_probable = 0;
+        for (int k = 1; k < kKindCount; ++k) {
+          const double p_k = cell->em_stats[2 * k] + cell->em_stats[2 * k + 1];
+          const double p_best = cell->em_stats[2 * most_probable] + cell->em_stats[2 * most_probable + 1];
+          if (p_k > p_best) most_probable = k;
+        }
+        kind.most_probable_kind[most_probable] += 1.0;
+      }
       if (truth.isStatic()) {
         const double leave = occupied ? cell->p_free_given_occ : cell->p_occ_given_free;
         (occupied ? result.static_occupied_cells : result.static_free_cells) += 1.0;
@@ -404,11 +425,16 @@ LearningExperimentResult runLearningExperiment(const ScenarioConfig& scenario, c
       score.static_free_cells += r.static_free_cells / n;
       score.p_hit_given_occ += r.p_hit_given_occ / n;
       score.p_hit_given_free += r.p_hit_given_free / n;
+      if (r.learns_kinds) {
+        score.kind_transitions.push_back(r.kind_transitions);
+        score.kind_weights.push_back(r.kind_weights);
+      }
       for (const auto& [kind, samples] : r.kinds) {
         KindSamples& into = pooled[kind];
         into.truth = samples.truth;
         into.p_of.insert(into.p_of.end(), samples.p_of.begin(), samples.p_of.end());
         into.p_fo.insert(into.p_fo.end(), samples.p_fo.begin(), samples.p_fo.end());
+        for (int k = 0; k < kKindCount; ++k) into.most_probable_kind[k] += samples.most_probable_kind[k];
       }
     }
     for (const auto& [kind, accuracy] : pooled_accuracy) score.accuracy_by_kind[kind] = accuracy.value();
@@ -427,6 +453,10 @@ LearningExperimentResult runLearningExperiment(const ScenarioConfig& scenario, c
       }
       k.median_p_occ_given_free = median(samples.p_of);
       k.median_p_free_given_occ = median(samples.p_fo);
+      for (int kind = 0; kind < kKindCount; ++kind) {
+        k.most_probable_kind[kind] =
+            samples.p_of.empty() ? 0.0 : samples.most_probable_kind[kind] / static_cast<double>(samples.p_of.size());
+      }
       score.kinds.push_back(k);
     }
     result.methods.push_back(std::move(score));

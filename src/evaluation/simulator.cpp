@@ -370,7 +370,7 @@ void ScenarioConfig::validate() const {
 
 std::vector<std::string> scenarioNames() {
   return {"dynamic_5_5", "dynamic_25_25", "redraw_100", "redraw_300", "parking_lot", "door", "mrf_squares",
-          "dividers", "patrol", "patrol_long", "patrol_office"};
+          "dividers", "patrol", "patrol_long", "patrol_office", "sparse_office"};
 }
 
 ScenarioConfig scenarioConfig(const std::string& name) {
@@ -552,6 +552,33 @@ ScenarioConfig scenarioConfig(const std::string& name) {
     config.patrol_person = TransitionParams{0.1, 0.2};
     config.description = "a robot patrolling a 50 m loop around three offices (100 steps a loop, 4 m laser): doors "
                          "(0.02 / 0.04 per step), carts (0.01 / 0.02), people (0.1 / 0.2)";
+    return config;
+  }
+  if (name == "sparse_office") {
+    // A users' report (docs/online_learning.md, "The sparse office"): an office at the
+    // package's default resolution where few places change, each in a niche the robot's
+    // laser sees for a few steps of its 120-step loop; 600 steps are five loops.
+    config.kind = ScenarioKind::kPatrol;
+    config.patrol_floor = PatrolFloor::kSparseOffice;
+    config.width_cells = 320;
+    config.height_cells = 240;
+    config.resolution_m = 0.05;
+    config.steps = 600;
+    config.scans_per_step = 2;
+    // Like a Hokuyo URG: 5.6 m; half a degree between beams, about a cell at the range's end.
+    config.laser.beams = 720;
+    config.laser.angle_increment_rad = 2.0 * kPi / 720.0;
+    config.laser.range_max_m = 5.6;
+    config.laser.noise_sigma_m = 0.01;
+    config.laser.dropout_probability = 0.03;
+    config.laser_mount = Pose2D{0.0, 0.0, 0.0};
+    config.robot_speed_m_per_step = 0.5;
+    config.patrol_door = TransitionParams{0.03, 0.03};
+    config.patrol_cart = TransitionParams{0.01, 0.02};
+    config.patrol_person = TransitionParams{0.15, 0.30};
+    config.description = "a robot patrolling a 60 m loop through a 16 m x 12 m office at 0.05 m (120 steps a loop, "
+                         "5.6 m laser), each moving part in a niche seen a few steps a loop: 3 doors (0.03 / 0.03 "
+                         "per step), 4 parking bays (0.01 / 0.02), 6 busy spots (0.15 / 0.3)";
     return config;
   }
   std::string names;
@@ -838,6 +865,71 @@ void Simulation::buildPatrol() {
     }
     patrol_.parts.push_back(std::move(part));
   };
+  if (config_.patrol_floor == PatrolFloor::kSparseOffice) {
+    // Rectangles in metres, [x0, x1) x [y0, y1): solid blocks, then what is carved out of
+    // them (rooms, recesses, niches) and the parts in them.
+    const auto fill = [&](double x0, double y0, double x1, double y1, bool occupied) {
+      for (std::int32_t y = cell(y0); y < cell(y1); ++y) {
+        for (std::int32_t x = cell(x0); x < cell(x1); ++x) world_.setStatic(x, y, occupied);
+      }
+    };
+    // A part is the outline of its rectangle, one cell thick: what a laser in the plane can
+    // see of it. The inside, never seen while the part is there, is floor (docs: "The
+    // sparse office").
+    const auto place = [&](const std::string& kind, const TransitionParams& truth, double x0, double y0, double x1,
+                           double y1) {
+      PatrolLayout::Part part{kind, {}, truth};
+      for (std::int32_t y = cell(y0); y < cell(y1); ++y) {
+        for (std::int32_t x = cell(x0); x < cell(x1); ++x) {
+          const bool edge = x == cell(x0) || x == cell(x1) - 1 || y == cell(y0) || y == cell(y1) - 1;
+          if (edge) part.cells.push_back(CellXY{x, y});
+        }
+      }
+      patrol_.parts.push_back(std::move(part));
+    };
+    // The loop's corridors are 1.6 m wide; the blocks between them are solid but for the
+    // rooms behind the doors.
+    fill(1.8, 1.8, 14.2, 4.2, true);    // inside the loop, below its notch
+    fill(1.8, 4.2, 4.7, 10.2, true);    // inside the loop, left
+    fill(11.3, 4.2, 14.2, 10.2, true);  // inside the loop, right
+    fill(6.3, 5.8, 9.7, 12.0, true);    // in the loop's notch
+    // Doors: 1 m leaves one cell thick at the back of 0.8 m deep recesses, a room behind each.
+    fill(6.0, 1.8, 7.0, 2.6, false);
+    place("door", config_.patrol_door, 6.0, 2.6, 7.0, 2.65);
+    fill(5.2, 2.65, 8.0, 3.8, false);
+    fill(13.4, 6.5, 14.2, 7.5, false);
+    place("door", config_.patrol_door, 13.35, 6.5, 13.4, 7.5);
+    fill(11.8, 5.0, 13.35, 9.0, false);
+    fill(6.3, 8.0, 7.1, 9.0, false);
+    place("door", config_.patrol_door, 7.1, 8.0, 7.15, 9.0);
+    fill(7.15, 7.2, 8.3, 11.2, false);
+    // Parking bays: 1.2 m wide, 0.9 m deep niches, a 0.6 m x 0.4 m cart against the back of each.
+    fill(1.8, 6.0, 2.7, 7.2, false);
+    place("cart", config_.patrol_cart, 2.3, 6.3, 2.7, 6.9);
+    fill(11.4, 1.8, 12.6, 2.7, false);
+    place("cart", config_.patrol_cart, 11.7, 2.3, 12.3, 2.7);
+    fill(12.4, 9.3, 13.6, 10.2, false);
+    place("cart", config_.patrol_cart, 12.7, 9.3, 13.3, 9.7);
+    fill(8.3, 5.8, 9.5, 6.7, false);
+    place("cart", config_.patrol_cart, 8.6, 6.3, 9.2, 6.7);
+    // Busy spots: 0.3 m squares 0.1 m from the back of 1.6 m wide, 1.2 m deep alcoves.
+    fill(2.6, 1.8, 4.2, 3.0, false);
+    place("person", config_.patrol_person, 3.25, 2.6, 3.55, 2.9);
+    fill(13.0, 2.4, 14.2, 4.0, false);
+    place("person", config_.patrol_person, 13.1, 3.05, 13.4, 3.35);
+    fill(8.5, 7.0, 9.7, 8.6, false);
+    place("person", config_.patrol_person, 8.75, 7.65, 9.05, 7.95);
+    fill(6.5, 5.8, 8.1, 7.0, false);
+    place("person", config_.patrol_person, 7.15, 6.45, 7.45, 6.75);
+    fill(2.8, 9.0, 4.4, 10.2, false);
+    place("person", config_.patrol_person, 3.45, 9.25, 3.75, 9.55);
+    fill(1.8, 3.4, 3.0, 5.0, false);
+    place("person", config_.patrol_person, 2.45, 4.05, 2.75, 4.35);
+    startPatrolParts();
+    // The loop in the corridors, 1 m from the outer walls, into the notch and out: 60 m.
+    route_ = {{1.0, 1.0}, {15.0, 1.0}, {15.0, 11.0}, {10.5, 11.0}, {10.5, 5.0}, {5.5, 5.0}, {5.5, 11.0}, {1.0, 11.0}};
+    return;
+  }
   if (config_.patrol_floor == PatrolFloor::kOffice) {
     // The block of offices, x in [4, 16) m, y in [4.5, 9.5) m: 0.2 m walls, three rooms.
     const std::int32_t bx0 = cell(4.0), bx1 = cell(16.0) - 1, by0 = cell(4.5), by1 = cell(9.5) - 1;

@@ -50,6 +50,7 @@ struct Options {
   int memory_repetitions = 10;
   std::vector<std::string> learning_scenarios{"patrol", "patrol_office", "dynamic_25_25"};
   int learning_repetitions = 4;
+  std::int64_t learning_steps = 0;
   bool learning_ablations = false;
   double learning_clipped_corner_chord = 0.0;
   int murphy_repetitions = 100;
@@ -126,6 +127,8 @@ Options parseOptions(int argc, char** argv) {
        "skips it")
       ("learning-repetitions", cl::number(&options.learning_repetitions, repetitions)->value_name("N"),
        "repetitions of each learning scenario (default 4; 0 skips it)")
+      ("learning-steps", cl::number(&options.learning_steps, cl::between<std::int64_t>(0, 1000000))->value_name("N"),
+       "steps of each learning scenario's runs (default 0: the scenario's own length)")
       ("learning-ablations", boost::program_options::bool_switch(&options.learning_ablations),
        "also the kinds learner with one choice changed each (docs/online_learning.md)")
       ("learning-clipped-corner-chord",
@@ -202,6 +205,13 @@ std::vector<double> windowMeans(const std::vector<std::vector<double>>& repetiti
 std::string fixed(double value, int digits) {
   std::ostringstream text;
   text << std::fixed << std::setprecision(digits) << value;
+  return text.str();
+}
+
+/// Two significant digits: rates per step from 1e-4 to 0.3 side by side.
+std::string significant(double value) {
+  std::ostringstream text;
+  text << std::setprecision(2) << value;
   return text.str();
 }
 
@@ -725,6 +735,22 @@ std::string learningCsv(const core::LearningExperimentResult& result) {
   return csv.str();
 }
 
+/// The learners of kinds: each kind's transitions and share at the end, per repetition.
+std::string learningKindsCsv(const core::LearningExperimentResult& result) {
+  std::ostringstream csv;
+  csv << "method,repetition,kind,p_occ_given_free,p_free_given_occ,weight\n";
+  csv << std::setprecision(6);
+  for (const core::MethodScore& m : result.methods) {
+    for (std::size_t r = 0; r < m.kind_transitions.size(); ++r) {
+      for (int k = 0; k < core::kKindCount; ++k) {
+        csv << m.method << ',' << r << ',' << k << ',' << m.kind_transitions[r][k].p_occ_given_free << ','
+            << m.kind_transitions[r][k].p_free_given_occ << ',' << m.kind_weights[r][k] << '\n';
+      }
+    }
+  }
+  return csv.str();
+}
+
 double percentMean(const std::vector<double>& values) { return 100.0 * meanStd(values).mean; }
 
 std::string learningSummary(const core::ScenarioConfig& scenario, const core::LearningExperimentConfig& config,
@@ -789,6 +815,32 @@ std::string learningSummary(const core::ScenarioConfig& scenario, const core::Le
            << fixed(k.mae_p_occ_given_free, 4) << " / " << fixed(k.mae_p_free_given_occ, 4) << ") |";
     }
     text << '\n';
+  }
+  // Where the learners of kinds put each kind of cell (docs/online_learning.md, "Kinds of
+  // cells"): the kinds' transitions and shares at the end, and the share of each kind of
+  // cell whose most probable kind is k.
+  for (const core::MethodScore& m : result.methods) {
+    if (m.kind_transitions.empty()) continue;
+    text << "\nKinds of " << m.method
+         << " at the end (p_occ_given_free / p_free_given_occ and share of the cells, per repetition) and "
+            "the share of each kind of cell whose most probable kind it is (%):\n\n| kind | transitions, per "
+            "repetition | share |";
+    for (const core::KindScore& k : m.kinds) text << ' ' << k.kind << " |";
+    text << "\n|---|---|---|";
+    for (std::size_t k = 0; k < m.kinds.size(); ++k) text << "---|";
+    text << '\n';
+    for (int kind = 0; kind < core::kKindCount; ++kind) {
+      std::string transitions;
+      std::string shares;
+      for (std::size_t r = 0; r < m.kind_transitions.size(); ++r) {
+        const core::TransitionParams& t = m.kind_transitions[r][kind];
+        transitions += (r == 0 ? "" : "; ") + significant(t.p_occ_given_free) + " / " + significant(t.p_free_given_occ);
+        shares += (r == 0 ? "" : "; ") + fixed(m.kind_weights[r][kind], 3);
+      }
+      text << "| " << kind << " | " << transitions << " | " << shares << " |";
+      for (const core::KindScore& k : m.kinds) text << ' ' << fixed(100.0 * k.most_probable_kind[kind], 1) << " |";
+      text << '\n';
+    }
   }
   return text.str();
 }
@@ -1040,7 +1092,8 @@ int main(int argc, char** argv) {
     }
 
     for (const std::string& name : options.learning_scenarios) {
-      const core::ScenarioConfig scenario = core::scenarioConfig(name);
+      core::ScenarioConfig scenario = core::scenarioConfig(name);
+      if (options.learning_steps > 0) scenario.steps = options.learning_steps;
       core::LearningExperimentConfig config;
       config.repetitions = options.learning_repetitions;
       config.seed = options.seed;
@@ -1054,6 +1107,7 @@ int main(int argc, char** argv) {
       const core::LearningExperimentResult result = core::runLearningExperiment(scenario, config);
       std::cerr << " " << fixed(result.seconds, 1) << " s\n";
       core::writeFileAtomically(options.out + "/learning_" + name + ".csv", learningCsv(result));
+      core::writeFileAtomically(options.out + "/learning_" + name + "_kinds.csv", learningKindsCsv(result));
       summary << learningSummary(scenario, config, result);
       learningChecks(scenario, result, checks);
     }

@@ -101,6 +101,38 @@ TEST(LearningExperiment, ScoresEveryMethodOnAShortPatrol) {
         << name;
     EXPECT_LT(m.p_hit_given_free, scenario.p_hit_given_free) << name;
   }
+  // Where the learners of kinds put each kind of cell: only they report it, every observed
+  // cell has a most probable kind, and the shares of the kinds sum to one.
+  for (const char* name : {"default", "node_default"}) {
+    const auto& m = result.method(name);
+    ASSERT_EQ(m.kind_transitions.size(), 1U) << name;
+    ASSERT_EQ(m.kind_weights.size(), 1U) << name;
+    double weights = 0.0;
+    for (const double w : m.kind_weights[0]) weights += w;
+    EXPECT_NEAR(weights, 1.0, 1e-9) << name;
+    for (const auto& k : m.kinds) {
+      double shares = 0.0;
+      for (const double share : k.most_probable_kind) shares += share;
+      EXPECT_NEAR(shares, 1.0, 1e-9) << name << ' ' << k.kind;
+    }
+    // The walls and the floor, most of the cells, are in the kind that barely changes.
+    for (const char* kind : {"static free", "static occupied"}) {
+      const auto k =
+          std::find_if(m.kinds.begin(), m.kinds.end(), [&](const dog::KindScore& s) { return s.kind == kind; });
+      ASSERT_NE(k, m.kinds.end());
+      const auto biggest = std::max_element(k->most_probable_kind.begin(), k->most_probable_kind.end());
+      const int index = static_cast<int>(biggest - k->most_probable_kind.begin());
+      EXPECT_GT(*biggest, 0.9) << name << ' ' << kind;
+      EXPECT_LT(m.kind_transitions[0][index].p_occ_given_free, 0.01) << name << ' ' << kind;
+      EXPECT_LT(m.kind_transitions[0][index].p_free_given_occ, 0.01) << name << ' ' << kind;
+    }
+  }
+  for (const char* name : {"learning_off", "cell_em", "offline", "oracle"}) {
+    EXPECT_TRUE(result.method(name).kind_transitions.empty()) << name;
+    for (const auto& k : result.method(name).kinds) {
+      for (const double share : k.most_probable_kind) EXPECT_EQ(share, 0.0) << name;
+    }
+  }
   EXPECT_THROW(result.method("nope"), std::invalid_argument);
   config.window_fraction = 0.0;
   EXPECT_THROW(dog::runLearningExperiment(scenario, config), std::invalid_argument);

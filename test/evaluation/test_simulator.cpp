@@ -10,8 +10,11 @@
 #include <deque>
 #include <functional>
 #include <limits>
+#include <map>
 #include <numeric>
+#include <set>
 #include <stdexcept>
+#include <string>
 
 #include "dynamic_occupancy_grid/core/mapper.h"
 #include "dynamic_occupancy_grid/core/offline_em.h"
@@ -798,6 +801,158 @@ TEST(Scenarios, DividersRunsReproducePerSeedAndPeopleHideFromTheLaserInTheirCell
   EXPECT_LT(layout.a.x, layout.wall_x);
   EXPECT_GT(layout.b.x, layout.wall_x);
   EXPECT_THROW(Simulation(scenarioConfig("door"), 1, 2).dividersLayout(), std::logic_error);
+}
+
+// ---- the sparse office (PatrolFloor::kSparseOffice) -----------------------------------------
+
+// Few changing cells, each part with its kind's true rates, measured on a long run of the
+// parts' chains.
+TEST(Scenarios, SparseOfficeHasFewChangingCellsChangingAtTheirRates) {
+  const ScenarioConfig config = scenarioConfig("sparse_office");
+  EXPECT_EQ(config.resolution_m, 0.05);
+  Simulation simulation(config, 71, 72);
+  const World& world = simulation.world();
+  const PatrolLayout& layout = simulation.patrolLayout();
+  const std::map<std::string, TransitionParams> rates{
+      {"door", {0.03, 0.03}}, {"cart", {0.01, 0.02}}, {"person", {0.15, 0.30}}};
+  std::map<std::string, int> parts;
+  std::size_t part_cells = 0;
+  for (const PatrolLayout::Part& part : layout.parts) {
+    ++parts[part.kind];
+    part_cells += part.cells.size();
+    for (const CellXY& c : part.cells) {
+      ASSERT_EQ(world.truth(c.x, c.y).p_occ_given_free, rates.at(part.kind).p_occ_given_free) << part.kind;
+      ASSERT_EQ(world.truth(c.x, c.y).p_free_given_occ, rates.at(part.kind).p_free_given_occ) << part.kind;
+    }
+  }
+  EXPECT_EQ(parts, (std::map<std::string, int>{{"cart", 4}, {"door", 3}, {"person", 6}}));
+  std::size_t changing = 0;
+  for (std::int32_t y = 0; y < world.height(); ++y) {
+    for (std::int32_t x = 0; x < world.width(); ++x) changing += world.truth(x, y).isStatic() ? 0 : 1;
+  }
+  EXPECT_EQ(changing, part_cells);  // no cell in two parts, no changing cell outside them
+  EXPECT_LE(static_cast<double>(changing), 0.02 * world.width() * world.height());
+  EXPECT_EQ(world.width() * config.resolution_m, 16.0);
+  EXPECT_EQ(world.height() * config.resolution_m, 12.0);
+
+  // Per kind, how often a part left each state in the step after being in it.
+  std::map<std::string, std::array<double, 4>> counts;  // left free, free steps, left occupied, occupied steps
+  std::vector<std::uint8_t> before(layout.parts.size());
+  const auto state = [&](std::size_t k) {
+    const CellXY c = layout.parts[k].cells.front();
+    return world.occupied(c.x, c.y) ? 1 : 0;
+  };
+  for (std::size_t k = 0; k < layout.parts.size(); ++k) before[k] = state(k);
+  for (int t = 0; t < 20000; ++t) {
+    simulation.advance();
+    for (std::size_t k = 0; k < layout.parts.size(); ++k) {
+      const int now = state(k);
+      for (const CellXY& c : layout.parts[k].cells) ASSERT_EQ(world.occupied(c.x, c.y) ? 1 : 0, now);
+      std::array<double, 4>& n = counts[layout.parts[k].kind];
+      const int from = before[k];
+      n[from == 0 ? 1 : 3] += 1.0;
+      if (now != from) n[from == 0 ? 0 : 2] += 1.0;
+      before[k] = static_cast<std::uint8_t>(now);
+    }
+  }
+  for (const auto& [kind, n] : counts) {
+    const TransitionParams& truth = rates.at(kind);
+    EXPECT_NEAR(n[0] / n[1], truth.p_occ_given_free, binomialTolerance(truth.p_occ_given_free, n[1])) << kind;
+    EXPECT_NEAR(n[2] / n[3], truth.p_free_given_occ, binomialTolerance(truth.p_free_given_occ, n[3])) << kind;
+  }
+}
+
+// The robot drives a 60 m loop (120 steps) clear of walls and parts, and its laser sees each
+// part only a few steps of every loop: a step counts when a beam hits or crosses one of the
+// part's cells (the mapper's observations).
+TEST(Scenarios, SparseOfficeSeesEachPartAFewStepsPerLoop) {
+  const ScenarioConfig config = scenarioConfig("sparse_office");
+  Simulation simulation(config, 73, 74);
+  const World& world = simulation.world();
+  const PatrolLayout& layout = simulation.patrolLayout();
+  const std::int64_t loop = 120;
+  MapperConfig mapper_config;
+  mapper_config.resolution_m = config.resolution_m;
+  mapper_config.fixed_bounds = true;
+  mapper_config.width_m = config.width_cells * config.resolution_m;
+  mapper_config.height_m = config.height_cells * config.resolution_m;
+  Mapper mapper(mapper_config);
+  SequenceBuilder recorder;
+  mapper.recordObservations(&recorder);
+  const Pose2D start = simulation.robotPose();
+  for (std::int64_t t = 0; t < 2 * loop; ++t) {
+    for (int k = 0; k < config.scans_per_step; ++k) {
+      const Pose2D robot = simulation.robotPose(k);
+      ASSERT_FALSE(world.occupied(static_cast<std::int32_t>(robot.x_m / config.resolution_m),
+                                  static_cast<std::int32_t>(robot.y_m / config.resolution_m)))
+          << "step " << t;
+      for (const PatrolLayout::Part& part : layout.parts) {
+        for (const CellXY& c : part.cells) {
+          const double dx = (c.x + 0.5) * config.resolution_m - robot.x_m;
+          const double dy = (c.y + 0.5) * config.resolution_m - robot.y_m;
+          ASSERT_GT(dx * dx + dy * dy, 0.5 * 0.5) << part.kind << " step " << t;
+        }
+      }
+      mapper.integrate(simulation.scan(k));
+    }
+    simulation.advance();
+    if (t + 1 == loop / 2) {  // half a loop from the start, across the office
+      const Pose2D half = simulation.robotPose();
+      EXPECT_GT(std::hypot(half.x_m - start.x_m, half.y_m - start.y_m), 5.0);
+    }
+  }
+  EXPECT_NEAR(simulation.robotPose().x_m, start.x_m, 1e-9);  // two loops later, back at the start
+  EXPECT_NEAR(simulation.robotPose().y_m, start.y_m, 1e-9);
+  mapper.finishStep();
+  const ObservationSequences sequences = recorder.build();
+  std::map<std::size_t, std::size_t> sequence_of;  // world index -> the cell's sequence
+  for (std::size_t i = 0; i < sequences.cellCount(); ++i) {
+    sequence_of[world.index(sequences.cell(i).x, sequences.cell(i).y)] = i;
+  }
+  for (const PatrolLayout::Part& part : layout.parts) {
+    std::array<std::set<std::int64_t>, 2> in_view;  // per loop, the steps
+    std::size_t seen_cells = 0;
+    for (const CellXY& c : part.cells) {
+      const auto found = sequence_of.find(world.index(c.x, c.y));
+      if (found == sequence_of.end()) continue;
+      ++seen_cells;
+      for (const StepObservation* o = sequences.begin(found->second); o != sequences.end(found->second); ++o) {
+        in_view[static_cast<std::size_t>(o->step / loop)].insert(o->step);
+      }
+    }
+    EXPECT_EQ(seen_cells, part.cells.size()) << part.kind;  // two loops show all of a part
+    for (std::size_t l = 0; l < in_view.size(); ++l) {
+      EXPECT_GE(in_view[l].size(), 3U) << part.kind << " loop " << l;
+      EXPECT_LE(in_view[l].size(), 12U) << part.kind << " loop " << l;  // a tenth of the loop
+    }
+  }
+}
+
+TEST(Scenarios, SparseOfficeRunsReproducePerSeed) {
+  const ScenarioConfig config = scenarioConfig("sparse_office");
+  Simulation a(config, 75, 76);
+  Simulation b(config, 75, 76);
+  Simulation c(config, 75, 77);
+  Simulation other_place(config, 99, 76);
+  ASSERT_EQ(a.patrolLayout().parts.size(), c.patrolLayout().parts.size());
+  for (std::size_t k = 0; k < a.patrolLayout().parts.size(); ++k) {
+    EXPECT_EQ(a.patrolLayout().parts[k].cells.size(), other_place.patrolLayout().parts[k].cells.size());
+  }
+  bool differs = false;
+  for (int t = 0; t < 150; ++t) {
+    ASSERT_EQ(a.world().occupancy(), b.world().occupancy()) << t;
+    const Scan sa = a.scan(t % config.scans_per_step);
+    const Scan sb = b.scan(t % config.scans_per_step);
+    ASSERT_EQ(sa.ranges_m.size(), sb.ranges_m.size());
+    for (std::size_t i = 0; i < sa.ranges_m.size(); ++i) {
+      ASSERT_TRUE(sa.ranges_m[i] == sb.ranges_m[i] || (std::isnan(sa.ranges_m[i]) && std::isnan(sb.ranges_m[i])));
+    }
+    differs = differs || a.world().occupancy() != c.world().occupancy();
+    a.advance();
+    b.advance();
+    c.advance();
+  }
+  EXPECT_TRUE(differs);  // another run seed, another day
 }
 
 // ---- drifting odometry -------------------------------------------------------------------

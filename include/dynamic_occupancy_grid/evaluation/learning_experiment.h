@@ -20,6 +20,7 @@
 //
 // ROS-free: standard library only.
 
+#include <array>
 #include <cstdint>
 #include <functional>
 #include <map>
@@ -86,6 +87,9 @@ struct KindScore {
   double mae_p_free_given_occ = 0.0;
   double median_p_occ_given_free = 0.0;
   double median_p_free_given_occ = 0.0;
+  /// Learners of kinds (TransitionLearner::kKinds) only: the share of the cells whose most
+  /// probable kind at the end is kind k (pooled over repetitions); zeros otherwise.
+  std::array<double, kKindCount> most_probable_kind{};
 };
 
 struct MethodScore {
@@ -116,6 +120,10 @@ struct MethodScore {
   /// Learned sensor model at the end (online variants; the configured one otherwise), mean.
   double p_hit_given_occ = 0.0;
   double p_hit_given_free = 0.0;
+  /// Learners of kinds only (empty otherwise): per repetition, each kind's transitions and
+  /// share of the cells at the end (CellKinds::transitions, weight).
+  std::vector<std::array<TransitionParams, kKindCount>> kind_transitions;
+  std::vector<std::array<double, kKindCount>> kind_weights;
 };
 
 struct LearningExperimentResult {

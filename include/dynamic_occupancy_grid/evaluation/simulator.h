@@ -191,6 +191,7 @@ enum class ScenarioKind {
 enum class PatrolFloor {
   kTwoRooms,  ///< "patrol": slow carts that change about once in five loops
   kOffice,    ///< "patrol_office": every moving part changes within about one loop
+  kSparseOffice,  ///< "sparse_office": few moving parts, each in a niche seen a few steps per loop
 };
 
 /// A named configuration of a simulated world (scenarioConfig(name)).
@@ -343,6 +344,15 @@ struct DividersLayout {
 /// it (100 steps), a 360° laser of 4 m; three 0.6 m x 0.6 m carts parked against the outer
 /// walls and eight 0.3 m spots where people stand. Doors, carts and people all forget their state within about
 /// one loop, so what the map should show of a place the robot left is its long-run state.
+///
+/// PatrolFloor::kSparseOffice (scenarioConfig("sparse_office")): a 16 m x 12 m office at
+/// 0.05 m, corridors 1.6 m wide that the robot drives as a 60 m loop with a notch (120 steps),
+/// a 360° laser of 5.6 m. Few places change (0.4 % of the cells), each set back from the
+/// corridor so that the laser sees it for 6 to 10 steps of a loop: three doors (1 m leaves at
+/// the back of 0.8 m recesses, a room behind each), four parking bays (0.6 m x 0.4 m carts
+/// in 0.9 m deep niches), six busy 0.3 m spots (in 1.2 m deep alcoves). Here a part's cells
+/// are the outline of its rectangle, one cell thick: its inside, which the laser never sees
+/// while the part is there, is floor.
 struct PatrolLayout {
   struct Part {
     std::string kind;           ///< "door", "cart" or "person"
