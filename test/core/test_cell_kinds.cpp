@@ -75,9 +75,9 @@ void referenceSwitch(Joint& joint, const dog::CellKinds& kinds, std::int64_t ste
 }
 
 // The state's switch at an observed step whose view changed by `view_change`, in every kind:
-// view_switch_probability from a new view, half of it from the same pose.
+// view_switch_probability times the view's change.
 LD referenceSwitchAtObservation(const dog::CellKinds& kinds, LD view_change) {
-  return static_cast<LD>(kinds.config().view_switch_probability) * (1.0L + view_change) / 2.0L;
+  return static_cast<LD>(kinds.config().view_switch_probability) * view_change;
 }
 
 // An observed step after `gap` unobserved ones; fills xi[k][i][j] = p(k, x_{t-1} = i,

@@ -2069,7 +2069,7 @@ TEST(MapperKinds, CellsAndKindsFollowAReferenceStepForStep) {
       const bool first = joints.count(x) == 0;
       const std::int64_t gap = first ? 0 : step - 1 - last_step[x];
       const double view_change = first ? 1.0 : std::min(1.0, motion - motion_at[last_step[x]]);
-      const LD flip = static_cast<LD>(config.kinds.view_switch_probability) * (1.0L + view_change) / 2.0L;
+      const LD flip = static_cast<LD>(config.kinds.view_switch_probability) * view_change;
       if (!first && observed[x] >= static_cast<int>(config.online_em.min_observed_steps)) {
         // The sensor model's sums: the cell's last step, weighed by p(state then | this step).
         const Evidence& previous = last_evidence[x];

@@ -444,9 +444,8 @@ TEST(PredictionCheck, DynamicModelPredictsATogglingDoorBetterThanTheStaticMap) {
   // Brier score on cells that never change small (0.03^2 per label), so what separates the
   // models is the door, not the clamp: the static map's excess over a world without the door
   // alone exceeds the dynamic model's whole Brier score (measured at horizons 4 and 8:
-  // dynamic 0.015 and 0.024, static 0.020 and 0.036, static without door 0.001; before the
-  // view's switch at an observed step (cell_kinds.h) the dynamic model's were 0.013 and
-  // 0.016: a toggle now also has the view to explain it, and the door cells hedge less).
+  // dynamic 0.013 and 0.016, static 0.020 and 0.036, static without door 0.001; the laser
+  // stands still: no view's switch at its observed steps, cell_kinds.h).
   dog::MapperConfig config = testConfig(true);
   config.static_clamp = dog::LogOddsClamp{-3.5, 3.5};
   const auto recording = [](bool toggling) {
@@ -468,7 +467,7 @@ TEST(PredictionCheck, DynamicModelPredictsATogglingDoorBetterThanTheStaticMap) {
     const dog::HorizonScore& moving = with_door.horizons[k];
     const dog::HorizonScore& still = without.horizons[k];
     const std::string at = "horizon " + std::to_string(horizons[k]);
-    EXPECT_LT(moving.dynamic_model.brier(), 0.85 * moving.static_model.brier()) << at;
+    EXPECT_LT(moving.dynamic_model.brier(), 0.75 * moving.static_model.brier()) << at;
     EXPECT_LT(moving.dynamic_model.brier(), moving.static_model.brier() - still.static_model.brier()) << at;
     // Without the door both models are right everywhere, and the dynamic one is confident.
     EXPECT_EQ(still.static_model.accuracy(), 1.0) << at;

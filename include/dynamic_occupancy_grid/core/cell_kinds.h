@@ -109,7 +109,7 @@ struct KindsConfig {
   /// Per step: the chance that a cell's kind is redrawn from the population (see above).
   double switch_probability = 1e-4;
   /// Per observed step from a new view: the chance that the cell's state switches, in every
-  /// kind (observedStepSwitch; half of it when the laser has not moved): what a moving laser
+  /// kind (observedStepSwitch; none when the laser has not moved): what a moving laser
   /// reads of a place changes with where it looks from (a wall cell read from one pose,
   /// passed through from the next under pose and range error), not with the time since it
   /// last looked (docs/online_learning.md, "Views that change"). In [0, 0.5).
@@ -173,11 +173,13 @@ class CellKinds {
   double stationary(int k) const { return pi_[k]; }
   /// The chance that a cell's state switches at an observed step whose view changed by
   /// `view_change` in [0, 1] since the cell's last observed step (1: a new view; 0: the same
-  /// laser pose): view_switch_probability from a new view, half of it from the same pose
-  /// (the laser's own noise at a surface's edge). The same for every kind: how a reading
-  /// varies with the view is the laser's, not the place's.
+  /// laser pose): view_switch_probability times it. The same for every kind: how a reading
+  /// varies with the view is the laser's, not the place's. A laser that does not move reads
+  /// every change as the place's (a stationary laser's people light up the transition
+  /// layers); docs/online_learning.md, "Views that change", has what the half of it there
+  /// gave.
   double observedStepSwitch(double view_change) const {
-    return config_.view_switch_probability * 0.5 * (1.0 + view_change);
+    return config_.view_switch_probability * view_change;
   }
   /// p(x_now = occ | x_then = s) of kind k, `steps` (>= 1) apart with an observation at the
   /// end: `steps` transitions (THEORY.md §3), then the observed step's switch.
