@@ -3,9 +3,11 @@
 as colour PNGs with a colour bar and a scale bar.
 
     render_layers.py DIR_OR_NPY... [--out DIR] [--dpi N]
+    render_layers.py NPY... --side-by-side PNG [--dpi N]
 
 Every <layer>.npy given (or found in a directory given) becomes <layer>_values.png, next to
-it or in --out (the _values suffix keeps plot_evaluation.py --layers' <layer>.png intact).
+it or in --out (the _values suffix keeps plot_evaluation.py --layers' <layer>.png intact);
+with --side-by-side, the layers given become panels of one PNG, in their order.
 The .npy holds float32 values, row 0 the bottom row of the map (min y, as
 nav_msgs/OccupancyGrid), NaN for cells never observed (drawn light grey). The map_server
 <layer>.yaml next to it gives resolution and origin: the axes are then in metres of the fixed
@@ -106,8 +108,8 @@ def nice_length(span):
     return power
 
 
-def render(npy_path, png_path, dpi=120):
-    """Renders one layer; returns the figure's (norm, label) for the caller's report."""
+def draw(figure, axes, npy_path):
+    """Draws one layer into `axes` with its colour bar; returns (norm, label)."""
     name = os.path.splitext(os.path.basename(npy_path))[0]
     values = read_values(npy_path)
     geometry = read_geometry(npy_path)
@@ -120,9 +122,6 @@ def render(npy_path, png_path, dpi=120):
     width, height = max(cols, 1) * resolution, max(rows, 1) * resolution
     norm, colormap, label = colour_scale(name, values)
     colormap.set_bad(UNKNOWN_COLOUR)
-    aspect = height / width
-    figure_width = 7.5
-    figure, axes = plt.subplots(figsize=(figure_width, min(max(figure_width * aspect * 0.85, 3.0), 12.0)))
     image = axes.imshow(np.ma.masked_invalid(values) if values.size else np.full((1, 1), np.nan),
                         origin="lower", extent=(x0, x0 + width, y0, y0 + height), cmap=colormap, norm=norm,
                         interpolation="nearest")
@@ -137,12 +136,43 @@ def render(npy_path, png_path, dpi=120):
     text = f"{length:g} {unit}"
     axes.add_artist(AnchoredSizeBar(axes.transData, length, text, "lower right", pad=0.5, color="black",
                                     frameon=True, size_vertical=max(height / 150.0, 1e-9)))
+    return norm, label
+
+
+def save(figure, png_path, dpi):
+    """Writes the figure atomically (a temporary file renamed)."""
     figure.tight_layout()
     temporary = png_path + ".tmp.png"
     figure.savefig(temporary, dpi=dpi)
     plt.close(figure)
     os.replace(temporary, png_path)
-    return norm, label
+
+
+def figure_height(npy_path, width):
+    """A height for a panel `width` inches wide showing the layer's map."""
+    values = read_values(npy_path)
+    geometry = read_geometry(npy_path)
+    resolution = 1.0 if geometry is None else geometry[0]
+    rows, cols = values.shape
+    aspect = (max(rows, 1) * resolution) / (max(cols, 1) * resolution)
+    return min(max(width * aspect * 0.85, 3.0), 12.0)
+
+
+def render(npy_path, png_path, dpi=120):
+    """Renders one layer; returns the figure's (norm, label) for the caller's report."""
+    figure, axes = plt.subplots(figsize=(7.5, figure_height(npy_path, 7.5)))
+    result = draw(figure, axes, npy_path)
+    save(figure, png_path, dpi)
+    return result
+
+
+def render_side_by_side(npy_paths, png_path, dpi=120):
+    """Renders the layers in one row of panels, in the order given, into one PNG."""
+    figure, axes = plt.subplots(1, len(npy_paths), figsize=(6.5 * len(npy_paths), figure_height(npy_paths[0], 6.5)),
+                                squeeze=False)
+    for panel, path in zip(axes[0], npy_paths):
+        draw(figure, panel, path)
+    save(figure, png_path, dpi)
 
 
 def npy_files(paths):
@@ -161,6 +191,8 @@ def main(argv=None):
     parser.add_argument("paths", nargs="+", metavar="DIR_OR_NPY", help=".npy files or directories holding them")
     parser.add_argument("--out", metavar="DIR", help="write the PNGs here (default: next to each .npy)")
     parser.add_argument("--dpi", type=int, default=120, help="resolution of the PNGs (default 120)")
+    parser.add_argument("--side-by-side", metavar="PNG",
+                        help="instead, one PNG with the .npy files given side by side, in their order")
     args = parser.parse_args(argv)
     if args.dpi <= 0:
         parser.error("--dpi must be positive")
@@ -168,6 +200,14 @@ def main(argv=None):
     if not files:
         print("no .npy files in " + " ".join(args.paths), file=sys.stderr)
         return 1
+    if args.side_by_side:
+        try:
+            render_side_by_side(files, args.side_by_side, args.dpi)
+        except InputError as error:
+            print(f"error: {error}", file=sys.stderr)
+            return 1
+        print(f"{args.side_by_side} ({len(files)} layers side by side)")
+        return 0
     if args.out:
         os.makedirs(args.out, exist_ok=True)
     failed = False

@@ -117,6 +117,28 @@ class TestRenderLayers(unittest.TestCase):
         self.assertEqual(render_layers.nice_length(0.7), 0.1)
         self.assertEqual(render_layers.nice_length(60.0), 10.0)
 
+    def test_side_by_side_is_one_png_with_a_panel_per_layer(self):
+        both = os.path.join(self.tmp, "both.png")
+        belief = os.path.join(self.layers, "belief.npy")
+        transitions = os.path.join(self.layers, "p_occ_given_free.npy")
+        done = self.run_script(belief, transitions, "--side-by-side", both)
+        self.assertEqual(done.returncode, 0, done.stdout + done.stderr)
+        self.assertIn("2 layers side by side", done.stdout)
+        self.assertEqual(sorted(f for f in os.listdir(self.layers) if f.endswith(".png")), [])  # nothing else
+        single = os.path.join(self.tmp, "single.png")
+        render_layers.render_side_by_side([belief], single)
+        width, height, pixels = read_png(both)
+        single_width, single_height, _ = read_png(single)
+        self.assertEqual(height, single_height)
+        self.assertGreater(width, 1.8 * single_width)
+        # The left panel is the belief's (magma), the right one the transitions' (viridis):
+        # the greenish colours of viridis only on the right.
+        green = (pixels[..., 1] > pixels[..., 0] + 40) & (pixels[..., 1] > pixels[..., 2])
+        self.assertGreater(green[:, width // 2:].sum(), 100)
+        self.assertEqual(green[:, :width // 2].sum(), 0)
+        done = self.run_script(os.path.join(self.tmp, "missing.npy"), "--side-by-side", both)
+        self.assertNotEqual(done.returncode, 0)
+
     def test_next_to_the_files_and_without_yaml(self):
         os.remove(os.path.join(self.layers, "belief.yaml"))
         done = self.run_script(os.path.join(self.layers, "belief.npy"))
