@@ -416,7 +416,9 @@ void MappingNode::scanCallback(const sensor_msgs::LaserScan::ConstPtr& msg) {
   if (now_s > 0.0 && stamp_s > now_s + offset_s + parameters_.time_jump_threshold_s) {
     std::ostringstream why;
     why << std::fixed << std::setprecision(3) << "it is stamped " << stamp_s - now_s - offset_s << " s in the future";
-    if (offset_s != 0.0) why << " of the scans' clock (ROS time " << std::showpos << offset_s << std::noshowpos << " s)";
+    if (offset_s != 0.0) {
+      why << " of the scans' clock (ROS time " << std::showpos << offset_s << std::noshowpos << " s)";
+    }
     why << ", more than ~time_jump_threshold (" << parameters_.time_jump_threshold_s << " s)";
     return drop(why.str());
   }
@@ -476,10 +478,18 @@ void MappingNode::scanCallback(const sensor_msgs::LaserScan::ConstPtr& msg) {
   const core::ScanResult result = integrateHmm(scan, &corrected);
   if (memory_ && corrected) integrateMemory(*corrected, msg->header.frame_id);
   if (result.status != core::ScanStatus::kIntegrated) {
-    ++(result.status == core::ScanStatus::kRejectedTimeBackwards ? scan_counts_.dropped_late
-                                                                  : scan_counts_.dropped_invalid);
+    const bool late = result.status == core::ScanStatus::kRejectedTimeBackwards;
+    ++(late ? scan_counts_.dropped_late : scan_counts_.dropped_invalid);
+    std::ostringstream why;
+    why << result.error;
+    if (late) {
+      // Say how late: a scan delayed on its way (a recording's hiccup) more than the timer waits.
+      why << std::fixed << std::setprecision(3) << "; it came " << scanClockNow().toSec() - scan.stamp_s
+          << " s after its stamp, and a step is applied ~max_scan_latency (" << parameters_.max_scan_latency_s
+          << " s) after its end";
+    }
     ROS_WARN_THROTTLE(kWarnPeriodS, "dropping scan from frame '%s' stamped %.3f: %s", msg->header.frame_id.c_str(),
-                      scan.stamp_s, result.error.c_str());
+                      scan.stamp_s, why.str().c_str());
     return;
   }
   ++scan_counts_.integrated;
