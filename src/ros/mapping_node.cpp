@@ -38,6 +38,13 @@ constexpr double kWarnPeriodS = 5.0;
 /// Wall seconds a scan's frame may lack its transform before the node warns (tf at start-up).
 constexpr double kMissingFrameGraceS = 1.0;
 constexpr std::size_t kMaxFramesWithoutTransform = 64;
+/// The scans whose stamps the node measures against ROS time at the start (and after ROS
+/// time went back); their lower median is the offset, so one scan stamped wrong among them
+/// does not set it.
+constexpr std::size_t kStampOffsetScans = 5;
+/// Stamps this close to ROS time are on its clock (a scan's way to the node, one arriving
+/// before /clock moved on); further off, the scans run on another clock.
+constexpr double kStampOffsetToleranceS = 1.0;
 
 bool sameBox(const core::CellBox& a, const core::CellBox& b) {
   return (a.empty() && b.empty()) ||
@@ -402,10 +409,18 @@ void MappingNode::scanCallback(const sensor_msgs::LaserScan::ConstPtr& msg) {
   // A zero stamp means "no time" (tf2 even reads it as "latest"); as a time it would look
   // like time jumping back to 0 and restart the map's clock.
   if (msg->header.stamp.isZero()) return drop("its header.stamp is zero (unset)");
-  // So would one stamped far ahead: the map would jump there and back.
+  // So would one stamped far ahead of the scans' clock: the map would jump there and back.
+  const double stamp_s = msg->header.stamp.toSec();
   const double now_s = ros::Time::now().toSec();
-  if (now_s > 0.0 && msg->header.stamp.toSec() > now_s + parameters_.time_jump_threshold_s) {
-    return drop("it is stamped " + std::to_string(msg->header.stamp.toSec() - now_s) + " s in the future");
+  const double offset_s = observeStampOffset(stamp_s, now_s);
+  if (now_s > 0.0 && stamp_s > now_s + offset_s + parameters_.time_jump_threshold_s) {
+    std::ostringstream why;
+    why << std::fixed << std::setprecision(3) << "it is stamped " << stamp_s - now_s - offset_s << " s in the future";
+    if (offset_s != 0.0) {
+      why << " of the scans' clock (ROS time " << std::showpos << offset_s << std::noshowpos << " s)";
+    }
+    why << ", more than ~time_jump_threshold (" << parameters_.time_jump_threshold_s << " s)";
+    return drop(why.str());
   }
   if (!checkScanShape(*msg, &error)) return drop(error);
   geometry_msgs::TransformStamped transform;
@@ -463,10 +478,18 @@ void MappingNode::scanCallback(const sensor_msgs::LaserScan::ConstPtr& msg) {
   const core::ScanResult result = integrateHmm(scan, &corrected);
   if (memory_ && corrected) integrateMemory(*corrected, msg->header.frame_id);
   if (result.status != core::ScanStatus::kIntegrated) {
-    ++(result.status == core::ScanStatus::kRejectedTimeBackwards ? scan_counts_.dropped_late
-                                                                  : scan_counts_.dropped_invalid);
+    const bool late = result.status == core::ScanStatus::kRejectedTimeBackwards;
+    ++(late ? scan_counts_.dropped_late : scan_counts_.dropped_invalid);
+    std::ostringstream why;
+    why << result.error;
+    if (late) {
+      // Say how late: a scan delayed on its way (a recording's hiccup) more than the timer waits.
+      why << std::fixed << std::setprecision(3) << "; it came " << scanClockNow().toSec() - scan.stamp_s
+          << " s after its stamp, and a step is applied ~max_scan_latency (" << parameters_.max_scan_latency_s
+          << " s) after its end";
+    }
     ROS_WARN_THROTTLE(kWarnPeriodS, "dropping scan from frame '%s' stamped %.3f: %s", msg->header.frame_id.c_str(),
-                      scan.stamp_s, result.error.c_str());
+                      scan.stamp_s, why.str().c_str());
     return;
   }
   ++scan_counts_.integrated;
@@ -477,6 +500,46 @@ void MappingNode::scanCallback(const sensor_msgs::LaserScan::ConstPtr& msg) {
   if (result.cells_outside > 0) {
     ROS_WARN_THROTTLE(30.0, "beams reach beyond the map's bounds (fixed_bounds / max_map_size); those cells are not mapped");
   }
+}
+
+double MappingNode::observeStampOffset(double stamp_s, double now_s) {
+  std::lock_guard<std::mutex> lock(stamp_offset_mutex_);
+  if (now_s <= 0.0) return stamp_offset_s_;  // no ROS time yet (/use_sim_time before any /clock)
+  if (now_s < last_scan_ros_time_s_ - kStampOffsetToleranceS) {
+    // ROS time went back (a bag played again, or another bag): its stamps may be off it by
+    // another amount.
+    stamp_offset_samples_.clear();
+  }
+  last_scan_ros_time_s_ = now_s;
+  if (stamp_offset_samples_.size() >= kStampOffsetScans) return stamp_offset_s_;
+  stamp_offset_samples_.push_back(stamp_s - now_s);
+  std::vector<double> sorted = stamp_offset_samples_;
+  std::sort(sorted.begin(), sorted.end());
+  const double median_s = sorted[(sorted.size() - 1) / 2];
+  const double offset_s = std::abs(median_s) > kStampOffsetToleranceS ? median_s : 0.0;
+  stamp_offset_s_ = offset_s;
+  // Said once per estimate that differs from the last one said: at the start, and after ROS
+  // time went back onto another clock difference (never per scan).
+  if (stamp_offset_samples_.size() == kStampOffsetScans &&
+      std::abs(offset_s - stamp_offset_reported_s_) > kStampOffsetToleranceS) {
+    if (offset_s != 0.0) {
+      ROS_WARN("scan stamps are %.3f s %s ROS time (median of the first %zu scans): taken as a constant difference "
+               "between the scans' clock and ROS time (a bag recorded with two computers' clocks, or played without "
+               "--clock); the node compares stamps with ROS time %+.3f s from now on",
+               std::abs(offset_s), offset_s > 0.0 ? "ahead of" : "behind", kStampOffsetScans, offset_s);
+    } else {
+      ROS_INFO("scan stamps agree with ROS time again (within %.1f s)", kStampOffsetToleranceS);
+    }
+    stamp_offset_reported_s_ = offset_s;
+  }
+  return offset_s;
+}
+
+ros::Time MappingNode::scanClockNow() const {
+  const ros::Time now = ros::Time::now();
+  const double offset_s = stamp_offset_s_;
+  if (offset_s == 0.0 || now.isZero()) return now;
+  return toRosTime(now.toSec() + offset_s);
 }
 
 core::ScanResult MappingNode::integrateHmm(const core::Scan& scan, std::optional<core::Scan>* corrected_scan) {
@@ -535,7 +598,8 @@ void MappingNode::publishCorrection(const ros::TimerEvent&) {
   }
   // Stamped ahead, as gmapping does, so that a user of the map frame looking up the newest
   // transform does not extrapolate between two broadcasts.
-  message.header.stamp = ros::Time::now() + ros::Duration(parameters_.transform_tolerance_s);
+  // On the scans' clock, as the odometry it corrects.
+  message.header.stamp = scanClockNow() + ros::Duration(parameters_.transform_tolerance_s);
   // A timer catching up with a clock that leapt (simulated time) fires several times at one
   // time: tf would warn about each repeated stamp. (Time going back is broadcast.)
   if (message.header.stamp == last_correction_stamp_) return;
@@ -641,6 +705,9 @@ void MappingNode::diagnoseTf(diagnostic_updater::DiagnosticStatusWrapper& status
 void MappingNode::diagnoseMap(diagnostic_updater::DiagnosticStatusWrapper& status) {
   std::lock_guard<std::mutex> lock(mutex_);
   status.summary(diagnostic_msgs::DiagnosticStatus::OK, "mapping");
+  // 0: the scans' stamps are on ROS time's clock (within kStampOffsetToleranceS).
+  const double offset_s = stamp_offset_s_;
+  status.addf("scan stamps - ROS time (s)", "%.3f", offset_s);
   if (mapper_) {
     const std::optional<std::int64_t> step = mapper_->lastAppliedStep();
     const double cells = static_cast<double>(mapper_->grid().allocatedTiles()) * core::CellGrid::kTileCells;
@@ -683,16 +750,23 @@ void MappingNode::diagnoseMap(diagnostic_updater::DiagnosticStatusWrapper& statu
       status.summary(diagnostic_msgs::DiagnosticStatus::OK, "no step applied yet");
       status.add("last applied step", "none");
     } else {
-      // The map's time is the end of its last applied step; how far ROS time is ahead of it.
-      const double lag_s = ros::Time::now().toSec() - mapper_->clock().stepStart(*step + 1);
+      // The map's time is the end of its last applied step; how far ROS time (on the scans'
+      // clock) is ahead of it.
+      const double lag_s = scanClockNow().toSec() - mapper_->clock().stepStart(*step + 1);
+      std::ostringstream time;
+      time << "ROS time";
+      if (offset_s != 0.0) {
+        time << " on the scans' clock (their stamps are " << std::fixed << std::setprecision(3) << std::abs(offset_s)
+             << " s " << (offset_s > 0.0 ? "ahead of" : "behind") << " ROS time)";
+      }
       status.add("last applied step", *step);
       status.addf("step lag (s)", "%.3f", lag_s);
       if (lag_s > parameters_.max_step_lag_s) {
         status.summaryf(diagnostic_msgs::DiagnosticStatus::WARN,
-                        "the map is %.1f s behind ROS time (more than diagnostics/max_step_lag %.1f s)", lag_s,
-                        parameters_.max_step_lag_s);
+                        "the map is %.1f s behind %s (more than diagnostics/max_step_lag %.1f s)", lag_s,
+                        time.str().c_str(), parameters_.max_step_lag_s);
       } else {
-        status.summaryf(diagnostic_msgs::DiagnosticStatus::OK, "mapping, %.2f s behind ROS time", lag_s);
+        status.summaryf(diagnostic_msgs::DiagnosticStatus::OK, "mapping, %.2f s behind %s", lag_s, time.str().c_str());
       }
     }
     status.add("gathering step", mapper_->gatheringStep() ? std::to_string(*mapper_->gatheringStep()) : "none");
@@ -838,11 +912,11 @@ void MappingNode::publishTimer(const ros::TimerEvent&) {
   if (memory_) publishMemory(false);
   if (!mapper_) return;
   // Apply the step being gathered once no scan of it can still come (scans of a later step
-  // apply it anyway). Only when ROS time and the scans' stamps agree: a bag played without
-  // --clock has stamps far from ROS time.
+  // apply it anyway). Only when ROS time (on the scans' clock) and the scans' stamps agree:
+  // not after stamps jumped back while ROS time ran on.
   const std::optional<std::int64_t> gathering = mapper_->gatheringStep();
   if (gathering && newest_stamp_s_) {
-    const double now_s = ros::Time::now().toSec();
+    const double now_s = scanClockNow().toSec();
     const double step_end_s = mapper_->clock().stepStart(*gathering + 1);
     const bool clocks_agree = std::abs(now_s - *newest_stamp_s_) < 10.0 * mapper_->config().time_step_s + 10.0;
     if (clocks_agree && now_s >= step_end_s + parameters_.max_scan_latency_s) mapper_->finishStep();
@@ -866,7 +940,7 @@ void MappingNode::publishBestParticle(bool force) {
     const core::ParticleBelief belief = correction_->bestParticleBelief(horizon_steps);
     std::vector<std::int8_t> occupancy;
     core::toOccupancyValues(belief.values, 1.0f, &occupancy);
-    const double stamp_s = clock.origin() ? clock.stepStart(last + 1) : ros::Time::now().toSec();
+    const double stamp_s = clock.origin() ? clock.stepStart(last + 1) : scanClockNow().toSec();
     publisher.publish(toOccupancyGrid(belief.window, std::move(occupancy), parameters_.fixed_frame, toRosTime(stamp_s)));
   };
   if (belief_wanted) publish(best_particle_belief_, 0);
@@ -882,7 +956,7 @@ void MappingNode::publishLayers(bool force_full) {
   const core::CellBox changed = mapper_->takeChangedCells();
   const bool full_due = force_full || !sameBox(bounds, published_bounds_) || parameters_.full_map_period_s == 0.0 ||
                         (now - last_full_publish_).toSec() >= parameters_.full_map_period_s;
-  const ros::Time stamp = step ? toRosTime(mapper_->clock().stepStart(*step + 1)) : now;
+  const ros::Time stamp = step ? toRosTime(mapper_->clock().stepStart(*step + 1)) : scanClockNow();
   bool sent_full = false;
   for (Output& output : outputs_) {
     if (full_due || output.needs_full) {
@@ -906,7 +980,7 @@ void MappingNode::publishLayers(bool force_full) {
 void MappingNode::publishFull(Output& output) {
   const std::optional<std::int64_t> step = mapper_->lastAppliedStep();
   const core::CellBox bounds = step ? mapper_->grid().bounds() : core::CellBox{};
-  const ros::Time stamp = step ? toRosTime(mapper_->clock().stepStart(*step + 1)) : ros::Time::now();
+  const ros::Time stamp = step ? toRosTime(mapper_->clock().stepStart(*step + 1)) : scanClockNow();
   std::vector<std::int8_t> values = step ? outputValues(output, *step, bounds) : std::vector<std::int8_t>{};
   output.full.publish(toOccupancyGrid(mapper_->grid().window(bounds), std::move(values), parameters_.fixed_frame, stamp));
   output.needs_full = false;
@@ -971,7 +1045,7 @@ void MappingNode::publishHypotheses() {
   hypotheses_need_publish_ = false;
 }
 
-ros::Time MappingNode::memoryStamp() const { return memory_stamp_.value_or(ros::Time::now()); }
+ros::Time MappingNode::memoryStamp() const { return memory_stamp_.value_or(scanClockNow()); }
 
 void MappingNode::replaceMapper(std::unique_ptr<core::Mapper> mapper) {
   correction_.reset();  // it reads the mapper being replaced

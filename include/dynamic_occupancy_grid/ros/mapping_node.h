@@ -125,6 +125,13 @@ class MappingNode {
   /// The offline EM run's state for the diagnostics.
   void setOfflineEmState(const std::string& phase, double fraction, const std::string& message);
   void scanCallback(const sensor_msgs::LaserScan::ConstPtr& msg);
+  /// A scan's stamp and the ROS time it was taken at, towards the scans' clock offset
+  /// (stamp_offset_s_, from the first kStampOffsetScans scans and again after ROS time
+  /// went back); returns the offset in use.
+  double observeStampOffset(double stamp_s, double now_s);
+  /// ROS time on the scans' clock: ros::Time::now() + stamp_offset_s_ (maps and broadcasts
+  /// are stamped in it, as the scans and the tf they came with are).
+  ros::Time scanClockNow() const;
   /// The scan into the memory model (false: refused); caller holds mutex_.
   bool integrateMemory(const core::Scan& scan, const std::string& frame_id);
   void scanDropped(const sensor_msgs::LaserScan::ConstPtr& msg, tf2_ros::FilterFailureReason reason);
@@ -196,6 +203,16 @@ class MappingNode {
     std::atomic<std::uint64_t> memory_rejected{0};  ///< refused by the memory model
   };
   ScanCounts scan_counts_;
+  /// Scan stamps minus ROS time when the scans run on another clock than ROS time (a bag
+  /// recorded on a computer whose clock differed from the recorder's, played with --clock;
+  /// a bag played without --clock): 0 while they agree within kStampOffsetToleranceS. The
+  /// node compares stamps with ROS time + this (scanClockNow); the core maps in stamp time.
+  std::atomic<double> stamp_offset_s_{0.0};
+  /// Guards the estimate of stamp_offset_s_ below (never held while taking another mutex).
+  std::mutex stamp_offset_mutex_;
+  std::vector<double> stamp_offset_samples_;  ///< stamp - ROS time of the first scans
+  double stamp_offset_reported_s_ = 0.0;      ///< the offset last logged (0: none)
+  double last_scan_ros_time_s_ = 0.0;         ///< ROS time of the last scan observed
   /// Guards the diagnostics' own state below (never held while taking mutex_).
   std::mutex diagnostics_mutex_;
   std::string last_tf_error_;
