@@ -145,7 +145,7 @@ double CellKinds::observe(KindJoint& joint, std::int64_t gap, const KindEvidence
     }
   }
   const double b[2] = {evidence.occ, evidence.free};
-  const double flip = observedStepSwitch(view_change);
+  const std::array<double, 2> flip = observedStepSwitch(view_change);
   double next[2 * kKindCount];
   double c = 0.0;
   for (int k = 0; k < kKindCount; ++k) {
@@ -153,7 +153,7 @@ double CellKinds::observe(KindJoint& joint, std::int64_t gap, const KindEvidence
     const double to_occ = joint.p[2 * k] * (1.0 - t.p_free_given_occ) + joint.p[2 * k + 1] * t.p_occ_given_free;
     const double to_free = joint.p[2 * k] * t.p_free_given_occ + joint.p[2 * k + 1] * (1.0 - t.p_occ_given_free);
     // The observed step's switch (the stable kind's only way to change).
-    const double occ_now = to_occ + flip * (to_free - to_occ);
+    const double occ_now = to_occ * (1.0 - flip[0]) + to_free * flip[1];
     next[2 * k] = occ_now * b[0];
     next[2 * k + 1] = (to_occ + to_free - occ_now) * b[1];
     c += next[2 * k] + next[2 * k + 1];
@@ -250,7 +250,8 @@ CellKinds::PairPosterior CellKinds::pairWeights(const KindJoint& last, std::int6
 double CellKinds::occupiedAfter(int k, int s, std::int64_t steps, double view_change) const {
   double p[2][2];
   nStep(pi_[k], lambdaPower(k, steps), p);  // lambda_k^n from the table
-  return p[s][0] + observedStepSwitch(view_change) * (p[s][1] - p[s][0]);
+  const std::array<double, 2> flip = observedStepSwitch(view_change);
+  return p[s][0] * (1.0 - flip[0]) + p[s][1] * flip[1];
 }
 
 void CellKinds::addPair(const KindJoint& last, std::int64_t steps, double log_likelihood_ratio, double view_change) {
@@ -288,6 +289,7 @@ void CellKinds::setViewSwitchProbability(double view_switch_probability) {
   changed.view_switch_probability = view_switch_probability;
   changed.validate();
   config_ = changed;
+  recompute();
 }
 
 void CellKinds::addMembership(const std::array<double, kKindCount>& delta, bool new_cell) {
@@ -337,7 +339,7 @@ TransitionParams CellKinds::fitPairs(int k, TransitionParams start) const {
   const TransitionParams& prior = config_.initial_transitions[k];
   const double w = config_.transition_prior_weight;
   const auto& bins = sums_.pairs[k];
-  const double flip = observedStepSwitch(1.0);
+  const std::array<double, 2> flip = observedStepSwitch(1.0);
   const auto objective = [&](double u, double v) {
     const double a = std::exp(u);
     const double b = std::exp(v);
@@ -351,7 +353,7 @@ TransitionParams CellKinds::fitPairs(int k, TransitionParams start) const {
       for (int i = 0; i < 2; ++i) {
         // Then the observed step's switch, from a new view: a pair's change that the view
         // explains is not the kind's (pairs do not keep their view; most are new ones).
-        const double to_occ = p[i][0] + flip * (p[i][1] - p[i][0]);
+        const double to_occ = p[i][0] * (1.0 - flip[0]) + p[i][1] * flip[1];
         const double now[2] = {to_occ, 1.0 - to_occ};
         for (int j = 0; j < 2; ++j) {
           if (c[2 * i + j] > 0.0) value += c[2 * i + j] * std::log(std::max(now[j], 1e-300));
@@ -410,6 +412,16 @@ TransitionParams CellKinds::fitPairs(int k, TransitionParams start) const {
 }
 
 void CellKinds::recompute() {
+  {  // viewSwitch()
+    double pairs[4] = {0.0, 0.0, 0.0, 0.0};
+    for (const auto& bin : sums_.pairs[kStableKind]) {
+      for (int c = 0; c < 4; ++c) pairs[c] += bin[c];
+    }
+    const double start = config_.view_switch_probability;
+    const double w = config_.transition_prior_weight;
+    switch_[0] = std::min(start, (pairs[1] + w * start) / (pairs[0] + pairs[1] + w));
+    switch_[1] = std::min(start, (pairs[2] + w * start) / (pairs[2] + pairs[3] + w));
+  }
   double share_total = 0.0;
   for (int k = 0; k < kKindCount; ++k) {
     const double lambda = transitions_[k].lambda();

@@ -74,10 +74,11 @@ void referenceSwitch(Joint& joint, const dog::CellKinds& kinds, std::int64_t ste
   }
 }
 
-// The state's switch at an observed step whose view changed by `view_change`, in every kind:
-// view_switch_probability times the view's change.
-LD referenceSwitchAtObservation(const dog::CellKinds& kinds, LD view_change) {
-  return static_cast<LD>(kinds.config().view_switch_probability) * view_change;
+// The state's switch at an observed step whose view changed by `view_change`, in every kind,
+// from occupied and from free: the learned switches (viewSwitch, checked on their own in
+// TheViewsSwitchIsLearnedFromTheStableKindsPairs) times the view's change.
+std::array<LD, 2> referenceSwitchAtObservation(const dog::CellKinds& kinds, LD view_change) {
+  return {static_cast<LD>(kinds.viewSwitch()[0]) * view_change, static_cast<LD>(kinds.viewSwitch()[1]) * view_change};
 }
 
 // An observed step after `gap` unobserved ones; fills xi[k][i][j] = p(k, x_{t-1} = i,
@@ -92,8 +93,8 @@ LD referenceObserve(Joint& joint, const dog::CellKinds& kinds, std::int64_t gap,
     const LD of = kinds.transitions(k).p_occ_given_free;
     const LD fo = kinds.transitions(k).p_free_given_occ;
     const LD step[2][2] = {{1.0L - fo, fo}, {of, 1.0L - of}};
-    const LD sigma = referenceSwitchAtObservation(kinds, view_change);
-    const LD flip[2][2] = {{1.0L - sigma, sigma}, {sigma, 1.0L - sigma}};
+    const std::array<LD, 2> sigma = referenceSwitchAtObservation(kinds, view_change);
+    const LD flip[2][2] = {{1.0L - sigma[0], sigma[0]}, {sigma[1], 1.0L - sigma[1]}};
     LD a[2][2];
     for (int i = 0; i < 2; ++i) {
       for (int j = 0; j < 2; ++j) a[i][j] = step[i][0] * flip[0][j] + step[i][1] * flip[1][j];
@@ -191,12 +192,12 @@ TEST(CellKinds, PairPosteriorIsTheChainStepByStepFromEachState) {
     LD expected[K][2][2];
     LD total = 0.0L;
     for (int k = 0; k < K; ++k) {
-      const LD sigma = referenceSwitchAtObservation(kinds, view_change);
+      const std::array<LD, 2> sigma = referenceSwitchAtObservation(kinds, view_change);
       for (int i = 0; i < 2; ++i) {
         Joint chain{};
         chain[2 * k + i] = 1.0L;
         for (std::int64_t step = 0; step < n; ++step) referenceStep(chain, kinds);
-        const LD occ = chain[2 * k] * (1.0L - sigma) + chain[2 * k + 1] * sigma;
+        const LD occ = chain[2 * k] * (1.0L - sigma[0]) + chain[2 * k + 1] * sigma[1];
         const LD now[2] = {occ, chain[2 * k] + chain[2 * k + 1] - occ};
         for (int j = 0; j < 2; ++j) {
           expected[k][i][j] = static_cast<LD>(last.p[2 * k + i]) * now[j] * (j == 0 ? std::exp(static_cast<LD>(ratio)) : 1.0L);
@@ -298,7 +299,7 @@ TEST(CellKinds, PairsAtManyDistancesGiveTheChainBack) {
   const double a = 0.03;
   const double b = 0.07;
   const double pi = a / (a + b);
-  const double flip = dog::KindsConfig{}.view_switch_probability;
+  const double flip = dog::KindsConfig{}.view_switch_probability;  // no pairs of the stable kind: the start
   dog::CellKinds kinds(dog::KindsConfig{}, 1e-4, 0.5);
   dog::CellKinds::Sums sums;
   for (const int bin : {dog::gapBin(1), dog::gapBin(3), dog::gapBin(9), dog::gapBin(40), dog::gapBin(300)}) {
@@ -406,6 +407,39 @@ TEST(CellKinds, SummariesOfAKnownPosterior) {
         break;
     }
   }
+}
+
+TEST(CellKinds, TheViewsSwitchIsLearnedFromTheStableKindsPairs) {
+  // The stable kind's pairs: 30 from occupied of which 3 changed, 1000 from free of which 2
+  // changed, one step apart; with transition_prior_weight 100 pseudo-pairs at the start
+  // (0.05): (3 + 5) / (30 + 100) from occupied, (2 + 5) / (1000 + 100) from free. Pairs of
+  // the other kinds teach it nothing, and it never exceeds the start.
+  dog::KindsConfig config;
+  config.forgetting = 0.0;
+  dog::CellKinds kinds(config, 1e-4, 0.5);
+  EXPECT_EQ(kinds.viewSwitch()[0], 0.05);
+  EXPECT_EQ(kinds.viewSwitch()[1], 0.05);
+  dog::CellKinds::Sums sums;
+  sums.pairs[dog::kStableKind][0] = {27.0, 3.0, 2.0, 998.0};
+  sums.pairs[3][0] = {0.0, 500.0, 500.0, 0.0};  // another kind's, all changed
+  std::array<dog::TransitionParams, K> start;
+  for (int k = 0; k < K; ++k) start[k] = kinds.transitions(k);
+  kinds.restore(sums, start);
+  EXPECT_EQ(kinds.viewSwitch()[0], 0.05);  // (3 + 5) / 130 = 0.062, at most the start
+  EXPECT_NEAR(kinds.viewSwitch()[1], 7.0 / 1100.0, 1e-15);
+  sums.pairs[dog::kStableKind][0] = {990.0, 10.0, 1.0, 999.0};
+  kinds.restore(sums, start);
+  EXPECT_NEAR(kinds.viewSwitch()[0], 15.0 / 1100.0, 1e-15);
+  // In the filter, per view's change.
+  const std::array<double, 2> half = kinds.observedStepSwitch(0.5);
+  EXPECT_NEAR(half[0], 0.5 * 15.0 / 1100.0, 1e-15);
+  EXPECT_NEAR(half[1], 0.5 * 6.0 / 1100.0, 1e-15);
+  EXPECT_EQ(kinds.observedStepSwitch(0.0)[0], 0.0);
+  // A new start resets the bound and the prior.
+  kinds.setViewSwitchProbability(0.01);
+  EXPECT_NEAR(kinds.viewSwitch()[0], std::min(0.01, 11.0 / 1100.0), 1e-15);
+  EXPECT_THROW(kinds.setViewSwitchProbability(0.5), std::invalid_argument);
+  EXPECT_NEAR(kinds.viewSwitch()[0], std::min(0.01, 11.0 / 1100.0), 1e-15);
 }
 
 TEST(CellKinds, TheStableKindIsNeverLearned) {

@@ -2069,7 +2069,7 @@ TEST(MapperKinds, CellsAndKindsFollowAReferenceStepForStep) {
       const bool first = joints.count(x) == 0;
       const std::int64_t gap = first ? 0 : step - 1 - last_step[x];
       const double view_change = first ? 1.0 : std::min(1.0, motion - motion_at[last_step[x]]);
-      const LD flip = static_cast<LD>(config.kinds.view_switch_probability) * view_change;
+      const std::array<double, 2> flip = reference.observedStepSwitch(view_change);  // checked in test_cell_kinds
       if (!first && observed[x] >= static_cast<int>(config.online_em.min_observed_steps)) {
         // The sensor model's sums: the cell's last step, weighed by p(state then | this step).
         const Evidence& previous = last_evidence[x];
@@ -2081,8 +2081,10 @@ TEST(MapperKinds, CellsAndKindsFollowAReferenceStepForStep) {
           const dog::TransitionParams t = reference.transitions(k);
           const LD lambda_n = reference.lambdaPower(k, gap + 1);
           const LD pi = t.p_occ_given_free / (t.p_occ_given_free + t.p_free_given_occ);
-          const LD occ_to_occ = pi + lambda_n * (1.0L - pi) + flip * (1.0L - 2.0L * (pi + lambda_n * (1.0L - pi)));
-          const LD free_to_occ = pi - lambda_n * pi + flip * (1.0L - 2.0L * (pi - lambda_n * pi));
+          const LD chain_occ = pi + lambda_n * (1.0L - pi);
+          const LD chain_free = pi - lambda_n * pi;
+          const LD occ_to_occ = chain_occ * (1.0L - flip[0]) + (1.0L - chain_occ) * flip[1];
+          const LD free_to_occ = chain_free * (1.0L - flip[0]) + (1.0L - chain_free) * flip[1];
           const LD w_occ = joints[x].p[2 * k] * (occ_to_occ * like_occ + (1.0L - occ_to_occ) * like_free);
           const LD w_free = joints[x].p[2 * k + 1] * (free_to_occ * like_occ + (1.0L - free_to_occ) * like_free);
           all += w_occ + w_free;

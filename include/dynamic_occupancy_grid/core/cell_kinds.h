@@ -16,7 +16,8 @@
 // looks from: a 5 cm wall cell is hit from one pose and passed through from the next, a
 // little further along the wall or under the pose's error. On a robot driving through a
 // building most of what looks like change is that. The model explains it as a switch of the
-// state at an observed step (view_switch_probability), the same for every kind, which costs
+// state at an observed step (learned, at most view_switch_probability), the same for every
+// kind, in proportion to the laser's motion since the cell's last observed step, which costs
 // the same after a second as after an hour and which the cell keeps until it is seen again.
 // Kinds then differ in what changes with time. One kind is not learned: kind 0, the stable
 // kind, does not change between observations at all. A place that changed once and then
@@ -108,8 +109,9 @@ struct KindsConfig {
   double weight_prior_cells = 100.0;
   /// Per step: the chance that a cell's kind is redrawn from the population (see above).
   double switch_probability = 1e-4;
-  /// Per observed step from a new view: the chance that the cell's state switches, in every
-  /// kind (observedStepSwitch; none when the laser has not moved): what a moving laser
+  /// Per observed step from a new view: where the chance that the cell's state switches
+  /// starts and the most it may be, in every kind (observedStepSwitch, viewSwitch: learned
+  /// from the stable kind's pairs; none when the laser has not moved): what a moving laser
   /// reads of a place changes with where it looks from (a wall cell read from one pose,
   /// passed through from the next under pose and range error), not with the time since it
   /// last looked (docs/online_learning.md, "Views that change"). In [0, 0.5).
@@ -171,16 +173,19 @@ class CellKinds {
   double lambdaPower(int k, std::int64_t steps) const;
   /// The kind's stationary occupancy p_occ_given_free / (p_occ_given_free + p_free_given_occ).
   double stationary(int k) const { return pi_[k]; }
-  /// The chance that a cell's state switches at an observed step whose view changed by
+  /// The chances that a cell's state switches at an observed step whose view changed by
   /// `view_change` in [0, 1] since the cell's last observed step (1: a new view; 0: the same
-  /// laser pose): view_switch_probability times it. The same for every kind: how a reading
-  /// varies with the view is the laser's, not the place's. A laser that does not move reads
-  /// every change as the place's (a stationary laser's people light up the transition
-  /// layers); docs/online_learning.md, "Views that change", has what the half of it there
-  /// gave.
-  double observedStepSwitch(double view_change) const {
-    return config_.view_switch_probability * view_change;
+  /// laser pose), from occupied (index 0) and from free (1): viewSwitch() times it. The same
+  /// for every kind: how a reading varies with the view is the laser's, not the place's. A
+  /// laser that does not move reads every change as the place's.
+  std::array<double, 2> observedStepSwitch(double view_change) const {
+    return {switch_[0] * view_change, switch_[1] * view_change};
   }
+  /// The switches from a new view, from occupied and from free, as learned so far: the
+  /// stable kind's pairs (its cells change only by the view) that changed state over all its
+  /// pairs from that state, with transition_prior_weight pseudo-pairs at
+  /// view_switch_probability, and at most that (recompute()).
+  const std::array<double, 2>& viewSwitch() const { return switch_; }
   /// p(x_now = occ | x_then = s) of kind k, `steps` (>= 1) apart with an observation at the
   /// end: `steps` transitions (THEORY.md §3), then the observed step's switch.
   double occupiedAfter(int k, int s, std::int64_t steps, double view_change) const;
@@ -257,6 +262,7 @@ class CellKinds {
   std::array<std::array<double, kKindCount>, kTabulatedSteps + 1> lambda_powers_;  ///< [n][k]
   std::array<double, kTabulatedSteps + 1> keep_powers_;  ///< [n]
   Sums sums_;
+  std::array<double, 2> switch_{};  ///< viewSwitch()
 };
 
 }  // namespace core
