@@ -323,8 +323,8 @@ void Mapper::markHit(CellGrid::Tile& tile, int offset) {
 void Mapper::applyGatheredStep() {
   if (!gathering_step_) return;
   const auto step = static_cast<std::int32_t>(*gathering_step_);
-  motion_at_step_[step % kMotionSteps] = motion_cells_;
-  motion_step_[step % kMotionSteps] = step;
+  motion_at_step_[motionSlot(step)] = motion_cells_;
+  motion_step_[motionSlot(step)] = step;
   for (const TouchedTile& touched : touched_tiles_) {
     CellGrid::Tile& tile = *touched.tile;
     tile_versions_.bump(tile.tile_x, tile.tile_y);
@@ -515,7 +515,7 @@ void Mapper::learnStep(CellGrid::Tile& tile, int i, std::int32_t step, double ev
 }
 
 double Mapper::viewChangeSince(std::int32_t last_step) const {
-  const std::int32_t slot = last_step % kMotionSteps;
+  const std::size_t slot = motionSlot(last_step);
   if (!gathering_step_ || motion_step_[slot] != last_step) return 1.0;
   return std::min(1.0, motion_cells_ - motion_at_step_[slot]);
 }

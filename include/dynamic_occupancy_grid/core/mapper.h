@@ -323,6 +323,11 @@ class Mapper {
   double motion_cells_ = 0.0;
   std::optional<Pose2D> last_laser_pose_;
   static constexpr std::int32_t kMotionSteps = 4096;
+  /// The slot of `step` in the two arrays below; a model file may hold steps before its
+  /// clock's origin (negative), which have a slot too.
+  static std::size_t motionSlot(std::int32_t step) {
+    return static_cast<std::size_t>(((step % kMotionSteps) + kMotionSteps) % kMotionSteps);
+  }
   std::vector<double> motion_at_step_ = std::vector<double>(kMotionSteps, 0.0);
   std::vector<std::int32_t> motion_step_ = std::vector<std::int32_t>(kMotionSteps, kNeverObserved);
 };
