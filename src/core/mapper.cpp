@@ -15,28 +15,6 @@ namespace dynamic_occupancy_grid {
 namespace core {
 namespace {
 
-// The length of the segment (u0, v0) -> (u1, v1) inside cell (x, y), in grid units (cells):
-// its parameter interval [enter, exit] within the cell's square and [0, 1], times its length.
-double chordThroughCell(std::int32_t x, std::int32_t y, double u0, double v0, double u1, double v1) {
-  const double du = u1 - u0;
-  const double dv = v1 - v0;
-  double enter = 0.0;
-  double exit = 1.0;
-  if (du != 0.0) {
-    const double a = (x - u0) / du;
-    const double b = (x + 1.0 - u0) / du;
-    enter = std::max(enter, std::min(a, b));
-    exit = std::min(exit, std::max(a, b));
-  }
-  if (dv != 0.0) {
-    const double a = (y - v0) / dv;
-    const double b = (y + 1.0 - v0) / dv;
-    enter = std::max(enter, std::min(a, b));
-    exit = std::min(exit, std::max(a, b));
-  }
-  return std::max(0.0, exit - enter) * std::hypot(du, dv);
-}
-
 using ScanRecord = CellGrid::ScanRecord;
 
 // The laser's turns count into its motion (Mapper::viewChangeSince) as the arc they sweep at
@@ -114,8 +92,6 @@ void MapperConfig::validate() const {
   require(sensor_model_mixed_step_probability >= 0.0 && sensor_model_mixed_step_probability <= 0.5,
           "sensor_model_mixed_step_probability must be in [0, 0.5], got " +
               std::to_string(sensor_model_mixed_step_probability));
-  require(clipped_corner_chord >= 0.0 && clipped_corner_chord <= 1.5,
-          "clipped_corner_chord must be in [0, 1.5], got " + std::to_string(clipped_corner_chord));
   require(end_miss_margin_cells >= 0 && end_miss_margin_cells <= 16,
           "end_miss_margin_cells must be in [0, 16], got " + std::to_string(end_miss_margin_cells));
   require(std::isfinite(prior_population_weight) && prior_population_weight > 0.0,
@@ -241,8 +217,8 @@ ScanResult Mapper::integrate(const Scan& scan) {
       ++pending_count;
     });
     CellGrid::Tile* tile = tile_of(end.x, end.y);
-    // The last pending cell is the one just before the end cell when no cell of the beam
-    // was outside the map (a beam that leaves the map, or ends outside it, clips nothing).
+    // The last pending cells are the ones just before the end cell when no cell of the beam
+    // was outside the map (a beam that leaves the map, or ends outside it, drops nothing).
     // A beam without return drops its end cell's miss and N - 1 of the cells before it.
     const bool inside = tile != nullptr && result.cells_outside == outside_before;
     const bool margin = config_.end_miss_margin_cells > 0 && inside;
@@ -250,12 +226,6 @@ ScanResult Mapper::integrate(const Scan& scan) {
     std::size_t dropped = 0;
     if (margin) {
       dropped = std::min(pending_count, static_cast<std::size_t>(config_.end_miss_margin_cells - (drop_end ? 1 : 0)));
-    } else if (beam.hit && pending_count > 0 && inside && config_.clipped_corner_chord > 0.0) {
-      const auto& [last_tile, last_offset] = pending[(pending_count - 1) % kMissLookahead];
-      dropped = chordThroughCell(last_tile->cellX(last_offset), last_tile->cellY(last_offset), u0, v0, beam.u1,
-                                 beam.v1) < config_.clipped_corner_chord
-                    ? 1
-                    : 0;
     }
     const std::size_t counted = pending_count - dropped;
     for (std::size_t k = pending_count > kMissLookahead ? pending_count - kMissLookahead : 0; k < counted; ++k) {
@@ -817,13 +787,6 @@ void Mapper::setSensorModel(double p_hit_given_occ, double p_hit_given_free) {
   config_.p_hit_given_free = p_hit_given_free;
   // With learn_sensor_model the new values are where learning starts again.
   sensor_stats_ = SensorModelStats{};
-}
-
-void Mapper::setClippedCornerChord(double clipped_corner_chord) {
-  MapperConfig config = config_;
-  config.clipped_corner_chord = clipped_corner_chord;
-  config.validate();  // throws for a value outside [0, 1.5]
-  config_.clipped_corner_chord = clipped_corner_chord;
 }
 
 void Mapper::setViewSwitchProbability(double view_switch_probability) {

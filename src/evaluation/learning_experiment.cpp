@@ -101,7 +101,6 @@ RepetitionRun runRepetition(const ScenarioConfig& scenario, const LearningExperi
   const std::uint64_t world_seed = mixSeed(config.seed * 1000003ULL + static_cast<std::uint64_t>(repetition) + 0x5041ULL);
   MapperConfig base = evaluationMapperConfig(scenario);
   base.learn_sensor_model = config.learn_sensor_model;
-  base.clipped_corner_chord = config.clipped_corner_chord;
 
   ScenarioConfig training_scenario = scenario;
   training_scenario.redraw_at_step = -1;

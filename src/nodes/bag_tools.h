@@ -106,9 +106,6 @@ inline void addMappingOptions(command_line::CommandLine& line, SharedOptions* op
        "readings longer than M metres count as no return (default: the sensor's range_max)")
       ("max-free-range", cl::number(&mapper.max_free_range_m, cl::atLeast(0.0))->value_name("M"),
        "beams without return clear cells up to M metres (default 10; 0 ignores them)")
-      ("clipped-corner-chord", cl::number(&mapper.clipped_corner_chord, cl::between(0.0, 1.5))->value_name("C"),
-       "a beam that hits counts no miss in the cell just before its end cell when it crosses it over less than C "
-       "cells, a corner it clips (default 0: every miss; 0.3 measured), as the node's ~clipped_corner_chord")
       ("p-hit-given-occ", cl::number(&mapper.p_hit_given_occ, cl::between(0.0, 1.0))->value_name("P"),
        "sensor model: p(hit | occupied) (default 0.7)")
       ("p-hit-given-free", cl::number(&mapper.p_hit_given_free, cl::between(0.0, 1.0))->value_name("P"),

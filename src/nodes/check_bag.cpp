@@ -485,11 +485,11 @@ void checkAndReport(dog::ros_layer::BagScanSource& source, const Options& option
   const dog::core::MapperConfig& mapper = options.shared.mapper;
   std::printf("mapper: resolution %g m, time step %g s, p_hit_given_occ %g, p_hit_given_free %g, "
               "prior p_occ_given_free %g, p_free_given_occ %g per step, online learning %s, "
-              "sensor model learning %s, mixed step probability %g, clipped corner chord %g\n",
+              "sensor model learning %s, mixed step probability %g\n",
               mapper.resolution_m, mapper.time_step_s, mapper.p_hit_given_occ, mapper.p_hit_given_free,
               mapper.prior_transitions.p_occ_given_free, mapper.prior_transitions.p_free_given_occ,
               mapper.learn_transitions ? "on" : "off", mapper.learn_sensor_model ? "on" : "off",
-              mapper.sensor_model_mixed_step_probability, mapper.clipped_corner_chord);
+              mapper.sensor_model_mixed_step_probability);
   if (mapper.learn_transitions && mapper.learner == dog::core::TransitionLearner::kKinds) {
     std::printf("online learning: kinds of cells (%d), switch probability %g, forgetting %g per step\n",
                 dog::core::kKindCount, mapper.kinds.switch_probability, mapper.kinds.forgetting);

@@ -52,7 +52,6 @@ struct Options {
   int learning_repetitions = 4;
   std::int64_t learning_steps = 0;
   bool learning_ablations = false;
-  double learning_clipped_corner_chord = 0.0;
   int murphy_repetitions = 100;
   int murphy_doors_runs = 10;
   int pose_correction_runs = 0;
@@ -131,10 +130,6 @@ Options parseOptions(int argc, char** argv) {
        "steps of each learning scenario's runs (default 0: the scenario's own length)")
       ("learning-ablations", boost::program_options::bool_switch(&options.learning_ablations),
        "also the kinds learner with one choice changed each (docs/online_learning.md)")
-      ("learning-clipped-corner-chord",
-       cl::number(&options.learning_clipped_corner_chord, cl::between(0.0, 1.5))->value_name("C"),
-       "every mapper of the learning experiment counts no miss in a corner its beam clips over less than C cells "
-       "just before the beam's end (MapperConfig::clipped_corner_chord; default 0: every miss)")
       ("murphy-repetitions", cl::number(&options.murphy_repetitions, repetitions)->value_name("N"),
        "seeds of Murphy's 1D corridor (docs/murphy_corridor.md: exact Bayes, online and offline EM, the RBPF; "
        "default 100, about a second; 0 skips it)")
@@ -1098,7 +1093,6 @@ int main(int argc, char** argv) {
       config.repetitions = options.learning_repetitions;
       config.seed = options.seed;
       config.threads = options.threads;
-      config.clipped_corner_chord = options.learning_clipped_corner_chord;
       if (options.learning_ablations) {
         for (const core::LearnerVariant& variant : core::kindsAblationVariants()) config.variants.push_back(variant);
       }

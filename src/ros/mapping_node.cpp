@@ -105,11 +105,6 @@ void logLearners(const core::MapperConfig& config) {
              "(sensor_model/mixed_step_probability)",
              config.sensor_model_mixed_step_probability);
   }
-  if (config.clipped_corner_chord > 0.0) {
-    ROS_INFO("a beam that hits counts no miss in a corner it clips over less than %g cells just before its end "
-             "(clipped_corner_chord)",
-             config.clipped_corner_chord);
-  }
   if (config.learn_sensor_model) {
     ROS_INFO("online learning of the sensor model: from p_hit_given_occ %g, p_hit_given_free %g, worth %g beam "
              "ends per state (sensor_model/prior_weight), within [%g, %g] (sensor_model/p_min)",
@@ -119,11 +114,10 @@ void logLearners(const core::MapperConfig& config) {
 }
 
 // A loaded model takes this node's settings for what model files leave out: how a step's
-// beams are read, which misses a scan counts and how readings change with the view.
+// beams are read and how readings change with the view.
 void applySettingsModelFilesLeaveOut(core::Mapper& mapper, const core::MapperConfig& config) {
   mapper.setViewSwitchProbability(config.kinds.view_switch_probability);
   mapper.setMixedStepProbability(config.sensor_model_mixed_step_probability);
-  mapper.setClippedCornerChord(config.clipped_corner_chord);
 }
 
 }  // namespace

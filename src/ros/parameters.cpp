@@ -247,7 +247,6 @@ bool readParameters(const ros::NodeHandle& private_nh, NodeParameters* parameter
   read.number("sensor_model/prior_weight", &m.sensor_model_prior_weight);
   read.number("sensor_model/p_min", &m.sensor_model_p_min);
   read.number("sensor_model/mixed_step_probability", &m.sensor_model_mixed_step_probability);
-  read.number("clipped_corner_chord", &m.clipped_corner_chord);
   std::string learner = "kinds";
   read.text("learner", &learner);
   if (learner == "kinds") {

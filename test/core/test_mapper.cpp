@@ -330,97 +330,23 @@ TEST(MapperBeams, HitBeamMissesCellsBeforeTheEndAndHitsTheEnd) {
   expectFirstStepEvidence(mapper, rowEvidence(0, 3, {0, 1}, {{{4, 0}, {1, 0}}}));
 }
 
-// clipped_corner_chord: a beam from lattice (0.5, 0.5) to (4.2, 1.05) crosses y = 1 at
-// x = 3.864, so it clips cell (3, 1) over 0.138 cells just before its end cell (4, 1); cell
-// (3, 0) before it is crossed over 0.87. With a chord of 0.3 the clipped cell counts no miss
-// (under range noise the surface hit may lie in it); every other cell, and any beam without
-// return, counts as before.
-TEST(MapperBeams, AHitBeamCountsNoMissInACornerItClipsJustBeforeItsEnd) {
-  const double dx = (4.2 - 0.5) * 0.25;
-  const double dy = (1.05 - 0.5) * 0.25;
-  const auto range = static_cast<float>(std::hypot(dx, dy));
-  const double angle = std::atan2(dy, dx);
-  for (const double chord : {0.0, 0.1, 0.3}) {
-    SCOPED_TRACE("clipped_corner_chord " + std::to_string(chord));
-    dog::MapperConfig config = testConfig();
-    config.clipped_corner_chord = chord;
-    dog::Mapper mapper(config);
-    ASSERT_EQ(mapper.integrate(makeScan(0.0, {range}, 0.0, angle)).status, dog::ScanStatus::kIntegrated);
-    mapper.finishStep();
-    const std::optional<dog::CellState> clipped = mapper.grid().cell(3, 1);
-    EXPECT_EQ(clipped.has_value(), chord < 0.138) << "the clipped corner";
-    EXPECT_TRUE(mapper.grid().cell(3, 0).has_value());
-    ASSERT_TRUE(mapper.grid().cell(4, 1).has_value());
-    EXPECT_GT(mapper.grid().cell(4, 1)->p_occ, 0.5);  // the end cell's hit
-    // A beam without return along the same line misses the corner cell whatever the chord.
-    dog::MapperConfig clearing = config;
-    clearing.max_free_range_m = range;  // cleared to the same end point
-    dog::Mapper no_return(clearing);
-    ASSERT_EQ(no_return.integrate(makeScan(0.0, {kInfF}, 0.0, angle)).status, dog::ScanStatus::kIntegrated);
-    no_return.finishStep();
-    EXPECT_TRUE(no_return.grid().cell(3, 1).has_value());
-  }
-  // A beam of 36 cells (more than the traversal's 32 pending misses): from (0.5, 0.5) to
-  // (36.2, 1.00567) it crosses y = 1 at x = 35.8, clipping cell (35, 1) over 0.2 cells.
-  const double long_dx = (36.2 - 0.5) * 0.25;
-  const double long_dy = (0.5 + 35.7 * (0.5 / 35.3) - 0.5) * 0.25;
-  for (const double chord : {0.1, 0.3}) {
-    SCOPED_TRACE("a long beam, clipped_corner_chord " + std::to_string(chord));
-    dog::MapperConfig config = testConfig();
-    config.clipped_corner_chord = chord;
-    dog::Mapper mapper(config);
-    ASSERT_EQ(mapper.integrate(makeScan(0.0, {static_cast<float>(std::hypot(long_dx, long_dy))}, 0.0,
-                                        std::atan2(long_dy, long_dx)))
-                  .status,
-              dog::ScanStatus::kIntegrated);
-    mapper.finishStep();
-    EXPECT_EQ(mapper.grid().cell(35, 1).has_value(), chord < 0.2);
-    EXPECT_TRUE(mapper.grid().cell(35, 0).has_value());
-    EXPECT_TRUE(mapper.grid().cell(36, 1).has_value());
-  }
-  // A beam whose end cell lies outside the map clips nothing: cells 0..3 x 0..1 only.
-  {
-    dog::MapperConfig config = testConfig();
-    config.clipped_corner_chord = 0.3;
-    config.fixed_bounds = true;
-    config.width_m = 1.0;
-    config.height_m = 0.5;
-    dog::Mapper mapper(config);
-    const dog::ScanResult result = mapper.integrate(makeScan(0.0, {range}, 0.0, angle));
-    ASSERT_EQ(result.status, dog::ScanStatus::kIntegrated);
-    EXPECT_EQ(result.cells_outside, 1U);  // the end cell (4, 1)
-    mapper.finishStep();
-    EXPECT_TRUE(mapper.grid().cell(3, 1).has_value());
-  }
-  dog::MapperConfig bad = testConfig();
-  bad.clipped_corner_chord = 1.6;
-  EXPECT_THROW(dog::Mapper{bad}, std::invalid_argument);
-  dog::Mapper mapper(testConfig());
-  EXPECT_THROW(mapper.setClippedCornerChord(-0.1), std::invalid_argument);
-  EXPECT_EQ(mapper.config().clipped_corner_chord, 0.0);
-  mapper.setClippedCornerChord(0.3);
-  EXPECT_EQ(mapper.config().clipped_corner_chord, 0.3);
-}
-
 // end_miss_margin_cells: a beam along +x from lattice (0.5, 0.5) ending in cell 9 (a hit)
 // crosses cells 0..8; with a margin of N the last N of them (9 - N .. 8) count no miss, the
 // end cell still its hit. A beam of 40 cells (more than the traversal's 32 pending misses)
 // drops its last N too. A beam without return clearing cells 0..9 drops its last N cells,
-// its end cell included; a beam whose end cell lies outside the map drops none; the margin
-// overrides the clipped corner rule.
+// its end cell included; a beam whose end cell lies outside the map drops none.
 TEST(MapperBeams, AHitBeamCountsNoMissInTheLastCellsBeforeItsEnd) {
   for (const int margin : {0, 1, 3, 16}) {
     SCOPED_TRACE("end_miss_margin_cells " + std::to_string(margin));
     dog::MapperConfig config = testConfig();
     config.end_miss_margin_cells = margin;
-    config.clipped_corner_chord = 1.5;  // ignored with a margin: it would drop one cell
     for (const int end_cell : {9, 40}) {
       dog::Mapper mapper(config);
       ASSERT_EQ(mapper.integrate(makeScan(0.0, {static_cast<float>(end_cell * 0.25)})).status,
                 dog::ScanStatus::kIntegrated);
       mapper.finishStep();
       for (int x = 0; x < end_cell; ++x) {
-        const bool dropped = margin > 0 ? x >= end_cell - margin : x == end_cell - 1;
+        const bool dropped = x >= end_cell - margin;
         EXPECT_EQ(mapper.grid().cell(x, 0).has_value(), !dropped) << "cell " << x << " of a beam to " << end_cell;
       }
       ASSERT_TRUE(mapper.grid().cell(end_cell, 0).has_value());

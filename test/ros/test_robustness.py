@@ -149,7 +149,6 @@ class TestRobustness(unittest.TestCase):
             (('sensor_model/p_min', '(0, 0.4]'), '_sensor_model/p_min:=0.5'),
             (('sensor_model/p_min', '(0, 0.4]'), '_sensor_model/p_min:=0'),
             (('sensor_model/mixed_step_probability', '[0, 0.5]'), '_sensor_model/mixed_step_probability:=0.6'),
-            (('clipped_corner_chord', '[0, 1.5]'), '_clipped_corner_chord:=2'),
             (('learner', '"kinds" or "cell_em", got "em"'), '_learner:=em'),
             (('kinds/switch_probability', '[0, 1)'), '_kinds/switch_probability:=1'),
             (('kinds/view_switch_probability', '[0, 0.5)'), '_kinds/view_switch_probability:=0.5'),
@@ -171,7 +170,7 @@ class TestRobustness(unittest.TestCase):
                      '_online_em/step_size_offset:=5', '_online_em/averaging_start:=20', '_learn_prior:=true',
                      '_prior_population_weight:=25', '_learn_sensor_model:=true', '_sensor_model/prior_weight:=400',
                      '_sensor_model/p_min:=0.02', '_online_em/learning_rate_floor:=0.002',
-                     '_sensor_model/mixed_step_probability:=0.01', '_clipped_corner_chord:=0.3']
+                     '_sensor_model/mixed_step_probability:=0.01']
         output = ''.join(wall_scene.node_startup_output(self, 'good_learner_parameters', arguments,
                                                         'online learning of the sensor model'))
         self.assertNotIn('is not one of this node\'s parameters', output)
@@ -182,8 +181,6 @@ class TestRobustness(unittest.TestCase):
         self.assertIn('from p_hit_given_occ 0.7, p_hit_given_free 0.2, worth 400 beam ends per state', output)
         self.assertIn('within [0.02, 0.98]', output)
         self.assertIn('partly covered cell with probability 0.01 (sensor_model/mixed_step_probability)', output)
-        self.assertIn('no miss in a corner it clips over less than 0.3 cells just before its end '
-                      '(clipped_corner_chord)', output)
 
         # The defaults: the kinds of cells, the sensor model learned.
         output = ''.join(wall_scene.node_startup_output(self, 'default_learner_parameters', [],

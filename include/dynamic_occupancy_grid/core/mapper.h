@@ -79,24 +79,13 @@ struct MapperConfig {
   /// Beams without return (range >= range_max or +inf) clear cells up to this distance
   /// (and never beyond the scan's range_max); 0 ignores such beams.
   double max_free_range_m = 10.0;
-  /// A beam that hits counts no miss in the cell it crosses just before its end cell when
-  /// it crosses that cell over less than this length, in cells: a corner the beam only
-  /// clips, where under the laser's range noise the surface it hit may lie (a wall's face
-  /// cell, seen at a grazing angle, would otherwise be missed at one visit and hit at the
-  /// next, and learned as changing; docs/online_learning.md, "Corners a beam clips before
-  /// its end"). A beam that leaves the map, or ends outside it, clips nothing. 0 (the
-  /// default) counts every miss; 0.3 is the measured choice. In [0, 1.5].
-  /// Like sensor_model_mixed_step_probability, not in model files: a loaded model takes
-  /// the loader's (Mapper::setClippedCornerChord).
-  double clipped_corner_chord = 0.0;
   /// A beam that hits counts no miss in the last N cells it crosses before its end cell,
   /// a beam without return none in the last N cells it clears (when none of its cells is
   /// outside the map): where a laser pose off by up to about N cells along the beam puts
   /// the surface it hit, or one just beyond its reach. A learner fed scans at a pose
   /// filter's estimates would otherwise see a wall missed whenever the estimate stood too
   /// far from it, and learn it as changing (docs/pose_correction.md, "Walls learned as
-  /// changing"). 0 (the default) counts every miss; with N >= 1 clipped_corner_chord has
-  /// nothing left to drop. In [0, 16]. Not in model files, like clipped_corner_chord.
+  /// changing"). 0 (the default) counts every miss. In [0, 16]. Not in model files.
   int end_miss_margin_cells = 0;
   double origin_x_m = 0.0;            ///< world position of the lattice's cell (0, 0) corner
   double origin_y_m = 0.0;
@@ -235,9 +224,6 @@ class Mapper {
   /// sets the reader's own). Throws std::invalid_argument (and changes nothing) outside
   /// [0, 0.5).
   void setViewSwitchProbability(double view_switch_probability);
-  /// How scans count misses from now on (MapperConfig::clipped_corner_chord; model files do
-  /// not hold it). Throws std::invalid_argument (and changes nothing) outside [0, 1.5].
-  void setClippedCornerChord(double clipped_corner_chord);
   /// Turns online learning of the sensor model on or off while mapping. Off: the model
   /// learned so far stays in use, fixed; on again: learning goes on from its sums.
   void setLearnSensorModel(bool learn_sensor_model) { config_.learn_sensor_model = learn_sensor_model; }

@@ -70,9 +70,6 @@ struct LearningExperimentConfig {
   /// the sensor model online, as the node does by default (~learn_sensor_model), and
   /// offline EM learns it with the transitions; false keeps the scenario's configured model.
   bool learn_sensor_model = true;
-  /// Every method's mapper (offline EM's recording too) counts misses with this
-  /// MapperConfig::clipped_corner_chord (0: every miss, the core's default).
-  double clipped_corner_chord = 0.0;
 };
 
 /// One kind of cell: a truth shared by its cells (dynamic cells grouped by their true
