@@ -92,8 +92,6 @@ void MapperConfig::validate() const {
   require(sensor_model_mixed_step_probability >= 0.0 && sensor_model_mixed_step_probability <= 0.5,
           "sensor_model_mixed_step_probability must be in [0, 0.5], got " +
               std::to_string(sensor_model_mixed_step_probability));
-  require(end_miss_margin_cells >= 0 && end_miss_margin_cells <= 16,
-          "end_miss_margin_cells must be in [0, 16], got " + std::to_string(end_miss_margin_cells));
   require(std::isfinite(prior_population_weight) && prior_population_weight > 0.0,
           "prior_population_weight must be > 0, got " + std::to_string(prior_population_weight));
   require(online_em.min_observed_steps <= std::numeric_limits<std::uint16_t>::max(),
@@ -202,7 +200,6 @@ ScanResult Mapper::integrate(const Scan& scan) {
   std::array<std::pair<CellGrid::Tile*, int>, kMissLookahead> pending;
   std::size_t pending_count = 0;
   for (const BeamEnd& beam : beams) {
-    const std::size_t outside_before = result.cells_outside;
     const CellXY end = traverseSegment(u0, v0, beam.u1, beam.v1, [&](std::int32_t x, std::int32_t y) {
       CellGrid::Tile* tile = tile_of(x, y);
       if (tile == nullptr) {
@@ -217,18 +214,7 @@ ScanResult Mapper::integrate(const Scan& scan) {
       ++pending_count;
     });
     CellGrid::Tile* tile = tile_of(end.x, end.y);
-    // The last pending cells are the ones just before the end cell when no cell of the beam
-    // was outside the map (a beam that leaves the map, or ends outside it, drops nothing).
-    // A beam without return drops its end cell's miss and N - 1 of the cells before it.
-    const bool inside = tile != nullptr && result.cells_outside == outside_before;
-    const bool margin = config_.end_miss_margin_cells > 0 && inside;
-    const bool drop_end = margin && !beam.hit;
-    std::size_t dropped = 0;
-    if (margin) {
-      dropped = std::min(pending_count, static_cast<std::size_t>(config_.end_miss_margin_cells - (drop_end ? 1 : 0)));
-    }
-    const std::size_t counted = pending_count - dropped;
-    for (std::size_t k = pending_count > kMissLookahead ? pending_count - kMissLookahead : 0; k < counted; ++k) {
+    for (std::size_t k = pending_count > kMissLookahead ? pending_count - kMissLookahead : 0; k < pending_count; ++k) {
       const auto& slot = pending[k % kMissLookahead];
       markMiss(*slot.first, slot.second);
     }
@@ -237,7 +223,7 @@ ScanResult Mapper::integrate(const Scan& scan) {
       ++result.cells_outside;
     } else if (beam.hit) {
       markHit(*tile, CellGrid::offsetOf(end.x, end.y));
-    } else if (!drop_end) {
+    } else {
       markMiss(*tile, CellGrid::offsetOf(end.x, end.y));
     }
   }

@@ -164,8 +164,6 @@ inline void addPoseCorrectionOptions(command_line::CommandLine& line, PoseCorrec
        "pose correction: the particles' random seed (default 1)")
       ("resample-threshold", cl::number(&filter.resample_below, cl::between(0.0, 1.0))->value_name("R"),
        "pose correction: resample when N_eff < R x particles (default 0.5)")
-      ("likelihood-temperature", cl::number(&filter.likelihood_temperature, cl::atLeast(1.0))->value_name("T"),
-       "pose correction: a scan's log-likelihood is divided by T in the weights (default 1)")
       ("no-scan-matching", boost::program_options::bool_switch()->notifier([&filter](bool off) {
          if (off) filter.scan_matching = false;
        }),

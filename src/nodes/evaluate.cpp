@@ -55,13 +55,9 @@ struct Options {
   int murphy_repetitions = 100;
   int murphy_doors_runs = 10;
   int pose_correction_runs = 0;
-  int pose_correction_learner_lag = 0;
   int pose_correction_particles = 30;
-  double pose_correction_temperature = 1.0;
   std::string pose_correction_scenario = "patrol_office";
   int pose_correction_steps = 400;
-  double pose_correction_learner_max_spread = 0.0;
-  int pose_correction_learner_miss_margin = 0;
   std::uint64_t seed = 1;
   unsigned threads = 0;
 };
@@ -140,10 +136,6 @@ Options parseOptions(int argc, char** argv) {
        "runs of the pose filter's comparison with drifting odometry (docs/pose_correction.md: known pose, "
        "odometry, the RBPF with a static, learned and true-transition map; on patrol_office 400 steps, about a "
        "minute each with 30 particles; default 0 skips it)")
-      ("pose-correction-temperature",
-       cl::number(&options.pose_correction_temperature, cl::between(1.0, 1e6))->value_name("T"),
-       "every filter of the pose filter's comparison divides the scan's log-likelihood by T "
-       "(PoseFilterConfig::likelihood_temperature; default 1: the model's own)")
       ("pose-correction-particles", cl::number(&options.pose_correction_particles, cl::between(1, 10000))->value_name("N"),
        "particles of each filter in the pose filter's comparison (default 30)")
       ("pose-correction-scenario",
@@ -151,19 +143,8 @@ Options parseOptions(int argc, char** argv) {
                      [&options](const std::string& name) { options.pose_correction_scenario = name; })
            ->value_name("NAME"),
        "the world of the pose filter's comparison (default patrol_office; any of the simulator's scenarios)")
-      ("pose-correction-learner-max-spread",
-       cl::number(&options.pose_correction_learner_max_spread, cl::between(0.0, 1000.0))->value_name("M"),
-       "rbpf_hmm's learner maps a scan only while the particles' positions are within M m (RMS) of the best "
-       "particle's at the last update (default 0: every scan)")
-      ("pose-correction-learner-miss-margin",
-       cl::number(&options.pose_correction_learner_miss_margin, cl::between(0, 16))->value_name("N"),
-       "rbpf_hmm's learner counts no miss in the last N cells a beam that hits crosses before its end, nor in "
-       "the last N cells a beam without return clears (MapperConfig::end_miss_margin_cells; default 0: every miss)")
       ("pose-correction-steps", cl::number(&options.pose_correction_steps, cl::between(2, 1000000))->value_name("N"),
        "steps of each run of the pose filter's comparison (default 400: four loops of patrol_office)")
-      ("pose-correction-learner-lag", cl::number(&options.pose_correction_learner_lag, cl::between(0, 100000))->value_name("N"),
-       "rbpf_hmm's learner: 0 (default) maps every scan at the filter's estimate of its time; N maps the filter's "
-       "update scans N updates later at the best particle's trajectory then (a fixed-lag smoother)")
       ("seed",
        cl::number(&options.seed, cl::between<std::uint64_t>(0, std::numeric_limits<long long>::max()))
            ->value_name("S"),
@@ -1138,12 +1119,8 @@ int main(int argc, char** argv) {
       core::PoseCorrectionConfig config;
       config.filter.threads = options.threads;
       config.filter.particles = static_cast<std::size_t>(options.pose_correction_particles);
-      config.filter.likelihood_temperature = options.pose_correction_temperature;
-      config.learner_lag_updates = static_cast<std::size_t>(options.pose_correction_learner_lag);
       config.scenario = options.pose_correction_scenario;
       config.steps = options.pose_correction_steps;
-      config.learner_max_spread_m = options.pose_correction_learner_max_spread;
-      config.learner_end_miss_margin_cells = options.pose_correction_learner_miss_margin;
       std::vector<core::PoseCorrectionResult> runs;
       for (int r = 0; r < options.pose_correction_runs; ++r) {
         config.world_seed = options.seed;

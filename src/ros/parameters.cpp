@@ -164,8 +164,7 @@ std::string filterParameterMessage(const std::string& message) {
   if (text.compare(0, noise.size(), noise) == 0) return "rbpf/odom_alpha1..4:" + text.substr(noise.size());
   const std::pair<const char*, const char*> names[] = {
       {"particles", "rbpf/particles"}, {"update_distance_m", "rbpf/linear_update"},
-      {"update_angle_rad", "rbpf/angular_update"}, {"resample_below", "rbpf/resample_threshold"},
-      {"likelihood_temperature", "rbpf/likelihood_temperature"}};
+      {"update_angle_rad", "rbpf/angular_update"}, {"resample_below", "rbpf/resample_threshold"}};
   for (const auto& [field, parameter] : names) {
     const std::string name = field;
     if (text.compare(0, name.size() + 1, name + " ") == 0) return std::string(parameter) + text.substr(name.size());
@@ -361,7 +360,6 @@ bool readParameters(const ros::NodeHandle& private_nh, NodeParameters* parameter
   read.number("rbpf/linear_update", &f.update_distance_m);
   read.number("rbpf/angular_update", &f.update_angle_rad);
   read.number("rbpf/resample_threshold", &f.resample_below);
-  read.number("rbpf/likelihood_temperature", &f.likelihood_temperature);
   read.boolean("rbpf/scan_matching", &f.scan_matching);
   int seed = static_cast<int>(f.seed);
   read.integer("rbpf/seed", &seed, 0, std::numeric_limits<int>::max());

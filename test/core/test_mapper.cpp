@@ -330,56 +330,6 @@ TEST(MapperBeams, HitBeamMissesCellsBeforeTheEndAndHitsTheEnd) {
   expectFirstStepEvidence(mapper, rowEvidence(0, 3, {0, 1}, {{{4, 0}, {1, 0}}}));
 }
 
-// end_miss_margin_cells: a beam along +x from lattice (0.5, 0.5) ending in cell 9 (a hit)
-// crosses cells 0..8; with a margin of N the last N of them (9 - N .. 8) count no miss, the
-// end cell still its hit. A beam of 40 cells (more than the traversal's 32 pending misses)
-// drops its last N too. A beam without return clearing cells 0..9 drops its last N cells,
-// its end cell included; a beam whose end cell lies outside the map drops none.
-TEST(MapperBeams, AHitBeamCountsNoMissInTheLastCellsBeforeItsEnd) {
-  for (const int margin : {0, 1, 3, 16}) {
-    SCOPED_TRACE("end_miss_margin_cells " + std::to_string(margin));
-    dog::MapperConfig config = testConfig();
-    config.end_miss_margin_cells = margin;
-    for (const int end_cell : {9, 40}) {
-      dog::Mapper mapper(config);
-      ASSERT_EQ(mapper.integrate(makeScan(0.0, {static_cast<float>(end_cell * 0.25)})).status,
-                dog::ScanStatus::kIntegrated);
-      mapper.finishStep();
-      for (int x = 0; x < end_cell; ++x) {
-        const bool dropped = x >= end_cell - margin;
-        EXPECT_EQ(mapper.grid().cell(x, 0).has_value(), !dropped) << "cell " << x << " of a beam to " << end_cell;
-      }
-      ASSERT_TRUE(mapper.grid().cell(end_cell, 0).has_value());
-      EXPECT_GT(mapper.grid().cell(end_cell, 0)->p_occ, 0.5);
-    }
-    dog::MapperConfig clearing = config;
-    clearing.max_free_range_m = 9 * 0.25;
-    dog::Mapper no_return(clearing);
-    ASSERT_EQ(no_return.integrate(makeScan(0.0, {kInfF})).status, dog::ScanStatus::kIntegrated);
-    no_return.finishStep();
-    // Cleared to lattice 9.5: cells 0..9, the last N of them (end cell included) dropped.
-    for (int x = 0; x <= 9; ++x) {
-      EXPECT_EQ(no_return.grid().cell(x, 0).has_value(), margin == 0 || x < 10 - margin) << "no return, cell " << x;
-    }
-    // The end cell (9, 0) outside a map of cells 0..7 x 0..1: nothing dropped.
-    dog::MapperConfig bounded = config;
-    bounded.fixed_bounds = true;
-    bounded.width_m = 2.0;
-    bounded.height_m = 0.5;
-    dog::Mapper inside(bounded);
-    const dog::ScanResult result = inside.integrate(makeScan(0.0, {9 * 0.25f}));
-    ASSERT_EQ(result.status, dog::ScanStatus::kIntegrated);
-    EXPECT_GT(result.cells_outside, 0U);
-    inside.finishStep();
-    for (int x = 0; x < 8; ++x) EXPECT_TRUE(inside.grid().cell(x, 0).has_value()) << "bounded, cell " << x;
-  }
-  for (const int bad : {-1, 17}) {
-    dog::MapperConfig config = testConfig();
-    config.end_miss_margin_cells = bad;
-    EXPECT_THROW(dog::Mapper{config}, std::invalid_argument);
-  }
-}
-
 TEST(MapperBeams, RangeEqualToRangeMinIsAHitBelowIsIgnored) {
   dog::Mapper mapper(testConfig());
   // range_min 0.25: 0.25 -> hit at lattice 1.5; 0.125 -> ignored.

@@ -508,7 +508,6 @@ class EvaluateTool(unittest.TestCase):
                      ["--learning-scenarios", "patrol,patrol"],
                      ["--pose-correction-particles", "0"], ["--pose-correction-particles", "x"],
                      ["--pose-correction-scenario", ""], ["--pose-correction-steps", "x"],
-                     ["--pose-correction-learner-max-spread", "-0.1"], ["--pose-correction-learner-max-spread", "nan"],
                      ["--no-such-option", "1"], ["--out"]):
             rc, _, stderr = evaluate(args)
             self.assertEqual(rc, 2, args)

@@ -79,14 +79,6 @@ struct MapperConfig {
   /// Beams without return (range >= range_max or +inf) clear cells up to this distance
   /// (and never beyond the scan's range_max); 0 ignores such beams.
   double max_free_range_m = 10.0;
-  /// A beam that hits counts no miss in the last N cells it crosses before its end cell,
-  /// a beam without return none in the last N cells it clears (when none of its cells is
-  /// outside the map): where a laser pose off by up to about N cells along the beam puts
-  /// the surface it hit, or one just beyond its reach. A learner fed scans at a pose
-  /// filter's estimates would otherwise see a wall missed whenever the estimate stood too
-  /// far from it, and learn it as changing (docs/pose_correction.md, "Walls learned as
-  /// changing"). 0 (the default) counts every miss. In [0, 16]. Not in model files.
-  int end_miss_margin_cells = 0;
   double origin_x_m = 0.0;            ///< world position of the lattice's cell (0, 0) corner
   double origin_y_m = 0.0;
   /// Fixed bounds: only [origin, origin + size) is mapped and nothing grows.
