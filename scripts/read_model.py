@@ -61,6 +61,7 @@ _HEADER_V1 = struct.Struct(
 _LEARNERS_V2 = struct.Struct(
     "<Bd"           # learn_prior, prior_population_weight
     "BddI"          # online_em: schedule (0 harmonic, 1 robbins_monro), step_size_exponent, step_size_offset, averaging_start
+                    # (options removed after a9ed7d5: checked and ignored)
     "Bdd"           # learn_sensor_model, sensor_model_prior_weight, sensor_model_p_min
     "dddd"          # sensor model sums: trials occ, trials free, hits occ, hits free
 )
@@ -299,11 +300,11 @@ def parse_model(data):
         "sensor_model_prior_weight": 1000.0,
         "sensor_model_p_min": 0.01,
     }
-    config["online_em"].update({"schedule": "harmonic", "step_size_exponent": 0.6, "step_size_offset": 2.0,
-                                "averaging_start": 0})
     sensor_model_stats = {"trials_occ": 0.0, "trials_free": 0.0, "hits_occ": 0.0, "hits_free": 0.0}
     if version >= 2:
-        (learn_prior, population_weight, schedule, exponent, offset, averaging_start, learn_sensor,
+        # The online EM's schedule, exponent, offset and averaging start (options removed after
+        # a9ed7d5) are checked and ignored, as the core's reader does.
+        (learn_prior, population_weight, schedule, _exponent, _offset, _averaging_start, learn_sensor,
          sensor_weight, sensor_p_min, trials_occ, trials_free, hits_occ, hits_free) = _LEARNERS_V2.unpack_from(
              data, HEADER_SIZES[1] - 8)
         if schedule not in (0, 1):
@@ -312,9 +313,6 @@ def parse_model(data):
         config.update({"learn_prior": _flag(learn_prior, "learn_prior"), "prior_population_weight": population_weight,
                        "learn_sensor_model": _flag(learn_sensor, "learn_sensor_model"),
                        "sensor_model_prior_weight": sensor_weight, "sensor_model_p_min": sensor_p_min})
-        config["online_em"].update({"schedule": "harmonic" if schedule == 0 else "robbins_monro",
-                                    "step_size_exponent": exponent, "step_size_offset": offset,
-                                    "averaging_start": averaging_start})
         sensor_model_stats = {"trials_occ": trials_occ, "trials_free": trials_free, "hits_occ": hits_occ,
                               "hits_free": hits_free}
     # Versions 1 and 2 were written by each cell's online EM; their cells hold its statistics.

@@ -420,9 +420,9 @@ void Mapper::updatePrior() {
   if (!config_.learn_transitions || !config_.learn_prior) return;
   // Pooled over cells: the maximum-likelihood shared transitions of the population, with
   // the configured prior as prior_population_weight cells' worth of pseudo-transitions
-  // (one from-state weighs initialWeight() in a cell's statistics).
+  // (one from-state weighs prior_weight in a cell's statistics).
   const TransitionParams& guess = config_.prior_transitions;
-  const double w = config_.prior_population_weight * config_.online_em.initialWeight();
+  const double w = config_.prior_population_weight * config_.online_em.prior_weight;
   const double from_occ = population_[0][0] + population_[0][1];
   const double from_free = population_[1][0] + population_[1][1];
   const auto bounded = [&](double p) { return std::clamp(p, config_.online_em.p_min, config_.online_em.p_max); };
@@ -638,19 +638,13 @@ OfflineEmApplied Mapper::applyOfflineEm(const ObservationSequences& sequences, c
       ++applied.cells_applied;
       continue;
     }
-    // The steps the result saw, split over the two from-states (kHarmonic); kRobbinsMonro's
-    // normalised statistics weigh 1 per from-state, and its step size goes on as if the
-    // cell had been observed in as many steps as the result.
+    // The steps the result saw, split over the two from-states.
     const double span = static_cast<double>(sequences.end(c)[-1].step) - sequences.begin(c)->step + 1.0;
-    const bool harmonic = config_.online_em.schedule == StepSchedule::kHarmonic;
-    const TransitionStats stats =
-        priorStats(params, harmonic ? 0.5 * std::min(span, memory) : 1.0, tile->p_occ[i]);
+    const TransitionStats stats = priorStats(params, 0.5 * std::min(span, memory), tile->p_occ[i]);
     storeStats(*tile, i, stats);
     // The learned transitions are used from now on, not the prior.
-    const auto observations = static_cast<std::uint32_t>(std::min<std::ptrdiff_t>(
-        sequences.end(c) - sequences.begin(c), std::numeric_limits<std::uint16_t>::max()));
-    tile->observed_steps[i] = static_cast<std::uint16_t>(std::max<std::uint32_t>(
-        {tile->observed_steps[i], config_.online_em.min_observed_steps, harmonic ? 0U : observations}));
+    tile->observed_steps[i] = static_cast<std::uint16_t>(
+        std::max<std::uint32_t>(tile->observed_steps[i], config_.online_em.min_observed_steps));
     tile->p_occ_given_free[i] = static_cast<float>(params.p_occ_given_free);
     tile->p_free_given_occ[i] = static_cast<float>(params.p_free_given_occ);
     changed_cells_.include(xy.x, xy.y);

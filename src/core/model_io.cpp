@@ -56,6 +56,10 @@ static_assert(kHeaderSizeV3 == 20403, "docs/model_format.md documents a 20403-by
 // observed_steps; version 2 adds last_hits and last_misses; version 3 stores the learner's
 // state in kLearnerStateSize floats instead of 8.
 constexpr std::size_t kCellSizeV1 = 4 * 7 + 4 * 8 + 2;
+// What the online EM's step-size exponent and offset, options removed after a9ed7d5, were
+// by default: written where files hold them, so that a file is as it was.
+constexpr double kHarmonicStepSizeExponent = 0.6;
+constexpr double kHarmonicStepSizeOffset = 2.0;
 static_assert(kCellSizeV1 == 62, "docs/model_format.md documents 62-byte version 1 cell records");
 constexpr std::size_t kCellSizeV2 = kCellSizeV1 + 2;
 constexpr std::size_t kCellSizeV3 = kCellSizeV2 + 4 * (kLearnerStateSize - 8);
@@ -339,15 +343,18 @@ std::unique_ptr<Mapper> deserializeChecked(const std::string& bytes) {
   if (version >= 2) {
     config.learn_prior = reader.flag("learn_prior");
     config.prior_population_weight = reader.f64();
+    // The online EM's step-size schedule (0 harmonic, 1 robbins_monro), its exponent and
+    // offset, and the start of its averaging: options removed after a9ed7d5. Files still
+    // hold them; a file written with another schedule or with averaging loads, and its
+    // cells go on with the 1/t schedule and without averaging.
     const std::uint8_t schedule = reader.u8();
     if (schedule > 1) {
       throw std::runtime_error("invalid model file: online_em.schedule is " + std::to_string(schedule) +
                                ", must be 0 (harmonic) or 1 (robbins_monro)");
     }
-    config.online_em.schedule = schedule == 0 ? StepSchedule::kHarmonic : StepSchedule::kRobbinsMonro;
-    config.online_em.step_size_exponent = reader.f64();
-    config.online_em.step_size_offset = reader.f64();
-    config.online_em.averaging_start = reader.u32();
+    reader.f64();
+    reader.f64();
+    reader.u32();
     config.learn_sensor_model = reader.flag("learn_sensor_model");
     config.sensor_model_prior_weight = reader.f64();
     config.sensor_model_p_min = reader.f64();
@@ -570,10 +577,11 @@ std::string serializeModel(const Mapper& mapper, const CellBeliefOverride& belie
   writer.i64(last_applied_step.value_or(0));
   writer.flag(config.learn_prior);
   writer.f64(config.prior_population_weight);
-  writer.u8(config.online_em.schedule == StepSchedule::kHarmonic ? 0 : 1);
-  writer.f64(config.online_em.step_size_exponent);
-  writer.f64(config.online_em.step_size_offset);
-  writer.u32(config.online_em.averaging_start);
+  // The removed step-size schedule's fields, as the harmonic schedule wrote them (see the reader).
+  writer.u8(0);
+  writer.f64(kHarmonicStepSizeExponent);
+  writer.f64(kHarmonicStepSizeOffset);
+  writer.u32(0);
   writer.flag(config.learn_sensor_model);
   writer.f64(config.sensor_model_prior_weight);
   writer.f64(config.sensor_model_p_min);

@@ -329,21 +329,6 @@ std::vector<LearnerVariant> defaultLearnerVariants() {
          cell_em(c);
          c.learn_prior = true;
        }},
-      {"rm",
-       [cell_em](MapperConfig& c) {
-         cell_em(c);
-         c.learn_prior = true;
-         c.online_em.schedule = StepSchedule::kRobbinsMonro;
-         c.online_em.step_size_exponent = 0.75;
-       }},
-      {"rm_averaged",
-       [cell_em](MapperConfig& c) {
-         cell_em(c);
-         c.learn_prior = true;
-         c.online_em.schedule = StepSchedule::kRobbinsMonro;
-         c.online_em.step_size_exponent = 0.75;
-         c.online_em.averaging_start = 30;
-       }},
   };
 }
 

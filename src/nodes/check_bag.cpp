@@ -66,16 +66,6 @@ struct Options {
   dog::bag_tools::PoseCorrectionOptions correction;
 };
 
-const char* scheduleName(dog::core::StepSchedule schedule) {
-  return schedule == dog::core::StepSchedule::kRobbinsMonro ? "robbins_monro" : "harmonic";
-}
-
-dog::core::StepSchedule toSchedule(const std::string& text) {
-  if (text == "harmonic") return dog::core::StepSchedule::kHarmonic;
-  if (text == "robbins_monro") return dog::core::StepSchedule::kRobbinsMonro;
-  throw std::invalid_argument("needs harmonic or robbins_monro, got '" + text + "'");
-}
-
 Options parseArguments(int argc, char** argv) {
   namespace cl = dog::command_line;
   namespace po = boost::program_options;
@@ -107,19 +97,6 @@ Options parseArguments(int argc, char** argv) {
       ("learn-prior", po::bool_switch(&mapper.learn_prior),
        "empirical-Bayes prior: new cells start from the transitions pooled over the map (default off, as the "
        "node's ~learn_prior)")
-      ("schedule", cl::converted(toSchedule, [&mapper](dog::core::StepSchedule schedule) {
-         mapper.online_em.schedule = schedule;
-       })->value_name("NAME"),
-       "step sizes of online learning: harmonic (1/t, the default) or robbins_monro (Cappe's "
-       "(n + n0)^-alpha per observed step)")
-      ("step-size-exponent",
-       cl::number(&mapper.online_em.step_size_exponent, cl::Range<double>{0.5, 1.0, true})->value_name("A"),
-       "robbins_monro: alpha in (0.5, 1] (default 0.6)")
-      ("step-size-offset", cl::number(&mapper.online_em.step_size_offset, cl::atLeast(0.0))->value_name("N0"),
-       "robbins_monro: n0 >= 0 (default 2)")
-      ("averaging-start",
-       cl::number(&mapper.online_em.averaging_start, cl::atLeast<std::uint32_t>(0))->value_name("N"),
-       "Polyak-Ruppert averaging of a cell's M-step results from its observed step N on (default 0 = off)")
       ("retention-after", cl::number(&options.retention_after_s, cl::atLeast(0.0))->value_name("S"),
        "the end-of-run retention is also reported on the cells last observed at least S seconds before the "
        "end (default 10)")
@@ -152,7 +129,7 @@ Options parseArguments(int argc, char** argv) {
   if (learn_sensor_model) mapper.learn_sensor_model = true;
   if (no_learn_sensor_model) mapper.learn_sensor_model = false;
   if (no_learning) {
-    for (const char* name : {"learn-prior", "schedule", "step-size-exponent", "step-size-offset", "averaging-start"}) {
+    for (const char* name : {"learn-prior"}) {
       if (values.count(name) > 0 && !values[name].defaulted()) {
         line.fail(std::string("--") + name +
                   " tunes online learning of the transitions, which --no-learning turns off");
@@ -161,15 +138,10 @@ Options parseArguments(int argc, char** argv) {
     mapper.learn_transitions = false;
   }
   if (mapper.learner != dog::core::TransitionLearner::kCellEm) {
-    for (const char* name : {"learn-prior", "schedule", "step-size-exponent", "step-size-offset", "averaging-start"}) {
+    for (const char* name : {"learn-prior"}) {
       if (values.count(name) > 0 && !values[name].defaulted()) {
         line.fail(std::string("--") + name + " tunes each cell's online EM: it needs --learner cell_em");
       }
-    }
-  }
-  if (mapper.online_em.schedule != dog::core::StepSchedule::kRobbinsMonro) {
-    for (const char* name : {"step-size-exponent", "step-size-offset"}) {
-      if (values.count(name) > 0) line.fail(std::string("--") + name + " applies to --schedule robbins_monro only");
     }
   }
   dog::bag_tools::validateSharedOptions(line, &options.shared);
@@ -494,17 +466,7 @@ void checkAndReport(dog::ros_layer::BagScanSource& source, const Options& option
     std::printf("online learning: kinds of cells (%d), switch probability %g, forgetting %g per step\n",
                 dog::core::kKindCount, mapper.kinds.switch_probability, mapper.kinds.forgetting);
   } else if (mapper.learn_transitions) {
-    const dog::core::OnlineEmConfig& em = mapper.online_em;
-    std::printf("online learning: each cell's online EM, schedule %s", scheduleName(em.schedule));
-    if (em.schedule == dog::core::StepSchedule::kRobbinsMonro) {
-      std::printf(" (step size exponent %g, offset %g)", em.step_size_exponent, em.step_size_offset);
-    }
-    if (em.averaging_start == 0) {
-      std::printf(", averaging off");
-    } else {
-      std::printf(", averaging from observed step %u", static_cast<unsigned>(em.averaging_start));
-    }
-    std::printf(", learned prior %s\n", mapper.learn_prior ? "on" : "off");
+    std::printf("online learning: each cell's online EM, learned prior %s\n", mapper.learn_prior ? "on" : "off");
   }
   std::fflush(stdout);
 

@@ -77,21 +77,8 @@ void logLearners(const core::MapperConfig& config) {
              config.kinds.view_switch_probability);
   } else if (config.learn_transitions) {
     std::ostringstream line;
-    line << "online EM of the transitions: schedule ";
-    if (em.schedule == core::StepSchedule::kRobbinsMonro) {
-      line << "robbins_monro (step sizes max(" << em.learning_rate_floor << ", (n + " << em.step_size_offset
-           << ")^-" << em.step_size_exponent << "))";
-    } else {
-      line << "harmonic (prior weight " << em.prior_weight << ", learning rate floor " << em.learning_rate_floor
-           << ")";
-    }
-    line << ", averaging ";
-    if (em.averaging_start == 0) {
-      line << "off";
-    } else {
-      line << "from observed step " << em.averaging_start;
-    }
-    line << ", prior ";
+    line << "online EM of the transitions: prior weight " << em.prior_weight << ", learning rate floor "
+         << em.learning_rate_floor << ", prior ";
     if (config.learn_prior) {
       line << "learned from the map (prior_population_weight " << config.prior_population_weight << ")";
     } else {

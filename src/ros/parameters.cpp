@@ -141,8 +141,7 @@ std::string memoryParameterMessage(const std::string& message) {
 /// "sensor_model/p_min").
 std::string mapperParameterMessage(const std::string& message) {
   const auto starts_with = [&message](const std::string& prefix) { return message.compare(0, prefix.size(), prefix) == 0; };
-  for (const std::string field : {"prior_weight", "learning_rate_floor", "step_size_exponent", "step_size_offset",
-                                  "min_observed_steps"}) {
+  for (const std::string field : {"prior_weight", "learning_rate_floor", "min_observed_steps"}) {
     const std::string prefix = "online_em " + field + " ";
     if (starts_with(prefix)) return "online_em/" + message.substr(std::string("online_em ").size());
   }
@@ -262,20 +261,6 @@ bool readParameters(const ros::NodeHandle& private_nh, NodeParameters* parameter
   read.number("kinds/weight_prior_cells", &m.kinds.weight_prior_cells);
   read.boolean("learn_prior", &m.learn_prior);
   read.number("prior_population_weight", &m.prior_population_weight);
-  std::string schedule = "harmonic";
-  read.text("online_em/schedule", &schedule);
-  if (schedule == "harmonic") {
-    m.online_em.schedule = core::StepSchedule::kHarmonic;
-  } else if (schedule == "robbins_monro") {
-    m.online_em.schedule = core::StepSchedule::kRobbinsMonro;
-  } else {
-    read.fail("online_em/schedule", "must be \"harmonic\" or \"robbins_monro\", got \"" + schedule + "\"");
-  }
-  read.number("online_em/step_size_exponent", &m.online_em.step_size_exponent);
-  read.number("online_em/step_size_offset", &m.online_em.step_size_offset);
-  int averaging_start = static_cast<int>(m.online_em.averaging_start);
-  read.integer("online_em/averaging_start", &averaging_start, 0, std::numeric_limits<int>::max());
-  m.online_em.averaging_start = static_cast<std::uint32_t>(averaging_start);
   read.number("online_em/prior_weight", &m.online_em.prior_weight);
   read.number("online_em/learning_rate_floor", &m.online_em.learning_rate_floor);
   read.number("online_em/p_min", &m.online_em.p_min);

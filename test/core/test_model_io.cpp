@@ -239,10 +239,6 @@ dog::MapperConfig growingLearningConfig() {
   config.online_em.p_max = 0.45;
   config.online_em.symmetric = false;
   config.online_em.min_observed_steps = 3;
-  config.online_em.schedule = dog::StepSchedule::kRobbinsMonro;
-  config.online_em.step_size_exponent = 0.8;
-  config.online_em.step_size_offset = 3.0;
-  config.online_em.averaging_start = 5;
   config.learn_prior = true;
   config.prior_population_weight = 7.0;
   config.learn_sensor_model = true;
@@ -376,10 +372,6 @@ void expectSameConfig(const dog::MapperConfig& a, const dog::MapperConfig& b) {
   EXPECT_TRUE(sameBits(a.max_map_size_m, b.max_map_size_m));
   EXPECT_EQ(a.learn_prior, b.learn_prior);
   EXPECT_TRUE(sameBits(a.prior_population_weight, b.prior_population_weight));
-  EXPECT_EQ(a.online_em.schedule, b.online_em.schedule);
-  EXPECT_TRUE(sameBits(a.online_em.step_size_exponent, b.online_em.step_size_exponent));
-  EXPECT_TRUE(sameBits(a.online_em.step_size_offset, b.online_em.step_size_offset));
-  EXPECT_EQ(a.online_em.averaging_start, b.online_em.averaging_start);
   EXPECT_EQ(a.learn_sensor_model, b.learn_sensor_model);
   EXPECT_TRUE(sameBits(a.sensor_model_prior_weight, b.sensor_model_prior_weight));
   EXPECT_TRUE(sameBits(a.sensor_model_p_min, b.sensor_model_p_min));
@@ -723,10 +715,11 @@ TEST(ModelIoFormat, BytesAreAsDocumented) {
   // Version 2's learners' block.
   EXPECT_EQ(getLE<std::uint8_t>(bytes, kLearnPriorOffset), 1);
   EXPECT_EQ(getLE<double>(bytes, kLearnPriorOffset + 1), config.prior_population_weight);
-  EXPECT_EQ(getLE<std::uint8_t>(bytes, kScheduleOffset), 1);  // robbins_monro
-  EXPECT_EQ(getLE<double>(bytes, kScheduleOffset + 1), config.online_em.step_size_exponent);
-  EXPECT_EQ(getLE<double>(bytes, kScheduleOffset + 9), config.online_em.step_size_offset);
-  EXPECT_EQ(getLE<std::uint32_t>(bytes, kScheduleOffset + 17), config.online_em.averaging_start);
+  // The removed step-size schedule's fields hold what the harmonic schedule wrote.
+  EXPECT_EQ(getLE<std::uint8_t>(bytes, kScheduleOffset), 0);  // harmonic
+  EXPECT_EQ(getLE<double>(bytes, kScheduleOffset + 1), 0.6);
+  EXPECT_EQ(getLE<double>(bytes, kScheduleOffset + 9), 2.0);
+  EXPECT_EQ(getLE<std::uint32_t>(bytes, kScheduleOffset + 17), 0U);
   EXPECT_EQ(getLE<std::uint8_t>(bytes, kLearnSensorOffset), 1);
   EXPECT_EQ(getLE<double>(bytes, kLearnSensorOffset + 1), config.sensor_model_prior_weight);
   EXPECT_EQ(getLE<double>(bytes, kLearnSensorOffset + 9), config.sensor_model_p_min);
@@ -983,7 +976,6 @@ TEST(ModelIoFormat, Version1FilesAreReadWithTheDefaultsOfWhatTheyLack) {
   EXPECT_EQ(loaded->config().online_em.prior_weight, config.online_em.prior_weight);
   EXPECT_EQ(loaded->config().learn_prior, defaults.learn_prior);
   EXPECT_EQ(loaded->config().learn_sensor_model, defaults.learn_sensor_model);
-  EXPECT_EQ(loaded->config().online_em.schedule, defaults.online_em.schedule);
   EXPECT_NE(defaults.learner, dog::TransitionLearner::kCellEm);
   EXPECT_EQ(loaded->config().learner, dog::TransitionLearner::kCellEm);
   EXPECT_EQ(loaded->kinds().sums().cells, 0.0);
@@ -1221,6 +1213,25 @@ TEST(ModelIoDamage, InvalidConfigurationIsRefusedWithValidatesMessage) {
     message = edited([offset](std::string& b) { b[offset] = 2; });
     EXPECT_TRUE(contains(message, "must be 0 or 1")) << offset << ": " << message;
   }
+}
+
+// Files written with the online EM's Robbins–Monro schedule or its averaging (options
+// removed after a9ed7d5) still load: their cells go on with the 1/t schedule. A schedule
+// byte other than 0 or 1 is refused.
+TEST(ModelIoFormat, FilesWithTheRemovedStepSizeScheduleLoad) {
+  const std::string bytes = smallModel();
+  std::string robbins_monro = bytes;
+  putLE<std::uint8_t>(robbins_monro, kScheduleOffset, 1);
+  putLE<double>(robbins_monro, kScheduleOffset + 1, 0.8);
+  putLE<double>(robbins_monro, kScheduleOffset + 9, 3.0);
+  putLE<std::uint32_t>(robbins_monro, kScheduleOffset + 17, 5);
+  fixChecksum(robbins_monro);
+  const std::unique_ptr<dog::Mapper> loaded = dog::deserializeModel(robbins_monro);
+  ASSERT_NE(loaded, nullptr);
+  EXPECT_EQ(dog::serializeModel(*loaded), bytes);
+  putLE<std::uint8_t>(robbins_monro, kScheduleOffset, 2);
+  fixChecksum(robbins_monro);
+  EXPECT_TRUE(contains(errorOf(robbins_monro), "online_em.schedule is 2")) << errorOf(robbins_monro);
 }
 
 TEST(ModelIoDamage, InvalidTimeIsRefused) {

@@ -267,7 +267,7 @@ class EvaluateTool(unittest.TestCase):
             rows = list(csv.DictReader(file))
         methods = [row["method"] for row in rows]
         self.assertEqual(methods, ["static", "node_static", "node_default", "textbook", "learning_off", "default",
-                                   "cell_em", "eb", "rm", "rm_averaged", "offline", "oracle"])
+                                   "cell_em", "eb", "offline", "oracle"])
         by_method = {row["method"]: row for row in rows}
         self.assertLess(float(by_method["oracle"]["dynamic_mae"]), 1e-6)  # the truth, rounded to float
         self.assertEqual(float(by_method["static"]["retention"]), 1.0)  # static_map keeps itself
@@ -363,7 +363,7 @@ class EvaluateTool(unittest.TestCase):
         for name in ("kinds_posterior_counting", "kinds_mean_summary", "kinds_most_probable_summary",
                      "kinds_exact_prediction"):
             self.assertIn(name, methods)
-        self.assertLess(methods.index("rm_averaged"), methods.index("kinds_posterior_counting"))
+        self.assertLess(methods.index("eb"), methods.index("kinds_posterior_counting"))
 
     def test_pose_correction_in_another_world(self):
         # --pose-correction-scenario and --pose-correction-steps pick the comparison's world

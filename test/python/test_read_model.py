@@ -335,7 +335,6 @@ class ReadModelTest(unittest.TestCase):
         self.assertEqual(model.config["kinds"], read_model.default_kinds())
         self.assertEqual(model.kind_transitions, newer.kind_transitions)
         self.assertFalse(model.config["learn_sensor_model"])
-        self.assertEqual(model.config["online_em"]["schedule"], "harmonic")
         self.assertEqual(model.sensor_model_stats["trials_occ"], 0.0)
         self.assertEqual(int(model.last_hits.sum()), 0)
         self.assertGreater(int(newer.last_hits.sum()), 0)

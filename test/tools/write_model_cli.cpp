@@ -199,11 +199,6 @@ void writeValues(const dog::Mapper& mapper, std::FILE* out) {
   real("max_map_size_m", c.max_map_size_m);
   integer("learn_prior", c.learn_prior);
   real("prior_population_weight", c.prior_population_weight);
-  std::fprintf(out, "# config online_em.schedule %s\n",
-               c.online_em.schedule == dog::StepSchedule::kHarmonic ? "harmonic" : "robbins_monro");
-  real("online_em.step_size_exponent", c.online_em.step_size_exponent);
-  real("online_em.step_size_offset", c.online_em.step_size_offset);
-  integer("online_em.averaging_start", c.online_em.averaging_start);
   integer("learn_sensor_model", c.learn_sensor_model);
   real("sensor_model_prior_weight", c.sensor_model_prior_weight);
   real("sensor_model_p_min", c.sensor_model_p_min);

@@ -44,9 +44,7 @@ struct LearnerVariant {
 };
 /// The learners of the comparison in docs/online_learning.md: "default" (the package's
 /// defaults: kinds of cells, cell_kinds.h), "cell_em" (each cell's own online EM with the
-/// 1/t schedule, the default before), "eb" (the same with the empirical-Bayes prior), "rm"
-/// (Robbins–Monro, alpha 0.75, with the empirical-Bayes prior), "rm_averaged" (the same
-/// with Polyak–Ruppert averaging from the 30th observed step).
+/// 1/t schedule, the default before), "eb" (the same with the empirical-Bayes prior).
 std::vector<LearnerVariant> defaultLearnerVariants();
 /// The kinds learner with one choice changed (docs/online_learning.md, "Kinds of cells"):
 /// counting by posterior instead of the most probable kind, the mean or the most probable
