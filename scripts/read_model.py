@@ -37,8 +37,10 @@ KIND_COUNT = 5  # core/cell_kinds.h kKindCount
 GAP_BINS = 124  # core/cell_kinds.h kGapBins: distance bins of the kinds' pairs (gap_bin)
 LEARNER_STATE_SIZE = 10  # core/cell_grid.h kLearnerStateSize: floats of a cell's learner state
 LEARNERS = ("cell_em", "kinds")  # the learner byte's values (TransitionLearner)
-KIND_SUMMARIES = ("geometric_mean", "mean", "most_probable")  # KindSummary
-KIND_COUNTINGS = ("posterior", "most_probable")  # KindCounting
+# The kinds' summaries and countings files may hold (choices removed after a9ed7d5: checked
+# and ignored, as the core's reader does).
+KIND_SUMMARIES = ("geometric_mean", "mean", "most_probable")
+KIND_COUNTINGS = ("posterior", "most_probable")
 
 # Version 1 header: magic, version, MapperConfig in its order, time, cell count (197 bytes).
 _HEADER_V1 = struct.Struct(
@@ -72,7 +74,7 @@ _KINDS_CONFIG_V3 = struct.Struct(
     + "dd" * KIND_COUNT  # per kind: initial p_occ_given_free, p_free_given_occ
     + "d" * KIND_COUNT   # initial weights
     + "dddd"        # transition_prior_weight, weight_prior_cells, switch_probability, forgetting
-    "BBB"           # summary, counting, learn_from_gaps
+    "BBB"           # summary, counting, learn_from_gaps (removed after a9ed7d5: checked and ignored)
     "H"             # number of distance bins (GAP_BINS)
 )
 # then the sums (float64): pairs [kind][bin][2 i + j] (i the state then, j now; 0 = occ,
@@ -129,9 +131,6 @@ def default_kinds():
         "weight_prior_cells": 100.0,
         "switch_probability": 1e-4,
         "forgetting": 1e-3,
-        "summary": "geometric_mean",
-        "counting": "most_probable",
-        "learn_from_gaps": True,
     }
 
 
@@ -343,7 +342,7 @@ def parse_model(data):
         if counting_index >= len(KIND_COUNTINGS):
             raise ModelFormatError(f"invalid model file: kinds.counting is {counting_index}, must be 0 (posterior) or "
                                    "1 (most_probable)")
-        learn_from_gaps = _flag(learn_from_gaps, "kinds.learn_from_gaps")
+        _flag(learn_from_gaps, "kinds.learn_from_gaps")
         if bins != GAP_BINS:
             raise ModelFormatError(f"model file with {bins} distance bins of the kinds' pairs, this reader has "
                                    f"{GAP_BINS}")
@@ -364,9 +363,6 @@ def parse_model(data):
             "weight_prior_cells": weight_prior_cells,
             "switch_probability": switch_probability,
             "forgetting": forgetting,
-            "summary": KIND_SUMMARIES[summary_index],
-            "counting": KIND_COUNTINGS[counting_index],
-            "learn_from_gaps": learn_from_gaps,
         }
         kind_sums = {"pairs": sums[:_KIND_PAIRS].reshape(KIND_COUNT, GAP_BINS, 2, 2),
                      "membership": sums[_KIND_PAIRS:_KIND_PAIRS + KIND_COUNT], "cells": float(sums[-1])}

@@ -56,6 +56,10 @@ static_assert(kHeaderSizeV3 == 20403, "docs/model_format.md documents a 20403-by
 // observed_steps; version 2 adds last_hits and last_misses; version 3 stores the learner's
 // state in kLearnerStateSize floats instead of 8.
 constexpr std::size_t kCellSizeV1 = 4 * 7 + 4 * 8 + 2;
+// The kinds' summary and counting, choices removed after a9ed7d5, as files number them:
+// the geometric mean and the most probable kind, the ones left.
+constexpr std::uint8_t kGeometricMeanSummary = 0;
+constexpr std::uint8_t kMostProbableCounting = 1;
 // What the online EM's step-size exponent and offset, options removed after a9ed7d5, were
 // by default: written where files hold them, so that a file is as it was.
 constexpr double kHarmonicStepSizeExponent = 0.6;
@@ -386,6 +390,9 @@ std::unique_ptr<Mapper> deserializeChecked(const std::string& bytes) {
     config.kinds.weight_prior_cells = reader.f64();
     config.kinds.switch_probability = reader.f64();
     config.kinds.forgetting = reader.f64();
+    // The kinds' summary, counting and learning from gaps: choices removed after a9ed7d5.
+    // Files still hold them; a file written with another choice loads, and its kinds go on
+    // with the geometric mean, the most probable kind's counting and pairs across gaps.
     const std::uint8_t summary = reader.u8();
     if (summary > 2) {
       throw std::runtime_error("invalid model file: kinds.summary is " + std::to_string(summary) +
@@ -396,9 +403,7 @@ std::unique_ptr<Mapper> deserializeChecked(const std::string& bytes) {
       throw std::runtime_error("invalid model file: kinds.counting is " + std::to_string(counting) +
                                ", must be 0 (posterior) or 1 (most_probable)");
     }
-    config.kinds.summary = static_cast<KindSummary>(summary);
-    config.kinds.counting = static_cast<KindCounting>(counting);
-    config.kinds.learn_from_gaps = reader.flag("kinds.learn_from_gaps");
+    reader.flag("kinds.learn_from_gaps");
     const std::uint16_t bins = reader.u16();
     if (bins != kGapBins) {
       throw std::runtime_error("model file with " + std::to_string(bins) + " distance bins of the kinds' pairs, this "
@@ -599,9 +604,10 @@ std::string serializeModel(const Mapper& mapper, const CellBeliefOverride& belie
   writer.f64(config.kinds.weight_prior_cells);
   writer.f64(config.kinds.switch_probability);
   writer.f64(config.kinds.forgetting);
-  writer.u8(static_cast<std::uint8_t>(config.kinds.summary));
-  writer.u8(static_cast<std::uint8_t>(config.kinds.counting));
-  writer.flag(config.kinds.learn_from_gaps);
+  // The removed kinds' choices, as the only ones left wrote them (see the reader).
+  writer.u8(kGeometricMeanSummary);
+  writer.u8(kMostProbableCounting);
+  writer.flag(true);  // learn_from_gaps
   writer.u16(static_cast<std::uint16_t>(kGapBins));
   const CellKinds::Sums& kind_sums = mapper.kinds().sums();
   for (const auto& kind : kind_sums.pairs) {

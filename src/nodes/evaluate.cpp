@@ -51,7 +51,6 @@ struct Options {
   std::vector<std::string> learning_scenarios{"patrol", "patrol_office", "dynamic_25_25"};
   int learning_repetitions = 4;
   std::int64_t learning_steps = 0;
-  bool learning_ablations = false;
   int murphy_repetitions = 100;
   int murphy_doors_runs = 10;
   int pose_correction_runs = 0;
@@ -124,8 +123,6 @@ Options parseOptions(int argc, char** argv) {
        "repetitions of each learning scenario (default 4; 0 skips it)")
       ("learning-steps", cl::number(&options.learning_steps, cl::between<std::int64_t>(0, 1000000))->value_name("N"),
        "steps of each learning scenario's runs (default 0: the scenario's own length)")
-      ("learning-ablations", boost::program_options::bool_switch(&options.learning_ablations),
-       "also the kinds learner with one choice changed each (docs/online_learning.md)")
       ("murphy-repetitions", cl::number(&options.murphy_repetitions, repetitions)->value_name("N"),
        "seeds of Murphy's 1D corridor (docs/murphy_corridor.md: exact Bayes, online and offline EM, the RBPF; "
        "default 100, about a second; 0 skips it)")
@@ -1074,9 +1071,6 @@ int main(int argc, char** argv) {
       config.repetitions = options.learning_repetitions;
       config.seed = options.seed;
       config.threads = options.threads;
-      if (options.learning_ablations) {
-        for (const core::LearnerVariant& variant : core::kindsAblationVariants()) config.variants.push_back(variant);
-      }
       std::cerr << "evaluate: learning experiment (" << name << "), " << config.repetitions << " repetitions ..."
                 << std::flush;
       const core::LearningExperimentResult result = core::runLearningExperiment(scenario, config);

@@ -351,20 +351,6 @@ class EvaluateTool(unittest.TestCase):
         self.assertIn("## Murphy's 2D world with doors", summary)
         self.assertIn("| Murphy's doors: the entropy-driven robot keeps the doors more current", summary)
 
-    def test_learning_ablations_add_the_kinds_variants(self):
-        ablations = os.path.join(self.tmp.name, "ablations")
-        rc, _, stderr = evaluate(["--out", ablations, "--scenarios", "none", "--path-repetitions", "0",
-                                  "--mrf-repetitions", "0", "--memory-repetitions", "0", "--murphy-repetitions", "0", "--murphy-doors-runs", "0",
-                                  "--learning-scenarios", "dynamic_5_5", "--learning-repetitions", "1",
-                                  "--learning-ablations", "--threads", "1"])
-        self.assertEqual(rc, 0, stderr)
-        with open(os.path.join(ablations, "learning_dynamic_5_5.csv")) as file:
-            methods = [row["method"] for row in csv.DictReader(file)]
-        for name in ("kinds_posterior_counting", "kinds_mean_summary", "kinds_most_probable_summary",
-                     "kinds_exact_prediction"):
-            self.assertIn(name, methods)
-        self.assertLess(methods.index("eb"), methods.index("kinds_posterior_counting"))
-
     def test_pose_correction_in_another_world(self):
         # --pose-correction-scenario and --pose-correction-steps pick the comparison's world
         # and length: a short parking lot run, a row per estimator, the world in the summary.

@@ -6,8 +6,8 @@
 //
 // Usage: write_model_cli [--fixed | --empty | --cell-em] MODEL_PATH VALUES_PATH
 //   (default)  a growing map that learns transitions with kinds of cells (configured apart
-//              from the defaults, but for learn_from_gaps: on, so that the pairs fill
-//              several distance bins), 30 steps with gaps
+//              from the defaults; pairs across gaps fill several distance bins), 30 steps
+//              with gaps
 //   --cell-em  the same map learning with each cell's own online EM (kinds' defaults)
 //   --fixed    a fixed-bounds map (partly outside the room) with fixed transitions
 //   --empty    a growing map that has seen nothing
@@ -115,8 +115,6 @@ dog::MapperConfig growingConfig() {
   config.kinds.weight_prior_cells = 50.0;
   config.kinds.switch_probability = 2e-3;
   config.kinds.forgetting = 5e-3;
-  config.kinds.summary = dog::KindSummary::kMean;
-  config.kinds.counting = dog::KindCounting::kPosterior;
   return config;
 }
 
@@ -125,18 +123,6 @@ dog::MapperConfig cellEmConfig() {
   config.learner = dog::TransitionLearner::kCellEm;
   config.kinds = dog::KindsConfig{};
   return config;
-}
-
-const char* summaryName(dog::KindSummary summary) {
-  switch (summary) {
-    case dog::KindSummary::kGeometricMean:
-      return "geometric_mean";
-    case dog::KindSummary::kMean:
-      return "mean";
-    case dog::KindSummary::kMostProbable:
-      return "most_probable";
-  }
-  return "?";
 }
 
 dog::MapperConfig fixedConfig() {
@@ -215,10 +201,6 @@ void writeValues(const dog::Mapper& mapper, std::FILE* out) {
   real("kinds.weight_prior_cells", c.kinds.weight_prior_cells);
   real("kinds.switch_probability", c.kinds.switch_probability);
   real("kinds.forgetting", c.kinds.forgetting);
-  std::fprintf(out, "# config kinds.summary %s\n", summaryName(c.kinds.summary));
-  std::fprintf(out, "# config kinds.counting %s\n",
-               c.kinds.counting == dog::KindCounting::kPosterior ? "posterior" : "most_probable");
-  integer("kinds.learn_from_gaps", c.kinds.learn_from_gaps);
   const dog::SensorModelStats& stats = mapper.sensorModelStats();
   std::fprintf(out, "# sensor_model_stats %a %a %a %a\n", stats.trials[0], stats.trials[1], stats.hits[0],
                stats.hits[1]);

@@ -38,19 +38,11 @@ namespace core {
 struct LearnerVariant {
   std::string name;
   std::function<void(MapperConfig&)> configure;
-  /// learner kKinds: score the exact mixture prediction of each cell (CellKinds::predict)
-  /// instead of the published two-parameter summary (what the layers show).
-  bool exact_kinds = false;
 };
 /// The learners of the comparison in docs/online_learning.md: "default" (the package's
 /// defaults: kinds of cells, cell_kinds.h), "cell_em" (each cell's own online EM with the
 /// 1/t schedule, the default before), "eb" (the same with the empirical-Bayes prior).
 std::vector<LearnerVariant> defaultLearnerVariants();
-/// The kinds learner with one choice changed (docs/online_learning.md, "Kinds of cells"):
-/// counting by posterior instead of the most probable kind, the mean or the most probable
-/// kind's rates as the published summary, and the exact mixture prediction scored instead
-/// of the summary.
-std::vector<LearnerVariant> kindsAblationVariants();
 
 struct LearningExperimentConfig {
   int repetitions = 4;
