@@ -61,7 +61,7 @@ _HEADER_V1 = struct.Struct(
 )
 # Version 2 inserts the learners' options and the sensor model's sums before the cell count.
 _LEARNERS_V2 = struct.Struct(
-    "<Bd"           # learn_prior, prior_population_weight
+    "<Bd"           # learn_prior, prior_population_weight (removed after a9ed7d5: checked and ignored)
     "BddI"          # online_em: schedule (0 harmonic, 1 robbins_monro), step_size_exponent, step_size_offset, averaging_start
                     # (options removed after a9ed7d5: checked and ignored)
     "Bdd"           # learn_sensor_model, sensor_model_prior_weight, sensor_model_p_min
@@ -293,24 +293,22 @@ def parse_model(data):
         "height_m": height_m,
         "max_map_size_m": max_map_size_m,
         # Version 1 files: MapperConfig's defaults.
-        "learn_prior": False,
-        "prior_population_weight": 10.0,
         "learn_sensor_model": False,
         "sensor_model_prior_weight": 1000.0,
         "sensor_model_p_min": 0.01,
     }
     sensor_model_stats = {"trials_occ": 0.0, "trials_free": 0.0, "hits_occ": 0.0, "hits_free": 0.0}
     if version >= 2:
-        # The online EM's schedule, exponent, offset and averaging start (options removed after
-        # a9ed7d5) are checked and ignored, as the core's reader does.
-        (learn_prior, population_weight, schedule, _exponent, _offset, _averaging_start, learn_sensor,
+        # The empirical-Bayes prior and the online EM's schedule, exponent, offset and averaging
+        # start (options removed after a9ed7d5) are checked and ignored, as the core's reader does.
+        (learn_prior, _population_weight, schedule, _exponent, _offset, _averaging_start, learn_sensor,
          sensor_weight, sensor_p_min, trials_occ, trials_free, hits_occ, hits_free) = _LEARNERS_V2.unpack_from(
              data, HEADER_SIZES[1] - 8)
         if schedule not in (0, 1):
             raise ModelFormatError(f"invalid model file: online_em.schedule is {schedule}, must be 0 (harmonic) or "
                                    "1 (robbins_monro)")
-        config.update({"learn_prior": _flag(learn_prior, "learn_prior"), "prior_population_weight": population_weight,
-                       "learn_sensor_model": _flag(learn_sensor, "learn_sensor_model"),
+        _flag(learn_prior, "learn_prior")
+        config.update({"learn_sensor_model": _flag(learn_sensor, "learn_sensor_model"),
                        "sensor_model_prior_weight": sensor_weight, "sensor_model_p_min": sensor_p_min})
         sensor_model_stats = {"trials_occ": trials_occ, "trials_free": trials_free, "hits_occ": hits_occ,
                               "hits_free": hits_free}

@@ -92,8 +92,6 @@ void MapperConfig::validate() const {
   require(sensor_model_mixed_step_probability >= 0.0 && sensor_model_mixed_step_probability <= 0.5,
           "sensor_model_mixed_step_probability must be in [0, 0.5], got " +
               std::to_string(sensor_model_mixed_step_probability));
-  require(std::isfinite(prior_population_weight) && prior_population_weight > 0.0,
-          "prior_population_weight must be > 0, got " + std::to_string(prior_population_weight));
   require(online_em.min_observed_steps <= std::numeric_limits<std::uint16_t>::max(),
           "online_em min_observed_steps must be <= 65535 (the grid counts up to that), got " +
               std::to_string(online_em.min_observed_steps));
@@ -110,7 +108,6 @@ Mapper::Mapper(const MapperConfig& config)
             maxCellsPerSide(config),
             CellGrid::CellDefaults{static_cast<float>(config.prior_transitions.p_occ_given_free),
                                    static_cast<float>(config.prior_transitions.p_free_given_occ)}),
-      current_prior_(config.prior_transitions),
       kinds_(config.kinds, std::max(config.online_em.p_min, 1e-6), std::min(config.online_em.p_max, 0.5)) {}
 
 ScanResult Mapper::integrate(const Scan& scan) {
@@ -293,7 +290,6 @@ void Mapper::applyGatheredStep() {
   }
   touched_tiles_.clear();
   last_applied_step_ = gathering_step_;
-  updatePrior();
   if (config_.learn_sensor_model) updateSensorModel();
   if (config_.learn_transitions && config_.learner == TransitionLearner::kKinds) kinds_.update();
 }
@@ -416,32 +412,7 @@ void Mapper::restoreSensorModelStats(const SensorModelStats& stats) {
   updateSensorModel();
 }
 
-void Mapper::updatePrior() {
-  if (!config_.learn_transitions || !config_.learn_prior) return;
-  // Pooled over cells: the maximum-likelihood shared transitions of the population, with
-  // the configured prior as prior_population_weight cells' worth of pseudo-transitions
-  // (one from-state weighs prior_weight in a cell's statistics).
-  const TransitionParams& guess = config_.prior_transitions;
-  const double w = config_.prior_population_weight * config_.online_em.prior_weight;
-  const double from_occ = population_[0][0] + population_[0][1];
-  const double from_free = population_[1][0] + population_[1][1];
-  const auto bounded = [&](double p) { return std::clamp(p, config_.online_em.p_min, config_.online_em.p_max); };
-  current_prior_.p_free_given_occ =
-      bounded((std::max(population_[0][1], 0.0) + w * guess.p_free_given_occ) / (std::max(from_occ, 0.0) + w));
-  current_prior_.p_occ_given_free =
-      bounded((std::max(population_[1][0], 0.0) + w * guess.p_occ_given_free) / (std::max(from_free, 0.0) + w));
-}
-
 void Mapper::storeStats(CellGrid::Tile& tile, int i, const TransitionStats& stats) {
-  for (int from = 0; from < 2; ++from) {
-    for (int to = 0; to < 2; ++to) {
-      const int k0 = TransitionStats::index(from, to, 0);
-      const int k1 = TransitionStats::index(from, to, 1);
-      // The float values the grid keeps, so that the sums stay those of the cells.
-      const double now = static_cast<double>(static_cast<float>(stats.s[k0])) + static_cast<float>(stats.s[k1]);
-      population_[from][to] += now - (static_cast<double>(tile.em_stats[k0][i]) + tile.em_stats[k1][i]);
-    }
-  }
   for (std::size_t k = 0; k < stats.s.size(); ++k) tile.em_stats[k][i] = static_cast<float>(stats.s[k]);
 }
 
@@ -451,7 +422,7 @@ void Mapper::learnStep(CellGrid::Tile& tile, int i, std::int32_t step, double ev
   OnlineCell cell;
   const std::int32_t last = tile.last_step[i];
   std::int64_t gap = 0;
-  const TransitionParams prior = current_prior_;
+  const TransitionParams& prior = config_.prior_transitions;
   if (last == kNeverObserved) {
     cell = newOnlineCell(prior, config_.initial_p_occ, config_.online_em);
   } else {
@@ -651,7 +622,6 @@ OfflineEmApplied Mapper::applyOfflineEm(const ObservationSequences& sequences, c
     ++applied.cells_applied;
   }
   tile_versions_.bumpAll();
-  updatePrior();
   // A sensor model offline EM learned with the transitions is the one they belong to: its
   // sums become this mapper's (online learning goes on from them; the configured start and
   // the static baseline stay).
@@ -723,7 +693,7 @@ void Mapper::restoreCell(std::int32_t x, std::int32_t y, const CellState& state)
   if (kinds) {
     for (std::size_t k = 0; k < state.em_stats.size(); ++k) tile->em_stats[k][i] = state.em_stats[k];
   } else {
-    // Online EM's statistics, which the empirical-Bayes pool sums.
+    // Online EM's eight statistics.
     TransitionStats stats;
     for (std::size_t k = 0; k < stats.s.size(); ++k) stats.s[k] = state.em_stats[k];
     storeStats(*tile, i, stats);
@@ -733,7 +703,6 @@ void Mapper::restoreCell(std::int32_t x, std::int32_t y, const CellState& state)
   tile->last_misses[i] = state.last_misses;
   tile_versions_.bump(tile->tile_x, tile->tile_y);
   changed_cells_.include(x, y);
-  updatePrior();
 }
 
 void Mapper::setCellTransitions(std::int32_t x, std::int32_t y, const TransitionParams& params) {

@@ -56,6 +56,9 @@ static_assert(kHeaderSizeV3 == 20403, "docs/model_format.md documents a 20403-by
 // observed_steps; version 2 adds last_hits and last_misses; version 3 stores the learner's
 // state in kLearnerStateSize floats instead of 8.
 constexpr std::size_t kCellSizeV1 = 4 * 7 + 4 * 8 + 2;
+// What the empirical-Bayes prior's population weight, an option removed after a9ed7d5, was
+// by default: written where files hold it, so that a file is as it was.
+constexpr double kDefaultPriorPopulationWeight = 10.0;
 // The kinds' summary and counting, choices removed after a9ed7d5, as files number them:
 // the geometric mean and the most probable kind, the ones left.
 constexpr std::uint8_t kGeometricMeanSummary = 0;
@@ -345,8 +348,11 @@ std::unique_ptr<Mapper> deserializeChecked(const std::string& bytes) {
   // keep MapperConfig's defaults and no sums).
   SensorModelStats sensor_stats;
   if (version >= 2) {
-    config.learn_prior = reader.flag("learn_prior");
-    config.prior_population_weight = reader.f64();
+    // learn_prior and prior_population_weight: the empirical-Bayes prior, an option removed
+    // after a9ed7d5. Files still hold them; a file written with it loads, and its new cells
+    // start from prior_transitions.
+    reader.flag("learn_prior");
+    reader.f64();
     // The online EM's step-size schedule (0 harmonic, 1 robbins_monro), its exponent and
     // offset, and the start of its averaging: options removed after a9ed7d5. Files still
     // hold them; a file written with another schedule or with averaging loads, and its
@@ -580,8 +586,9 @@ std::string serializeModel(const Mapper& mapper, const CellBeliefOverride& belie
   writer.f64(origin.value_or(0.0));
   writer.flag(last_applied_step.has_value());
   writer.i64(last_applied_step.value_or(0));
-  writer.flag(config.learn_prior);
-  writer.f64(config.prior_population_weight);
+  // The removed empirical-Bayes prior's fields, as it was by default (see the reader).
+  writer.flag(false);
+  writer.f64(kDefaultPriorPopulationWeight);
   // The removed step-size schedule's fields, as the harmonic schedule wrote them (see the reader).
   writer.u8(0);
   writer.f64(kHarmonicStepSizeExponent);

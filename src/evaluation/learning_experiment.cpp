@@ -319,11 +319,6 @@ std::vector<LearnerVariant> defaultLearnerVariants() {
   return {
       {"default", {}},
       {"cell_em", cell_em},
-      {"eb",
-       [cell_em](MapperConfig& c) {
-         cell_em(c);
-         c.learn_prior = true;
-       }},
   };
 }
 

@@ -94,9 +94,6 @@ Options parseArguments(int argc, char** argv) {
        "--p-hit-given-free (default: on, as the node's ~learn_sensor_model)")
       ("no-learn-sensor-model", po::bool_switch(&no_learn_sensor_model),
        "keep the sensor model fixed at --p-hit-given-occ / --p-hit-given-free")
-      ("learn-prior", po::bool_switch(&mapper.learn_prior),
-       "empirical-Bayes prior: new cells start from the transitions pooled over the map (default off, as the "
-       "node's ~learn_prior)")
       ("retention-after", cl::number(&options.retention_after_s, cl::atLeast(0.0))->value_name("S"),
        "the end-of-run retention is also reported on the cells last observed at least S seconds before the "
        "end (default 10)")
@@ -128,22 +125,7 @@ Options parseArguments(int argc, char** argv) {
   }
   if (learn_sensor_model) mapper.learn_sensor_model = true;
   if (no_learn_sensor_model) mapper.learn_sensor_model = false;
-  if (no_learning) {
-    for (const char* name : {"learn-prior"}) {
-      if (values.count(name) > 0 && !values[name].defaulted()) {
-        line.fail(std::string("--") + name +
-                  " tunes online learning of the transitions, which --no-learning turns off");
-      }
-    }
-    mapper.learn_transitions = false;
-  }
-  if (mapper.learner != dog::core::TransitionLearner::kCellEm) {
-    for (const char* name : {"learn-prior"}) {
-      if (values.count(name) > 0 && !values[name].defaulted()) {
-        line.fail(std::string("--") + name + " tunes each cell's online EM: it needs --learner cell_em");
-      }
-    }
-  }
+  if (no_learning) mapper.learn_transitions = false;
   dog::bag_tools::validateSharedOptions(line, &options.shared);
   dog::bag_tools::validatePoseCorrectionOptions(line, options.shared, &options.correction);
   if (options.horizons_s.empty()) options.horizons_s = kDefaultHorizons_s;
@@ -198,7 +180,6 @@ struct EndOfRun {
   double p_hit_given_occ = 0.0;        ///< the sensor model in use (learned or fixed)
   double p_hit_given_free = 0.0;
   dog::core::SensorModelStats sensor_stats;
-  dog::core::TransitionParams prior;   ///< the prior a new cell would start from now
   /// learner kinds: the kinds learned (transitions and shares).
   std::array<dog::core::TransitionParams, dog::core::kKindCount> kinds{};
   std::array<double, dog::core::kKindCount> kind_shares{};
@@ -256,7 +237,6 @@ EndOfRun summarizeEnd(const dog::core::Mapper& mapper, std::int64_t retention_af
   end.p_hit_given_occ = mapper.sensor().pHitGivenOcc();
   end.p_hit_given_free = mapper.sensor().pHitGivenFree();
   end.sensor_stats = mapper.sensorModelStats();
-  end.prior = mapper.currentPrior();
   for (int k = 0; k < core::kKindCount; ++k) {
     end.kinds[k] = mapper.kinds().transitions(k);
     end.kind_shares[k] = mapper.kinds().weight(k);
@@ -354,9 +334,6 @@ void printEnd(const EndOfRun& end, const Options& options) {
                   end.kinds[k].p_free_given_occ, end.kind_shares[k]);
     }
     std::printf("\n");
-  } else if (mapper.learn_transitions && mapper.learn_prior) {
-    std::printf("  learned prior: p_occ_given_free %.5f, p_free_given_occ %.5f per step\n",
-                end.prior.p_occ_given_free, end.prior.p_free_given_occ);
   }
   std::printf("  static map (clamped log-odds, occupied > %g, free < %g): %zu free, %zu occupied of %zu observed "
               "cells\n",
@@ -466,7 +443,7 @@ void checkAndReport(dog::ros_layer::BagScanSource& source, const Options& option
     std::printf("online learning: kinds of cells (%d), switch probability %g, forgetting %g per step\n",
                 dog::core::kKindCount, mapper.kinds.switch_probability, mapper.kinds.forgetting);
   } else if (mapper.learn_transitions) {
-    std::printf("online learning: each cell's online EM, learned prior %s\n", mapper.learn_prior ? "on" : "off");
+    std::printf("online learning: each cell's online EM\n");
   }
   std::fflush(stdout);
 

@@ -78,13 +78,8 @@ void logLearners(const core::MapperConfig& config) {
   } else if (config.learn_transitions) {
     std::ostringstream line;
     line << "online EM of the transitions: prior weight " << em.prior_weight << ", learning rate floor "
-         << em.learning_rate_floor << ", prior ";
-    if (config.learn_prior) {
-      line << "learned from the map (prior_population_weight " << config.prior_population_weight << ")";
-    } else {
-      line << "fixed (" << config.prior_transitions.p_occ_given_free << " / "
-           << config.prior_transitions.p_free_given_occ << ")";
-    }
+         << em.learning_rate_floor << ", prior fixed (" << config.prior_transitions.p_occ_given_free << " / "
+         << config.prior_transitions.p_free_given_occ << ")";
     ROS_INFO("%s", line.str().c_str());
   }
   if (config.sensor_model_mixed_step_probability > 0.0) {

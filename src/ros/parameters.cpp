@@ -259,8 +259,6 @@ bool readParameters(const ros::NodeHandle& private_nh, NodeParameters* parameter
   read.number("kinds/forgetting", &m.kinds.forgetting);
   read.number("kinds/transition_prior_weight", &m.kinds.transition_prior_weight);
   read.number("kinds/weight_prior_cells", &m.kinds.weight_prior_cells);
-  read.boolean("learn_prior", &m.learn_prior);
-  read.number("prior_population_weight", &m.prior_population_weight);
   read.number("online_em/prior_weight", &m.online_em.prior_weight);
   read.number("online_em/learning_rate_floor", &m.online_em.learning_rate_floor);
   read.number("online_em/p_min", &m.online_em.p_min);

@@ -1246,45 +1246,6 @@ TEST(MapperLearning, FlickeringCellLearnsToChangeAndAWallLearnsToStay) {
   EXPECT_GT(*wall_stationary, 0.9);
 }
 
-// learn_prior (empirical Bayes): the prior of a new cell is the population's pooled
-// transitions, sum over cells of S(i -> j) plus prior_population_weight cells of the guess,
-// over the same for the from-state; recomputed here from the grid's cells after every step.
-TEST(MapperLearning, LearnedPriorIsThePooledTransitionsOfTheCells) {
-  dog::MapperConfig config = learningConfig();
-  config.learn_prior = true;
-  config.prior_population_weight = 3.0;
-  config.prior_transitions = dog::TransitionParams{0.2, 0.3};
-  dog::Mapper mapper(config);
-  EXPECT_DOUBLE_EQ(mapper.currentPrior().p_occ_given_free, 0.2);
-  for (int step = 0; step < 120; ++step) {
-    const bool occupied = (step / 5) % 2 == 0;
-    ASSERT_EQ(mapper.integrate(makeScan(step, {0.25f * (occupied ? 4.0f : 8.0f)})).status,
-              dog::ScanStatus::kIntegrated);
-    if (step == 0) continue;  // the first step is applied by the second's scan
-    double pooled[2][2] = {{0.0, 0.0}, {0.0, 0.0}};
-    const dog::CellBox bounds = mapper.grid().bounds();
-    for (std::int32_t y = bounds.min_y; y <= bounds.max_y; ++y) {
-      for (std::int32_t x = bounds.min_x; x <= bounds.max_x; ++x) {
-        const auto cell = mapper.grid().cell(x, y);
-        if (!cell) continue;
-        dog::TransitionStats stats;
-        for (std::size_t k = 0; k < stats.s.size(); ++k) stats.s[k] = cell->em_stats[k];
-        for (int i = 0; i < 2; ++i)
-          for (int j = 0; j < 2; ++j) pooled[i][j] += stats.transitions(i, j);
-      }
-    }
-    const double w = 3.0 * config.online_em.prior_weight;
-    const double p_fo = (pooled[0][1] + w * 0.3) / (pooled[0][0] + pooled[0][1] + w);
-    const double p_of = (pooled[1][0] + w * 0.2) / (pooled[1][0] + pooled[1][1] + w);
-    ASSERT_NEAR(mapper.currentPrior().p_free_given_occ, p_fo, 1e-9) << "step " << step;
-    ASSERT_NEAR(mapper.currentPrior().p_occ_given_free, p_of, 1e-9) << "step " << step;
-  }
-  // Mostly free, rarely changing cells: the learned prior is far below the guess.
-  EXPECT_LT(mapper.currentPrior().p_occ_given_free, 0.1);
-  config.prior_population_weight = 0.0;
-  EXPECT_THROW(dog::Mapper{config}, std::invalid_argument);
-}
-
 TEST(MapperLearning, RecorderReceivesEveryAppliedCellStep) {
   dog::MapperConfig config = learningConfig();
   dog::Mapper mapper(config);
@@ -2159,9 +2120,8 @@ TEST(MapperKinds, OfflineEmKeepsTheKindPosteriorAndShowsItsTransitionsUntilTheNe
   EXPECT_NEAR(after.p_occ_given_free, mapper.kinds().summary(joint).p_occ_given_free, 1e-6);
 }
 
-TEST(MapperKinds, RestoredCellsMustHoldAKindPosteriorAndLeaveOnlineEmsPoolAlone) {
+TEST(MapperKinds, RestoredCellsMustHoldAKindPosterior) {
   dog::MapperConfig config = kindsConfig();
-  config.learn_prior = true;  // online EM's pool must not count a kinds cell's floats
   dog::Mapper mapper(config);
   mapper.restoreTime(0.0, 5);
   dog::CellState state{};
@@ -2174,8 +2134,6 @@ TEST(MapperKinds, RestoredCellsMustHoldAKindPosteriorAndLeaveOnlineEmsPoolAlone)
     state.em_stats[2 * k + 1] = 0.2f * 0.8f;
   }
   mapper.restoreCell(1, 1, state);
-  EXPECT_EQ(mapper.currentPrior().p_occ_given_free, config.prior_transitions.p_occ_given_free);
-  EXPECT_EQ(mapper.currentPrior().p_free_given_occ, config.prior_transitions.p_free_given_occ);
   const dog::CellState back = *mapper.grid().cell(1, 1);
   for (int k = 0; k < 2 * dog::kKindCount; ++k) EXPECT_EQ(back.em_stats[k], state.em_stats[k]);
   // All zero (or not summing to 1): its next step would divide by zero.

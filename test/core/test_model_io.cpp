@@ -239,8 +239,6 @@ dog::MapperConfig growingLearningConfig() {
   config.online_em.p_max = 0.45;
   config.online_em.symmetric = false;
   config.online_em.min_observed_steps = 3;
-  config.learn_prior = true;
-  config.prior_population_weight = 7.0;
   config.learn_sensor_model = true;
   config.sensor_model_prior_weight = 20.0;
   config.sensor_model_p_min = 0.02;
@@ -367,8 +365,6 @@ void expectSameConfig(const dog::MapperConfig& a, const dog::MapperConfig& b) {
   EXPECT_TRUE(sameBits(a.width_m, b.width_m));
   EXPECT_TRUE(sameBits(a.height_m, b.height_m));
   EXPECT_TRUE(sameBits(a.max_map_size_m, b.max_map_size_m));
-  EXPECT_EQ(a.learn_prior, b.learn_prior);
-  EXPECT_TRUE(sameBits(a.prior_population_weight, b.prior_population_weight));
   EXPECT_EQ(a.learn_sensor_model, b.learn_sensor_model);
   EXPECT_TRUE(sameBits(a.sensor_model_prior_weight, b.sensor_model_prior_weight));
   EXPECT_TRUE(sameBits(a.sensor_model_p_min, b.sensor_model_p_min));
@@ -706,8 +702,9 @@ TEST(ModelIoFormat, BytesAreAsDocumented) {
   EXPECT_EQ(getLE<std::int64_t>(bytes, kLastStepOffset), 4);  // step 5 had no scans
   EXPECT_EQ(getLE<std::uint64_t>(bytes, kCountOffset), cells.size());
   // Version 2's learners' block.
-  EXPECT_EQ(getLE<std::uint8_t>(bytes, kLearnPriorOffset), 1);
-  EXPECT_EQ(getLE<double>(bytes, kLearnPriorOffset + 1), config.prior_population_weight);
+  // The removed empirical-Bayes prior's fields hold its defaults.
+  EXPECT_EQ(getLE<std::uint8_t>(bytes, kLearnPriorOffset), 0);
+  EXPECT_EQ(getLE<double>(bytes, kLearnPriorOffset + 1), 10.0);
   // The removed step-size schedule's fields hold what the harmonic schedule wrote.
   EXPECT_EQ(getLE<std::uint8_t>(bytes, kScheduleOffset), 0);  // harmonic
   EXPECT_EQ(getLE<double>(bytes, kScheduleOffset + 1), 0.6);
@@ -972,7 +969,6 @@ TEST(ModelIoFormat, Version1FilesAreReadWithTheDefaultsOfWhatTheyLack) {
   const dog::MapperConfig defaults;
   EXPECT_EQ(loaded->config().p_hit_given_occ, config.p_hit_given_occ);
   EXPECT_EQ(loaded->config().online_em.prior_weight, config.online_em.prior_weight);
-  EXPECT_EQ(loaded->config().learn_prior, defaults.learn_prior);
   EXPECT_EQ(loaded->config().learn_sensor_model, defaults.learn_sensor_model);
   EXPECT_NE(defaults.learner, dog::TransitionLearner::kCellEm);
   EXPECT_EQ(loaded->config().learner, dog::TransitionLearner::kCellEm);
@@ -1208,12 +1204,14 @@ TEST(ModelIoDamage, InvalidConfigurationIsRefusedWithValidatesMessage) {
   }
 }
 
-// Files written with the online EM's Robbins–Monro schedule or its averaging (options
-// removed after a9ed7d5) still load: their cells go on with the 1/t schedule. A schedule
-// byte other than 0 or 1 is refused.
-TEST(ModelIoFormat, FilesWithTheRemovedStepSizeScheduleLoad) {
+// Files written with the online EM's Robbins–Monro schedule or its averaging, or with the
+// empirical-Bayes prior (options removed after a9ed7d5) still load: their cells go on with
+// the 1/t schedule and the fixed prior. A schedule byte other than 0 or 1 is refused.
+TEST(ModelIoFormat, FilesWithTheRemovedLearnerOptionsLoad) {
   const std::string bytes = smallModel();
   std::string robbins_monro = bytes;
+  putLE<std::uint8_t>(robbins_monro, kLearnPriorOffset, 1);
+  putLE<double>(robbins_monro, kLearnPriorOffset + 1, 7.0);
   putLE<std::uint8_t>(robbins_monro, kScheduleOffset, 1);
   putLE<double>(robbins_monro, kScheduleOffset + 1, 0.8);
   putLE<double>(robbins_monro, kScheduleOffset + 9, 3.0);

@@ -203,9 +203,9 @@ class TestCheckBag(unittest.TestCase):
                              (["--no-learn-sensor-model"] if fixed_sensor else []))
 
     def neato_learners(self):
-        """The other learner, each cell's online EM, with the empirical-Bayes prior."""
+        """The other learner, each cell's online EM."""
         return self.run_once("neato_learners", NEATO_BAG,
-                             NEATO_ARGS + ["--learner", "cell_em", "--learn-prior", "--retention-after", "5"])
+                             NEATO_ARGS + ["--learner", "cell_em", "--retention-after", "5"])
 
     def assert_consistent(self, run, horizons_s):
         """Table and CSV: one row per horizon, the same numbers, values in range."""
@@ -409,8 +409,7 @@ class TestCheckBag(unittest.TestCase):
 
     def test_end_report_other_learners(self):
         stdout = self.neato_learners()[0]
-        self.assertIn("online learning: each cell's online EM, learned prior on", stdout)
-        self.assertRegex(stdout, r"learned prior: p_occ_given_free [0-9.]+, p_free_given_occ [0-9.]+ per step")
+        self.assertIn("online learning: each cell's online EM\n", stdout)
         end = self.assert_end_report(self.neato_learners())
         self.assertTrue(end["sensor_learned"])
         self.assertEqual(end["retention_after_s"], 5.0)
@@ -543,15 +542,10 @@ class TestCheckBag(unittest.TestCase):
 
     def test_learner_options_that_contradict(self):
         self.assert_fails([NEATO_BAG, "--learn-sensor-model", "--no-learn-sensor-model"], 2, "contradict")
-        self.assert_fails([NEATO_BAG, "--no-learning", "--learn-prior"], 2, "--learn-prior", "--no-learning turns off")
-        # The options of each cell's online EM need that learner.
-        self.assert_fails([NEATO_BAG, "--learn-prior"], 2, "--learn-prior tunes each cell's online EM",
-                          "--learner cell_em")
         self.assert_fails([NEATO_BAG, "--learner", "em"], 2, "--learner", "kinds or cell_em")
         rc, stdout, _ = check_bag(["--help"])
         self.assertEqual(rc, 0)
-        for option in ("--learn-sensor-model", "--no-learn-sensor-model", "--learn-prior", "--retention-after",
-                       "--prediction-horizon"):
+        for option in ("--learn-sensor-model", "--no-learn-sensor-model", "--retention-after", "--prediction-horizon"):
             self.assertIn(option, stdout)
         self.assertIn("(default: on, as the node's ~learn_sensor_model)", " ".join(stdout.split()))
 

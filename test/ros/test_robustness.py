@@ -134,8 +134,6 @@ class TestRobustness(unittest.TestCase):
             ('diagnostics/max_scan_rate_hz', '_diagnostics/min_scan_rate_hz:=20 _diagnostics/max_scan_rate_hz:=10'),
             ('diagnostics/period', '_diagnostics/period:=0'),
             # The learners' options (core::MapperConfig, core::OnlineEmConfig).
-            (('learn_prior', 'true or false'), '_learn_prior:=maybe'),
-            (('prior_population_weight', '> 0'), '_prior_population_weight:=0'),
             (('learn_sensor_model', 'true or false'), '_learn_sensor_model:=maybe'),
             (('sensor_model/prior_weight', '> 0'), '_sensor_model/prior_weight:=0'),
             (('sensor_model/prior_weight', 'must be a number'), '_sensor_model/prior_weight:=abc'),
@@ -159,8 +157,7 @@ class TestRobustness(unittest.TestCase):
     def test_01b_learner_parameters_are_read(self):
         """Good values of the learners' options start the node, none is taken for a typo, and
         the start-up lines report them; by default the node learns the sensor model."""
-        arguments = ['_learner:=cell_em', '_learn_prior:=true',
-                     '_prior_population_weight:=25', '_learn_sensor_model:=true', '_sensor_model/prior_weight:=400',
+        arguments = ['_learner:=cell_em', '_learn_sensor_model:=true', '_sensor_model/prior_weight:=400',
                      '_sensor_model/p_min:=0.02', '_online_em/learning_rate_floor:=0.002',
                      '_sensor_model/mixed_step_probability:=0.01']
         output = ''.join(wall_scene.node_startup_output(self, 'good_learner_parameters', arguments,
@@ -168,7 +165,6 @@ class TestRobustness(unittest.TestCase):
         self.assertNotIn('is not one of this node\'s parameters', output)
         self.assertIn('sensor model learned online', output)
         self.assertIn('prior weight 10, learning rate floor 0.002', output)
-        self.assertIn('prior learned from the map (prior_population_weight 25)', output)
         self.assertIn('from p_hit_given_occ 0.7, p_hit_given_free 0.2, worth 400 beam ends per state', output)
         self.assertIn('within [0.02, 0.98]', output)
         self.assertIn('partly covered cell with probability 0.01 (sensor_model/mixed_step_probability)', output)

@@ -103,7 +103,6 @@ dog::MapperConfig growingConfig() {
   config.online_em.min_observed_steps = 3;
   config.learn_sensor_model = true;
   config.sensor_model_prior_weight = 30.0;
-  config.learn_prior = true;
   config.initial_p_occ = 0.45;
   config.max_free_range_m = 3.5;
   config.origin_x_m = -0.35;
@@ -183,8 +182,6 @@ void writeValues(const dog::Mapper& mapper, std::FILE* out) {
   real("width_m", c.width_m);
   real("height_m", c.height_m);
   real("max_map_size_m", c.max_map_size_m);
-  integer("learn_prior", c.learn_prior);
-  real("prior_population_weight", c.prior_population_weight);
   integer("learn_sensor_model", c.learn_sensor_model);
   real("sensor_model_prior_weight", c.sensor_model_prior_weight);
   real("sensor_model_p_min", c.sensor_model_p_min);

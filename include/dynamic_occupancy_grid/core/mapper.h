@@ -65,14 +65,6 @@ struct MapperConfig {
   TransitionLearner learner = TransitionLearner::kKinds;
   /// learner kKinds: the kinds and how they are learned.
   KindsConfig kinds;
-  /// With learning on: the prior a new cell starts from (and uses until
-  /// online_em.min_observed_steps) is learned from the map itself (empirical Bayes,
-  /// docs/online_learning.md): the transitions pooled over every learning cell's
-  /// statistics, with prior_transitions as a guess worth prior_population_weight cells.
-  /// Off by default: one pool for all cells gives static cells the changing cells' rates
-  /// (dynamic_25_25: 1.5 points less accuracy over all cells).
-  bool learn_prior = false;
-  double prior_population_weight = 10.0;
   OnlineEmConfig online_em;
   double initial_p_occ = 0.5;         ///< belief of a cell before its first observation
   LogOddsClamp static_clamp;          ///< clamping of the static baseline
@@ -153,9 +145,6 @@ class Mapper {
   /// p(occ) of cell (x, y) at `step` (>= its last update: predicted in closed form), NaN if
   /// the cell was never observed.
   double beliefAt(std::int32_t x, std::int32_t y, std::int64_t step) const;
-  /// The prior a cell observed for the first time now starts from: prior_transitions, or
-  /// with learn_prior the population's pooled transitions (see MapperConfig::learn_prior).
-  TransitionParams currentPrior() const { return current_prior_; }
   /// Cells changed by steps applied since the last call.
   CellBox takeChangedCells();
   /// From now on, every applied cell step is also added to `recorder` (offline EM input);
@@ -251,9 +240,8 @@ class Mapper {
   /// being applied, in [0, 1] (KindsConfig::view_switch_probability): the laser's motion
   /// between the two, in cells, at most 1; 1 when the last step is no longer remembered.
   double viewChangeSince(std::int32_t last_step) const;
-  /// Writes a cell's statistics, keeping the population's pooled transitions up to date.
+  /// Writes a cell's statistics (as floats).
   void storeStats(CellGrid::Tile& tile, int offset, const TransitionStats& stats);
-  void updatePrior();
   /// learn_sensor_model: adds the previous observed step of a cell to the sums, weighed by
   /// its state given this step's evidence too.
   void addSensorEvidence(const CellGrid::Tile& tile, int offset, std::int32_t step, double evidence);
@@ -291,9 +279,6 @@ class Mapper {
   CellBox changed_cells_;
   TileVersions tile_versions_;
   SequenceBuilder* recorder_ = nullptr;
-  /// Sum over cells of their statistics' expected transitions i -> j, [i][j] (learn_prior).
-  double population_[2][2] = {{0.0, 0.0}, {0.0, 0.0}};
-  TransitionParams current_prior_;
   CellKinds kinds_;
   SensorModelStats sensor_stats_;
   /// The laser's motion since the first scan, in cells: its path plus kViewRadiusM times its

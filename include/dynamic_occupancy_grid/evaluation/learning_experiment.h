@@ -41,7 +41,7 @@ struct LearnerVariant {
 };
 /// The learners of the comparison in docs/online_learning.md: "default" (the package's
 /// defaults: kinds of cells, cell_kinds.h), "cell_em" (each cell's own online EM with the
-/// 1/t schedule, the default before), "eb" (the same with the empirical-Bayes prior).
+/// 1/t schedule, the default before).
 std::vector<LearnerVariant> defaultLearnerVariants();
 
 struct LearningExperimentConfig {
