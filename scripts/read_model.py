@@ -37,8 +37,10 @@ KIND_COUNT = 5  # core/cell_kinds.h kKindCount
 GAP_BINS = 124  # core/cell_kinds.h kGapBins: distance bins of the kinds' pairs (gap_bin)
 LEARNER_STATE_SIZE = 10  # core/cell_grid.h kLearnerStateSize: floats of a cell's learner state
 LEARNERS = ("cell_em", "kinds")  # the learner byte's values (TransitionLearner)
-KIND_SUMMARIES = ("geometric_mean", "mean", "most_probable")  # KindSummary
-KIND_COUNTINGS = ("posterior", "most_probable")  # KindCounting
+# The kinds' summaries and countings files may hold (choices removed after a9ed7d5: checked
+# and ignored, as the core's reader does).
+KIND_SUMMARIES = ("geometric_mean", "mean", "most_probable")
+KIND_COUNTINGS = ("posterior", "most_probable")
 
 # Version 1 header: magic, version, MapperConfig in its order, time, cell count (197 bytes).
 _HEADER_V1 = struct.Struct(
@@ -59,8 +61,9 @@ _HEADER_V1 = struct.Struct(
 )
 # Version 2 inserts the learners' options and the sensor model's sums before the cell count.
 _LEARNERS_V2 = struct.Struct(
-    "<Bd"           # learn_prior, prior_population_weight
+    "<Bd"           # learn_prior, prior_population_weight (removed after a9ed7d5: checked and ignored)
     "BddI"          # online_em: schedule (0 harmonic, 1 robbins_monro), step_size_exponent, step_size_offset, averaging_start
+                    # (options removed after a9ed7d5: checked and ignored)
     "Bdd"           # learn_sensor_model, sensor_model_prior_weight, sensor_model_p_min
     "dddd"          # sensor model sums: trials occ, trials free, hits occ, hits free
 )
@@ -71,7 +74,7 @@ _KINDS_CONFIG_V3 = struct.Struct(
     + "dd" * KIND_COUNT  # per kind: initial p_occ_given_free, p_free_given_occ
     + "d" * KIND_COUNT   # initial weights
     + "dddd"        # transition_prior_weight, weight_prior_cells, switch_probability, forgetting
-    "BBB"           # summary, counting, learn_from_gaps
+    "BBB"           # summary, counting, learn_from_gaps (removed after a9ed7d5: checked and ignored)
     "H"             # number of distance bins (GAP_BINS)
 )
 # then the sums (float64): pairs [kind][bin][2 i + j] (i the state then, j now; 0 = occ,
@@ -128,9 +131,6 @@ def default_kinds():
         "weight_prior_cells": 100.0,
         "switch_probability": 1e-4,
         "forgetting": 1e-3,
-        "summary": "geometric_mean",
-        "counting": "most_probable",
-        "learn_from_gaps": True,
     }
 
 
@@ -293,28 +293,23 @@ def parse_model(data):
         "height_m": height_m,
         "max_map_size_m": max_map_size_m,
         # Version 1 files: MapperConfig's defaults.
-        "learn_prior": False,
-        "prior_population_weight": 10.0,
         "learn_sensor_model": False,
         "sensor_model_prior_weight": 1000.0,
         "sensor_model_p_min": 0.01,
     }
-    config["online_em"].update({"schedule": "harmonic", "step_size_exponent": 0.6, "step_size_offset": 2.0,
-                                "averaging_start": 0})
     sensor_model_stats = {"trials_occ": 0.0, "trials_free": 0.0, "hits_occ": 0.0, "hits_free": 0.0}
     if version >= 2:
-        (learn_prior, population_weight, schedule, exponent, offset, averaging_start, learn_sensor,
+        # The empirical-Bayes prior and the online EM's schedule, exponent, offset and averaging
+        # start (options removed after a9ed7d5) are checked and ignored, as the core's reader does.
+        (learn_prior, _population_weight, schedule, _exponent, _offset, _averaging_start, learn_sensor,
          sensor_weight, sensor_p_min, trials_occ, trials_free, hits_occ, hits_free) = _LEARNERS_V2.unpack_from(
              data, HEADER_SIZES[1] - 8)
         if schedule not in (0, 1):
             raise ModelFormatError(f"invalid model file: online_em.schedule is {schedule}, must be 0 (harmonic) or "
                                    "1 (robbins_monro)")
-        config.update({"learn_prior": _flag(learn_prior, "learn_prior"), "prior_population_weight": population_weight,
-                       "learn_sensor_model": _flag(learn_sensor, "learn_sensor_model"),
+        _flag(learn_prior, "learn_prior")
+        config.update({"learn_sensor_model": _flag(learn_sensor, "learn_sensor_model"),
                        "sensor_model_prior_weight": sensor_weight, "sensor_model_p_min": sensor_p_min})
-        config["online_em"].update({"schedule": "harmonic" if schedule == 0 else "robbins_monro",
-                                    "step_size_exponent": exponent, "step_size_offset": offset,
-                                    "averaging_start": averaging_start})
         sensor_model_stats = {"trials_occ": trials_occ, "trials_free": trials_free, "hits_occ": hits_occ,
                               "hits_free": hits_free}
     # Versions 1 and 2 were written by each cell's online EM; their cells hold its statistics.
@@ -345,7 +340,7 @@ def parse_model(data):
         if counting_index >= len(KIND_COUNTINGS):
             raise ModelFormatError(f"invalid model file: kinds.counting is {counting_index}, must be 0 (posterior) or "
                                    "1 (most_probable)")
-        learn_from_gaps = _flag(learn_from_gaps, "kinds.learn_from_gaps")
+        _flag(learn_from_gaps, "kinds.learn_from_gaps")
         if bins != GAP_BINS:
             raise ModelFormatError(f"model file with {bins} distance bins of the kinds' pairs, this reader has "
                                    f"{GAP_BINS}")
@@ -366,9 +361,6 @@ def parse_model(data):
             "weight_prior_cells": weight_prior_cells,
             "switch_probability": switch_probability,
             "forgetting": forgetting,
-            "summary": KIND_SUMMARIES[summary_index],
-            "counting": KIND_COUNTINGS[counting_index],
-            "learn_from_gaps": learn_from_gaps,
         }
         kind_sums = {"pairs": sums[:_KIND_PAIRS].reshape(KIND_COUNT, GAP_BINS, 2, 2),
                      "membership": sums[_KIND_PAIRS:_KIND_PAIRS + KIND_COUNT], "cells": float(sums[-1])}

@@ -163,54 +163,29 @@ double CellKinds::observe(KindJoint& joint, std::int64_t gap, const KindEvidence
   return joint.occupancy();
 }
 
-double CellKinds::predict(const KindJoint& joint, std::int64_t steps) const {
-  KindJoint ahead = joint;
-  skip(ahead, steps);
-  double total = 0.0;
-  for (const double value : ahead.p) total += value;
-  return ahead.occupancy() / total;
-}
-
 TransitionParams CellKinds::summary(const KindJoint& joint) const {
-  if (config_.summary == KindSummary::kGeometricMean) {
-    // One pass, no array of the masses: this runs for every observed cell-step.
-    double total = 0.0;
-    double log_of = 0.0;
-    double log_fo = 0.0;
-    for (int k = 0; k < kKindCount; ++k) {
-      const double mass = joint.kind(k);
-      total += mass;
-      log_of += mass * log_p_of_[k];
-      log_fo += mass * log_p_fo_[k];
-    }
-    // The stable kind keeps its state: its two rates in the ratio of its state q to 1 - q,
-    // the smaller of them its own, so that the summary's long-run state (the stationary
-    // layer) and prediction hold a stable cell where it is, not at its transitions' 1/2, and
-    // no rate falls below the learner's bounds.
-    const double stable = joint.kind(kStableKind);
-    if (stable > 0.0) {
-      const double q = std::clamp(joint.p[2 * kStableKind] / stable, kStableStateFloor, 1.0 - kStableStateFloor);
-      const double smaller = std::min(q, 1.0 - q);
-      log_of += stable * std::log(q / smaller);
-      log_fo += stable * std::log((1.0 - q) / smaller);
-    }
-    return TransitionParams{std::exp(log_of / total), std::exp(log_fo / total)};
-  }
-  if (config_.summary == KindSummary::kMostProbable) {
-    int best = 0;
-    for (int k = 1; k < kKindCount; ++k) {
-      if (joint.kind(k) > joint.kind(best)) best = k;
-    }
-    return transitions_[best];
-  }
+  // One pass, no array of the masses: this runs for every observed cell-step.
   double total = 0.0;
-  for (int k = 0; k < kKindCount; ++k) total += joint.kind(k);
-  TransitionParams mean;
+  double log_of = 0.0;
+  double log_fo = 0.0;
   for (int k = 0; k < kKindCount; ++k) {
-    mean.p_occ_given_free += joint.kind(k) / total * transitions_[k].p_occ_given_free;
-    mean.p_free_given_occ += joint.kind(k) / total * transitions_[k].p_free_given_occ;
+    const double mass = joint.kind(k);
+    total += mass;
+    log_of += mass * log_p_of_[k];
+    log_fo += mass * log_p_fo_[k];
   }
-  return mean;
+  // The stable kind keeps its state: its two rates in the ratio of its state q to 1 - q,
+  // the smaller of them its own, so that the summary's long-run state (the stationary
+  // layer) and prediction hold a stable cell where it is, not at its transitions' 1/2, and
+  // no rate falls below the learner's bounds.
+  const double stable = joint.kind(kStableKind);
+  if (stable > 0.0) {
+    const double q = std::clamp(joint.p[2 * kStableKind] / stable, kStableStateFloor, 1.0 - kStableStateFloor);
+    const double smaller = std::min(q, 1.0 - q);
+    log_of += stable * std::log(q / smaller);
+    log_fo += stable * std::log((1.0 - q) / smaller);
+  }
+  return TransitionParams{std::exp(log_of / total), std::exp(log_fo / total)};
 }
 
 CellKinds::PairPosterior CellKinds::pairPosterior(const KindJoint& last, std::int64_t steps,
@@ -259,29 +234,20 @@ void CellKinds::addPair(const KindJoint& last, std::int64_t steps, double log_li
 }
 
 void CellKinds::addPair(const KindJoint& last, std::int64_t steps, const KindEvidence& evidence, double view_change) {
-  if (steps < 1 || (!config_.learn_from_gaps && steps != 1)) return;
-  // The posterior up to its normaliser, which each counting divides out in its own way.
+  if (steps < 1) return;
+  // The posterior up to its normaliser, which the likeliest kind's share divides out.
   const PairPosterior pair = pairWeights(last, steps, evidence, view_change);
   double mass[kKindCount];
-  double total = 0.0;
   int best = 0;
   for (int k = 0; k < kKindCount; ++k) {
     mass[k] = pair[k][0][0] + pair[k][0][1] + pair[k][1][0] + pair[k][1][1];
-    total += mass[k];
     if (mass[k] > mass[best]) best = k;
   }
   if (!(mass[best] > 0.0)) return;
+  // The whole pair to the likeliest kind, given that kind (classification EM).
   const int bin = gapBin(steps);
-  if (config_.counting == KindCounting::kMostProbable) {
-    // The whole pair to the likeliest kind, given that kind.
-    const double scale = 1.0 / mass[best];
-    for (int c = 0; c < 4; ++c) sums_.pairs[best][bin][c] += scale * pair[best][c / 2][c % 2];
-    return;
-  }
-  const double scale = 1.0 / total;
-  for (int k = 0; k < kKindCount; ++k) {
-    for (int c = 0; c < 4; ++c) sums_.pairs[k][bin][c] += scale * pair[k][c / 2][c % 2];
-  }
+  const double scale = 1.0 / mass[best];
+  for (int c = 0; c < 4; ++c) sums_.pairs[best][bin][c] += scale * pair[best][c / 2][c % 2];
 }
 
 void CellKinds::setViewSwitchProbability(double view_switch_probability) {

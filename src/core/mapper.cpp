@@ -15,28 +15,6 @@ namespace dynamic_occupancy_grid {
 namespace core {
 namespace {
 
-// The length of the segment (u0, v0) -> (u1, v1) inside cell (x, y), in grid units (cells):
-// its parameter interval [enter, exit] within the cell's square and [0, 1], times its length.
-double chordThroughCell(std::int32_t x, std::int32_t y, double u0, double v0, double u1, double v1) {
-  const double du = u1 - u0;
-  const double dv = v1 - v0;
-  double enter = 0.0;
-  double exit = 1.0;
-  if (du != 0.0) {
-    const double a = (x - u0) / du;
-    const double b = (x + 1.0 - u0) / du;
-    enter = std::max(enter, std::min(a, b));
-    exit = std::min(exit, std::max(a, b));
-  }
-  if (dv != 0.0) {
-    const double a = (y - v0) / dv;
-    const double b = (y + 1.0 - v0) / dv;
-    enter = std::max(enter, std::min(a, b));
-    exit = std::min(exit, std::max(a, b));
-  }
-  return std::max(0.0, exit - enter) * std::hypot(du, dv);
-}
-
 using ScanRecord = CellGrid::ScanRecord;
 
 // The laser's turns count into its motion (Mapper::viewChangeSince) as the arc they sweep at
@@ -114,12 +92,6 @@ void MapperConfig::validate() const {
   require(sensor_model_mixed_step_probability >= 0.0 && sensor_model_mixed_step_probability <= 0.5,
           "sensor_model_mixed_step_probability must be in [0, 0.5], got " +
               std::to_string(sensor_model_mixed_step_probability));
-  require(clipped_corner_chord >= 0.0 && clipped_corner_chord <= 1.5,
-          "clipped_corner_chord must be in [0, 1.5], got " + std::to_string(clipped_corner_chord));
-  require(end_miss_margin_cells >= 0 && end_miss_margin_cells <= 16,
-          "end_miss_margin_cells must be in [0, 16], got " + std::to_string(end_miss_margin_cells));
-  require(std::isfinite(prior_population_weight) && prior_population_weight > 0.0,
-          "prior_population_weight must be > 0, got " + std::to_string(prior_population_weight));
   require(online_em.min_observed_steps <= std::numeric_limits<std::uint16_t>::max(),
           "online_em min_observed_steps must be <= 65535 (the grid counts up to that), got " +
               std::to_string(online_em.min_observed_steps));
@@ -136,7 +108,6 @@ Mapper::Mapper(const MapperConfig& config)
             maxCellsPerSide(config),
             CellGrid::CellDefaults{static_cast<float>(config.prior_transitions.p_occ_given_free),
                                    static_cast<float>(config.prior_transitions.p_free_given_occ)}),
-      current_prior_(config.prior_transitions),
       kinds_(config.kinds, std::max(config.online_em.p_min, 1e-6), std::min(config.online_em.p_max, 0.5)) {}
 
 ScanResult Mapper::integrate(const Scan& scan) {
@@ -226,7 +197,6 @@ ScanResult Mapper::integrate(const Scan& scan) {
   std::array<std::pair<CellGrid::Tile*, int>, kMissLookahead> pending;
   std::size_t pending_count = 0;
   for (const BeamEnd& beam : beams) {
-    const std::size_t outside_before = result.cells_outside;
     const CellXY end = traverseSegment(u0, v0, beam.u1, beam.v1, [&](std::int32_t x, std::int32_t y) {
       CellGrid::Tile* tile = tile_of(x, y);
       if (tile == nullptr) {
@@ -241,24 +211,7 @@ ScanResult Mapper::integrate(const Scan& scan) {
       ++pending_count;
     });
     CellGrid::Tile* tile = tile_of(end.x, end.y);
-    // The last pending cell is the one just before the end cell when no cell of the beam
-    // was outside the map (a beam that leaves the map, or ends outside it, clips nothing).
-    // A beam without return drops its end cell's miss and N - 1 of the cells before it.
-    const bool inside = tile != nullptr && result.cells_outside == outside_before;
-    const bool margin = config_.end_miss_margin_cells > 0 && inside;
-    const bool drop_end = margin && !beam.hit;
-    std::size_t dropped = 0;
-    if (margin) {
-      dropped = std::min(pending_count, static_cast<std::size_t>(config_.end_miss_margin_cells - (drop_end ? 1 : 0)));
-    } else if (beam.hit && pending_count > 0 && inside && config_.clipped_corner_chord > 0.0) {
-      const auto& [last_tile, last_offset] = pending[(pending_count - 1) % kMissLookahead];
-      dropped = chordThroughCell(last_tile->cellX(last_offset), last_tile->cellY(last_offset), u0, v0, beam.u1,
-                                 beam.v1) < config_.clipped_corner_chord
-                    ? 1
-                    : 0;
-    }
-    const std::size_t counted = pending_count - dropped;
-    for (std::size_t k = pending_count > kMissLookahead ? pending_count - kMissLookahead : 0; k < counted; ++k) {
+    for (std::size_t k = pending_count > kMissLookahead ? pending_count - kMissLookahead : 0; k < pending_count; ++k) {
       const auto& slot = pending[k % kMissLookahead];
       markMiss(*slot.first, slot.second);
     }
@@ -267,7 +220,7 @@ ScanResult Mapper::integrate(const Scan& scan) {
       ++result.cells_outside;
     } else if (beam.hit) {
       markHit(*tile, CellGrid::offsetOf(end.x, end.y));
-    } else if (!drop_end) {
+    } else {
       markMiss(*tile, CellGrid::offsetOf(end.x, end.y));
     }
   }
@@ -337,7 +290,6 @@ void Mapper::applyGatheredStep() {
   }
   touched_tiles_.clear();
   last_applied_step_ = gathering_step_;
-  updatePrior();
   if (config_.learn_sensor_model) updateSensorModel();
   if (config_.learn_transitions && config_.learner == TransitionLearner::kKinds) kinds_.update();
 }
@@ -460,32 +412,7 @@ void Mapper::restoreSensorModelStats(const SensorModelStats& stats) {
   updateSensorModel();
 }
 
-void Mapper::updatePrior() {
-  if (!config_.learn_transitions || !config_.learn_prior) return;
-  // Pooled over cells: the maximum-likelihood shared transitions of the population, with
-  // the configured prior as prior_population_weight cells' worth of pseudo-transitions
-  // (one from-state weighs initialWeight() in a cell's statistics).
-  const TransitionParams& guess = config_.prior_transitions;
-  const double w = config_.prior_population_weight * config_.online_em.initialWeight();
-  const double from_occ = population_[0][0] + population_[0][1];
-  const double from_free = population_[1][0] + population_[1][1];
-  const auto bounded = [&](double p) { return std::clamp(p, config_.online_em.p_min, config_.online_em.p_max); };
-  current_prior_.p_free_given_occ =
-      bounded((std::max(population_[0][1], 0.0) + w * guess.p_free_given_occ) / (std::max(from_occ, 0.0) + w));
-  current_prior_.p_occ_given_free =
-      bounded((std::max(population_[1][0], 0.0) + w * guess.p_occ_given_free) / (std::max(from_free, 0.0) + w));
-}
-
 void Mapper::storeStats(CellGrid::Tile& tile, int i, const TransitionStats& stats) {
-  for (int from = 0; from < 2; ++from) {
-    for (int to = 0; to < 2; ++to) {
-      const int k0 = TransitionStats::index(from, to, 0);
-      const int k1 = TransitionStats::index(from, to, 1);
-      // The float values the grid keeps, so that the sums stay those of the cells.
-      const double now = static_cast<double>(static_cast<float>(stats.s[k0])) + static_cast<float>(stats.s[k1]);
-      population_[from][to] += now - (static_cast<double>(tile.em_stats[k0][i]) + tile.em_stats[k1][i]);
-    }
-  }
   for (std::size_t k = 0; k < stats.s.size(); ++k) tile.em_stats[k][i] = static_cast<float>(stats.s[k]);
 }
 
@@ -495,7 +422,7 @@ void Mapper::learnStep(CellGrid::Tile& tile, int i, std::int32_t step, double ev
   OnlineCell cell;
   const std::int32_t last = tile.last_step[i];
   std::int64_t gap = 0;
-  const TransitionParams prior = current_prior_;
+  const TransitionParams& prior = config_.prior_transitions;
   if (last == kNeverObserved) {
     cell = newOnlineCell(prior, config_.initial_p_occ, config_.online_em);
   } else {
@@ -682,26 +609,19 @@ OfflineEmApplied Mapper::applyOfflineEm(const ObservationSequences& sequences, c
       ++applied.cells_applied;
       continue;
     }
-    // The steps the result saw, split over the two from-states (kHarmonic); kRobbinsMonro's
-    // normalised statistics weigh 1 per from-state, and its step size goes on as if the
-    // cell had been observed in as many steps as the result.
+    // The steps the result saw, split over the two from-states.
     const double span = static_cast<double>(sequences.end(c)[-1].step) - sequences.begin(c)->step + 1.0;
-    const bool harmonic = config_.online_em.schedule == StepSchedule::kHarmonic;
-    const TransitionStats stats =
-        priorStats(params, harmonic ? 0.5 * std::min(span, memory) : 1.0, tile->p_occ[i]);
+    const TransitionStats stats = priorStats(params, 0.5 * std::min(span, memory), tile->p_occ[i]);
     storeStats(*tile, i, stats);
     // The learned transitions are used from now on, not the prior.
-    const auto observations = static_cast<std::uint32_t>(std::min<std::ptrdiff_t>(
-        sequences.end(c) - sequences.begin(c), std::numeric_limits<std::uint16_t>::max()));
-    tile->observed_steps[i] = static_cast<std::uint16_t>(std::max<std::uint32_t>(
-        {tile->observed_steps[i], config_.online_em.min_observed_steps, harmonic ? 0U : observations}));
+    tile->observed_steps[i] = static_cast<std::uint16_t>(
+        std::max<std::uint32_t>(tile->observed_steps[i], config_.online_em.min_observed_steps));
     tile->p_occ_given_free[i] = static_cast<float>(params.p_occ_given_free);
     tile->p_free_given_occ[i] = static_cast<float>(params.p_free_given_occ);
     changed_cells_.include(xy.x, xy.y);
     ++applied.cells_applied;
   }
   tile_versions_.bumpAll();
-  updatePrior();
   // A sensor model offline EM learned with the transitions is the one they belong to: its
   // sums become this mapper's (online learning goes on from them; the configured start and
   // the static baseline stay).
@@ -773,7 +693,7 @@ void Mapper::restoreCell(std::int32_t x, std::int32_t y, const CellState& state)
   if (kinds) {
     for (std::size_t k = 0; k < state.em_stats.size(); ++k) tile->em_stats[k][i] = state.em_stats[k];
   } else {
-    // Online EM's statistics, which the empirical-Bayes pool sums.
+    // Online EM's eight statistics.
     TransitionStats stats;
     for (std::size_t k = 0; k < stats.s.size(); ++k) stats.s[k] = state.em_stats[k];
     storeStats(*tile, i, stats);
@@ -783,7 +703,6 @@ void Mapper::restoreCell(std::int32_t x, std::int32_t y, const CellState& state)
   tile->last_misses[i] = state.last_misses;
   tile_versions_.bump(tile->tile_x, tile->tile_y);
   changed_cells_.include(x, y);
-  updatePrior();
 }
 
 void Mapper::setCellTransitions(std::int32_t x, std::int32_t y, const TransitionParams& params) {
@@ -817,13 +736,6 @@ void Mapper::setSensorModel(double p_hit_given_occ, double p_hit_given_free) {
   config_.p_hit_given_free = p_hit_given_free;
   // With learn_sensor_model the new values are where learning starts again.
   sensor_stats_ = SensorModelStats{};
-}
-
-void Mapper::setClippedCornerChord(double clipped_corner_chord) {
-  MapperConfig config = config_;
-  config.clipped_corner_chord = clipped_corner_chord;
-  config.validate();  // throws for a value outside [0, 1.5]
-  config_.clipped_corner_chord = clipped_corner_chord;
 }
 
 void Mapper::setViewSwitchProbability(double view_switch_probability) {

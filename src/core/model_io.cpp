@@ -56,6 +56,17 @@ static_assert(kHeaderSizeV3 == 20403, "docs/model_format.md documents a 20403-by
 // observed_steps; version 2 adds last_hits and last_misses; version 3 stores the learner's
 // state in kLearnerStateSize floats instead of 8.
 constexpr std::size_t kCellSizeV1 = 4 * 7 + 4 * 8 + 2;
+// What the empirical-Bayes prior's population weight, an option removed after a9ed7d5, was
+// by default: written where files hold it, so that a file is as it was.
+constexpr double kDefaultPriorPopulationWeight = 10.0;
+// The kinds' summary and counting, choices removed after a9ed7d5, as files number them:
+// the geometric mean and the most probable kind, the ones left.
+constexpr std::uint8_t kGeometricMeanSummary = 0;
+constexpr std::uint8_t kMostProbableCounting = 1;
+// What the online EM's step-size exponent and offset, options removed after a9ed7d5, were
+// by default: written where files hold them, so that a file is as it was.
+constexpr double kHarmonicStepSizeExponent = 0.6;
+constexpr double kHarmonicStepSizeOffset = 2.0;
 static_assert(kCellSizeV1 == 62, "docs/model_format.md documents 62-byte version 1 cell records");
 constexpr std::size_t kCellSizeV2 = kCellSizeV1 + 2;
 constexpr std::size_t kCellSizeV3 = kCellSizeV2 + 4 * (kLearnerStateSize - 8);
@@ -337,17 +348,23 @@ std::unique_ptr<Mapper> deserializeChecked(const std::string& bytes) {
   // keep MapperConfig's defaults and no sums).
   SensorModelStats sensor_stats;
   if (version >= 2) {
-    config.learn_prior = reader.flag("learn_prior");
-    config.prior_population_weight = reader.f64();
+    // learn_prior and prior_population_weight: the empirical-Bayes prior, an option removed
+    // after a9ed7d5. Files still hold them; a file written with it loads, and its new cells
+    // start from prior_transitions.
+    reader.flag("learn_prior");
+    reader.f64();
+    // The online EM's step-size schedule (0 harmonic, 1 robbins_monro), its exponent and
+    // offset, and the start of its averaging: options removed after a9ed7d5. Files still
+    // hold them; a file written with another schedule or with averaging loads, and its
+    // cells go on with the 1/t schedule and without averaging.
     const std::uint8_t schedule = reader.u8();
     if (schedule > 1) {
       throw std::runtime_error("invalid model file: online_em.schedule is " + std::to_string(schedule) +
                                ", must be 0 (harmonic) or 1 (robbins_monro)");
     }
-    config.online_em.schedule = schedule == 0 ? StepSchedule::kHarmonic : StepSchedule::kRobbinsMonro;
-    config.online_em.step_size_exponent = reader.f64();
-    config.online_em.step_size_offset = reader.f64();
-    config.online_em.averaging_start = reader.u32();
+    reader.f64();
+    reader.f64();
+    reader.u32();
     config.learn_sensor_model = reader.flag("learn_sensor_model");
     config.sensor_model_prior_weight = reader.f64();
     config.sensor_model_p_min = reader.f64();
@@ -379,6 +396,9 @@ std::unique_ptr<Mapper> deserializeChecked(const std::string& bytes) {
     config.kinds.weight_prior_cells = reader.f64();
     config.kinds.switch_probability = reader.f64();
     config.kinds.forgetting = reader.f64();
+    // The kinds' summary, counting and learning from gaps: choices removed after a9ed7d5.
+    // Files still hold them; a file written with another choice loads, and its kinds go on
+    // with the geometric mean, the most probable kind's counting and pairs across gaps.
     const std::uint8_t summary = reader.u8();
     if (summary > 2) {
       throw std::runtime_error("invalid model file: kinds.summary is " + std::to_string(summary) +
@@ -389,9 +409,7 @@ std::unique_ptr<Mapper> deserializeChecked(const std::string& bytes) {
       throw std::runtime_error("invalid model file: kinds.counting is " + std::to_string(counting) +
                                ", must be 0 (posterior) or 1 (most_probable)");
     }
-    config.kinds.summary = static_cast<KindSummary>(summary);
-    config.kinds.counting = static_cast<KindCounting>(counting);
-    config.kinds.learn_from_gaps = reader.flag("kinds.learn_from_gaps");
+    reader.flag("kinds.learn_from_gaps");
     const std::uint16_t bins = reader.u16();
     if (bins != kGapBins) {
       throw std::runtime_error("model file with " + std::to_string(bins) + " distance bins of the kinds' pairs, this "
@@ -568,12 +586,14 @@ std::string serializeModel(const Mapper& mapper, const CellBeliefOverride& belie
   writer.f64(origin.value_or(0.0));
   writer.flag(last_applied_step.has_value());
   writer.i64(last_applied_step.value_or(0));
-  writer.flag(config.learn_prior);
-  writer.f64(config.prior_population_weight);
-  writer.u8(config.online_em.schedule == StepSchedule::kHarmonic ? 0 : 1);
-  writer.f64(config.online_em.step_size_exponent);
-  writer.f64(config.online_em.step_size_offset);
-  writer.u32(config.online_em.averaging_start);
+  // The removed empirical-Bayes prior's fields, as it was by default (see the reader).
+  writer.flag(false);
+  writer.f64(kDefaultPriorPopulationWeight);
+  // The removed step-size schedule's fields, as the harmonic schedule wrote them (see the reader).
+  writer.u8(0);
+  writer.f64(kHarmonicStepSizeExponent);
+  writer.f64(kHarmonicStepSizeOffset);
+  writer.u32(0);
   writer.flag(config.learn_sensor_model);
   writer.f64(config.sensor_model_prior_weight);
   writer.f64(config.sensor_model_p_min);
@@ -591,9 +611,10 @@ std::string serializeModel(const Mapper& mapper, const CellBeliefOverride& belie
   writer.f64(config.kinds.weight_prior_cells);
   writer.f64(config.kinds.switch_probability);
   writer.f64(config.kinds.forgetting);
-  writer.u8(static_cast<std::uint8_t>(config.kinds.summary));
-  writer.u8(static_cast<std::uint8_t>(config.kinds.counting));
-  writer.flag(config.kinds.learn_from_gaps);
+  // The removed kinds' choices, as the only ones left wrote them (see the reader).
+  writer.u8(kGeometricMeanSummary);
+  writer.u8(kMostProbableCounting);
+  writer.flag(true);  // learn_from_gaps
   writer.u16(static_cast<std::uint16_t>(kGapBins));
   const CellKinds::Sums& kind_sums = mapper.kinds().sums();
   for (const auto& kind : kind_sums.pairs) {

@@ -46,18 +46,9 @@ void OnlineEmConfig::validate() const {
           "online_em prior_weight must be >= 0, got " + std::to_string(prior_weight));
   require(learning_rate_floor >= 0.0 && learning_rate_floor < 1.0,
           "online_em learning_rate_floor must be in [0, 1), got " + std::to_string(learning_rate_floor));
-  require(step_size_exponent > 0.5 && step_size_exponent <= 1.0,
-          "online_em step_size_exponent must be in (0.5, 1], got " + std::to_string(step_size_exponent));
-  require(std::isfinite(step_size_offset) && step_size_offset >= 0.0,
-          "online_em step_size_offset must be >= 0, got " + std::to_string(step_size_offset));
   require(p_min >= 0.0 && p_max <= 1.0 && p_min <= p_max,
           "online_em bounds need 0 <= p_min <= p_max <= 1, got p_min " + std::to_string(p_min) +
               ", p_max " + std::to_string(p_max));
-}
-
-double OnlineEmConfig::stepSize(std::uint32_t n) const {
-  const double gamma = std::pow(static_cast<double>(n) + step_size_offset, -step_size_exponent);
-  return std::clamp(gamma, learning_rate_floor, 1.0);
 }
 
 TransitionStats priorStats(const TransitionParams& prior, double prior_weight, double p_occ) {
@@ -171,35 +162,6 @@ double onlineEmSkip(TransitionStats& stats, double p_occ, const TransitionParams
   return pi[0] + lambda_k * delta[0];
 }
 
-namespace {
-
-void scale(TransitionStats& stats, double factor) {
-  for (double& value : stats.s) value *= factor;
-}
-
-}  // namespace
-
-// Both weighted forms are the unit-weight recursions on S / g, times g: the carried part is
-// linear in S, the added part has weight 1 per step there and g here.
-double onlineEmStepWeighted(TransitionStats& stats, double p_occ, const TransitionParams& params,
-                            double log_likelihood_ratio, double gamma) {
-  scale(stats, 1.0 / gamma);
-  const double p = onlineEmStep(stats, p_occ, params, log_likelihood_ratio, 1.0 - gamma);
-  scale(stats, gamma);
-  return p;
-}
-
-double onlineEmSkipWeighted(TransitionStats& stats, double p_occ, const TransitionParams& params,
-                            std::int64_t steps, double gamma) {
-  if (steps <= 0) return p_occ;
-  // Per step 1 - rho = 1 - (1 - gamma)^(1/steps), without cancellation for small gamma.
-  const double per_step = gamma >= 1.0 ? 1.0 : -std::expm1(std::log1p(-gamma) / static_cast<double>(steps));
-  scale(stats, 1.0 / per_step);
-  const double p = onlineEmSkip(stats, p_occ, params, steps, 1.0 - per_step);
-  scale(stats, per_step);
-  return p;
-}
-
 TransitionParams onlineMStep(const TransitionStats& stats, const OnlineEmConfig& config,
                              const TransitionParams& fallback) {
   const auto bounded = [&](double p) { return std::clamp(p, config.p_min, config.p_max); };
@@ -221,7 +183,7 @@ OnlineCell newOnlineCell(const TransitionParams& prior, double initial_p_occ,
                          const OnlineEmConfig& config) {
   OnlineCell cell;
   cell.p_occ = initial_p_occ;
-  cell.stats = priorStats(prior, config.initialWeight(), initial_p_occ);
+  cell.stats = priorStats(prior, config.prior_weight, initial_p_occ);
   cell.observed_steps = 0;
   cell.params = prior;
   return cell;
@@ -229,33 +191,15 @@ OnlineCell newOnlineCell(const TransitionParams& prior, double initial_p_occ,
 
 void onlineLearnStep(OnlineCell& cell, std::int64_t gap, double log_likelihood_ratio,
                      const TransitionParams& prior, const OnlineEmConfig& config) {
-  if (config.schedule == StepSchedule::kHarmonic) {
-    const double decay = config.decay();
-    if (gap > 0) cell.p_occ = onlineEmSkip(cell.stats, cell.p_occ, cell.params, gap, decay);
-    cell.p_occ = onlineEmStep(cell.stats, cell.p_occ, cell.params, log_likelihood_ratio, decay);
-  } else {
-    // THEORY.md §6b: the gap and the observed step each weigh gamma_n.
-    const double gamma = config.stepSize(cell.observed_steps + 1);
-    if (gap > 0) cell.p_occ = onlineEmSkipWeighted(cell.stats, cell.p_occ, cell.params, gap, gamma);
-    cell.p_occ = onlineEmStepWeighted(cell.stats, cell.p_occ, cell.params, log_likelihood_ratio, gamma);
-  }
+  const double decay = config.decay();
+  if (gap > 0) cell.p_occ = onlineEmSkip(cell.stats, cell.p_occ, cell.params, gap, decay);
+  cell.p_occ = onlineEmStep(cell.stats, cell.p_occ, cell.params, log_likelihood_ratio, decay);
   if (cell.observed_steps < std::numeric_limits<std::uint32_t>::max()) ++cell.observed_steps;
   if (cell.observed_steps < config.min_observed_steps) {
     cell.params = prior;
     return;
   }
-  const TransitionParams estimate = onlineMStep(cell.stats, config, cell.params);
-  const std::uint32_t start = std::max(config.averaging_start, config.min_observed_steps);
-  if (config.averaging_start == 0 || cell.observed_steps <= start) {
-    cell.params = estimate;
-    return;
-  }
-  // Polyak–Ruppert: the running mean of the estimates since `start` (the one at `start`
-  // included), forgetting no slower than the learning-rate floor.
-  const double count = static_cast<double>(cell.observed_steps - start + 1);
-  const double weight = std::max(1.0 / count, config.learning_rate_floor);
-  cell.params.p_occ_given_free += weight * (estimate.p_occ_given_free - cell.params.p_occ_given_free);
-  cell.params.p_free_given_occ += weight * (estimate.p_free_given_occ - cell.params.p_free_given_occ);
+  cell.params = onlineMStep(cell.stats, config, cell.params);
 }
 
 }  // namespace core

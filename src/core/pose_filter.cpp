@@ -58,8 +58,6 @@ void PoseFilterConfig::validate() const {
   ObservationModel(p_hit_given_occ, p_hit_given_free);  // throws for a bad sensor model
   require(unknown_p_occ > 0.0 && unknown_p_occ < 1.0, "unknown_p_occ must be in (0, 1)");
   require(std::isfinite(max_free_range_m) && max_free_range_m >= 0.0, "max_free_range_m must be finite and >= 0");
-  require(likelihood_temperature >= 1.0 && std::isfinite(likelihood_temperature),
-          "likelihood_temperature must be finite and >= 1");
   require(finitePositive(max_range_m), "max_range_m must be finite and > 0");
   require(2.0 * max_range_m / resolution_m + 3.0 <= 2048.0,
           "max_range_m must be at most 1022 cells (51 m at 0.05 m cells): a scan's box is at most 2048 cells wide");
@@ -261,7 +259,7 @@ void PoseFilter::updateParticle(Particle& particle, const Scan& scan, const std:
     }
   }
   log_likelihood += std::log(product);
-  particle.log_weight += log_likelihood / config_.likelihood_temperature;
+  particle.log_weight += log_likelihood;
   particle.pose = pose;
   particle.trajectory = std::make_shared<const TrajectoryNode>(TrajectoryNode{scan.stamp_s, pose, particle.trajectory});
 }

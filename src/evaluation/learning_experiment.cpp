@@ -34,7 +34,7 @@ int trinary(double p) {
   return -1;
 }
 
-enum class Reading { kBelief, kStaticClamped, kStaticUnclamped, kKindsExact };
+enum class Reading { kBelief, kStaticClamped, kStaticUnclamped };
 
 struct MethodMapper {
   std::string name;
@@ -48,11 +48,6 @@ double readCell(const MethodMapper& method, const CellState& cell, std::int64_t 
     case Reading::kStaticClamped:
     case Reading::kStaticUnclamped:
       return logOddsToProbability(cell.log_odds);
-    case Reading::kKindsExact: {
-      KindJoint joint;
-      for (int k = 0; k < 2 * kKindCount; ++k) joint.p[k] = cell.em_stats[k];
-      return method.mapper->kinds().predict(joint, now - cell.last_step);
-    }
     case Reading::kBelief:
       break;
   }
@@ -101,7 +96,6 @@ RepetitionRun runRepetition(const ScenarioConfig& scenario, const LearningExperi
   const std::uint64_t world_seed = mixSeed(config.seed * 1000003ULL + static_cast<std::uint64_t>(repetition) + 0x5041ULL);
   MapperConfig base = evaluationMapperConfig(scenario);
   base.learn_sensor_model = config.learn_sensor_model;
-  base.clipped_corner_chord = config.clipped_corner_chord;
 
   ScenarioConfig training_scenario = scenario;
   training_scenario.redraw_at_step = -1;
@@ -140,7 +134,7 @@ RepetitionRun runRepetition(const ScenarioConfig& scenario, const LearningExperi
     MapperConfig learner = base;
     learner.learn_transitions = true;
     if (variant.configure) variant.configure(learner);
-    add(variant.name, learner, variant.exact_kinds ? Reading::kKindsExact : Reading::kBelief, true);
+    add(variant.name, learner, Reading::kBelief, true);
   }
   // Offline EM's own sensor model, learned with its transitions (or the configured one).
   MapperConfig offline_fixed = fixed;
@@ -325,36 +319,6 @@ std::vector<LearnerVariant> defaultLearnerVariants() {
   return {
       {"default", {}},
       {"cell_em", cell_em},
-      {"eb",
-       [cell_em](MapperConfig& c) {
-         cell_em(c);
-         c.learn_prior = true;
-       }},
-      {"rm",
-       [cell_em](MapperConfig& c) {
-         cell_em(c);
-         c.learn_prior = true;
-         c.online_em.schedule = StepSchedule::kRobbinsMonro;
-         c.online_em.step_size_exponent = 0.75;
-       }},
-      {"rm_averaged",
-       [cell_em](MapperConfig& c) {
-         cell_em(c);
-         c.learn_prior = true;
-         c.online_em.schedule = StepSchedule::kRobbinsMonro;
-         c.online_em.step_size_exponent = 0.75;
-         c.online_em.averaging_start = 30;
-       }},
-  };
-}
-
-std::vector<LearnerVariant> kindsAblationVariants() {
-  return {
-      {"kinds_posterior_counting", [](MapperConfig& c) { c.kinds.counting = KindCounting::kPosterior; }},
-      {"kinds_mean_summary", [](MapperConfig& c) { c.kinds.summary = KindSummary::kMean; }},
-      {"kinds_most_probable_summary", [](MapperConfig& c) { c.kinds.summary = KindSummary::kMostProbable; }},
-      {"kinds_exact_prediction", {}, true},
-      {"kinds_consecutive_steps", [](MapperConfig& c) { c.kinds.learn_from_gaps = false; }},
   };
 }
 

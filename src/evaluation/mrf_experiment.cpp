@@ -37,18 +37,15 @@ struct OnlineLearner {
 };
 
 // The online learners of the experiment, and where each one's outcome and map go: each
-// cell's own online EM without and with the empirical-Bayes prior (what they were before
-// kinds became the default), and kinds of cells.
+// cell's own online EM (what it was before kinds became the default), and kinds of cells.
 struct OnlineLearnerSetup {
   TransitionLearner learner;
-  bool learn_prior;
   MrfOnlineOutcome MrfRepetition::*outcome;
   std::vector<TransitionParams> MrfMaps::*map;
 };
-const std::array<OnlineLearnerSetup, 3> kOnlineLearners{{
-    {TransitionLearner::kCellEm, false, &MrfRepetition::online, &MrfMaps::online},
-    {TransitionLearner::kCellEm, true, &MrfRepetition::online_eb, &MrfMaps::online_eb},
-    {TransitionLearner::kKinds, false, &MrfRepetition::online_kinds, &MrfMaps::online_kinds},
+const std::array<OnlineLearnerSetup, 2> kOnlineLearners{{
+    {TransitionLearner::kCellEm, &MrfRepetition::online, &MrfMaps::online},
+    {TransitionLearner::kKinds, &MrfRepetition::online_kinds, &MrfMaps::online_kinds},
 }};
 
 // The observations of a whole run, recorded as offline EM reads them (as trainOffline does),
@@ -107,15 +104,10 @@ MrfOnlineOutcome scoreOnline(const OnlineLearner& learner, const ObservationSequ
   outcome.rmse_by_kind = transitionRmseByKind(sequences, *params, world, sparse_below);
   outcome.rmse_changing_by_data = changingRmseBySeenStates(sequences, *params, world, sparse_below);
   if (learner.mapper->config().learner == TransitionLearner::kKinds) {
-    // Its prior is the kinds, not one pair of transitions.
-    constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
-    outcome.prior_at_end = TransitionParams{kNaN, kNaN};
     const CellKinds& kinds = learner.mapper->kinds();
     for (int k = 0; k < kKindCount; ++k) {
       outcome.kinds.push_back(MrfLearnedKind{kinds.transitions(k), kinds.weight(k)});
     }
-  } else {
-    outcome.prior_at_end = learner.mapper->currentPrior();
   }
   outcome.seconds = learner.seconds;
   return outcome;
@@ -152,13 +144,12 @@ Run runRepetition(const ScenarioConfig& scenario, const MrfExperimentConfig& con
   Simulation simulation(scenario, run.repetition.world_seed, run.repetition.run_seed);
   const MapperConfig mapper_config = evaluationMapperConfig(scenario);
   // The online learners: the package's defaults on the scenario's geometry and sensor
-  // model, but the learner and the empirical-Bayes prior (kOnlineLearners).
+  // model, but the learner (kOnlineLearners).
   std::vector<OnlineLearner> learners(kOnlineLearners.size());
   for (std::size_t l = 0; l < learners.size(); ++l) {
     MapperConfig learner_config = mapper_config;
     learner_config.learn_transitions = true;
     learner_config.learner = kOnlineLearners[l].learner;
-    learner_config.learn_prior = kOnlineLearners[l].learn_prior;
     learners[l].mapper = std::make_unique<Mapper>(learner_config);
   }
   const ObservationSequences sequences = recordRun(simulation, mapper_config, learners);

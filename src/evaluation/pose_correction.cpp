@@ -3,7 +3,6 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
-#include <deque>
 #include <iomanip>
 #include <memory>
 #include <optional>
@@ -125,12 +124,6 @@ struct FilterRun {
 void PoseCorrectionConfig::validate() const {
   scenarioConfig(scenario);  // throws for an unknown name
   if (steps < 2) throw std::invalid_argument("PoseCorrectionConfig: steps must be >= 2");
-  if (!(learner_max_spread_m >= 0.0) || !std::isfinite(learner_max_spread_m)) {
-    throw std::invalid_argument("PoseCorrectionConfig: learner_max_spread_m must be finite and >= 0");
-  }
-  if (learner_end_miss_margin_cells < 0 || learner_end_miss_margin_cells > 16) {
-    throw std::invalid_argument("PoseCorrectionConfig: learner_end_miss_margin_cells must be in [0, 16]");
-  }
   odometry_noise.validate();
   if (relative_error_scans < 1) throw std::invalid_argument("PoseCorrectionConfig: relative_error_scans must be >= 1");
   filter.validate();
@@ -146,9 +139,7 @@ PoseCorrectionResult runPoseCorrection(const PoseCorrectionConfig& config) {
   const MapperConfig mapper_config = evaluationMapperConfig(scenario);
   Mapper known(mapper_config);
   Mapper dead_reckoning(mapper_config);
-  MapperConfig learner_config = mapper_config;
-  learner_config.end_miss_margin_cells = config.learner_end_miss_margin_cells;
-  Mapper learner(learner_config);  // the package's learner on the scans at rbpf_hmm's poses
+  Mapper learner(mapper_config);  // the package's learner on the scans at rbpf_hmm's poses
 
   PoseFilterConfig filter_config = config.filter;
   filter_config.resolution_m = scenario.resolution_m;
@@ -165,9 +156,6 @@ PoseCorrectionResult runPoseCorrection(const PoseCorrectionConfig& config) {
   filters[2].name = "rbpf_oracle";
   filters[2].filter = std::make_unique<PoseFilter>(filter_config, std::make_shared<WorldTransitions>(world));
 
-  // learner_lag_updates > 0: rbpf_hmm's update scans, each with the update count it made.
-  std::deque<std::pair<Scan, std::size_t>> lagged;
-  bool learner_agrees = true;  // learner_max_spread_m: the particles agreed at the last update
   std::vector<Pose2D> truth;
   std::vector<Pose2D> odometry_track;
   std::vector<double> stamps;
@@ -193,53 +181,23 @@ PoseCorrectionResult runPoseCorrection(const PoseCorrectionConfig& config) {
         const ScanResult result = mapper->integrate(mapper == &known ? scan : odometry_scan);
         if (result.status != ScanStatus::kIntegrated) throw std::runtime_error("pose correction: scan rejected: " + result.error);
       }
-      bool hmm_updated = false;
       for (FilterRun& run : filters) {
         const auto start = std::chrono::steady_clock::now();
         const PoseUpdate update = run.filter->integrate(odometry_scan);
         if (update.updated) {
           run.update_ms += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
         }
-        if (&run == &filters[1]) hmm_updated = update.updated;
         run.estimate.push_back(composePose(run.filter->mapToOdometry(), laser_odometry));
       }
-      if (config.learner_lag_updates == 0) {
-        if (hmm_updated && config.learner_max_spread_m > 0.0) {
-          const Pose2D& best = filters[1].filter->best().pose;
-          double squares = 0.0;
-          for (const Particle& particle : filters[1].filter->particles()) {
-            squares += std::pow(particle.pose.x_m - best.x_m, 2) + std::pow(particle.pose.y_m - best.y_m, 2);
-          }
-          learner_agrees =
-              std::sqrt(squares / static_cast<double>(filters[1].filter->particles().size())) < config.learner_max_spread_m;
-        }
-        if (learner_agrees) {
-          Scan corrected = scan;
-          corrected.laser_pose = filters[1].estimate.back();
-          learner.integrate(corrected);
-        }
-      } else {
-        if (hmm_updated) lagged.push_back({scan, filters[1].filter->updates()});
-        if (!lagged.empty() && lagged.front().second + config.learner_lag_updates <= filters[1].filter->updates()) {
-          const std::vector<TrajectoryNode> trajectory = filters[1].filter->bestTrajectory();
-          while (!lagged.empty() && lagged.front().second + config.learner_lag_updates <= filters[1].filter->updates()) {
-            Scan corrected = lagged.front().first;
-            const std::size_t node = lagged.front().second - 1;  // the update's node, oldest first
-            if (node >= trajectory.size() || trajectory[node].stamp_s != corrected.stamp_s) {
-              throw std::logic_error("pose correction: the best trajectory does not hold the lagged update");
-            }
-            corrected.laser_pose = trajectory[node].pose;
-            learner.integrate(corrected);
-            lagged.pop_front();
-          }
-        }
-      }
+      Scan corrected = scan;
+      corrected.laser_pose = filters[1].estimate.back();
+      learner.integrate(corrected);
       truth.push_back(scan.laser_pose);
       odometry_track.push_back(laser_odometry);
       stamps.push_back(scan.stamp_s);
     }
     for (Mapper* mapper : {&known, &dead_reckoning}) mapper->finishStep();
-    if (config.learner_lag_updates == 0) learner.finishStep();
+    learner.finishStep();
     if (t >= score_from) {
       for (std::int32_t y = 0; y < world.height(); ++y) {
         for (std::int32_t x = 0; x < world.width(); ++x) {

@@ -106,9 +106,6 @@ inline void addMappingOptions(command_line::CommandLine& line, SharedOptions* op
        "readings longer than M metres count as no return (default: the sensor's range_max)")
       ("max-free-range", cl::number(&mapper.max_free_range_m, cl::atLeast(0.0))->value_name("M"),
        "beams without return clear cells up to M metres (default 10; 0 ignores them)")
-      ("clipped-corner-chord", cl::number(&mapper.clipped_corner_chord, cl::between(0.0, 1.5))->value_name("C"),
-       "a beam that hits counts no miss in the cell just before its end cell when it crosses it over less than C "
-       "cells, a corner it clips (default 0: every miss; 0.3 measured), as the node's ~clipped_corner_chord")
       ("p-hit-given-occ", cl::number(&mapper.p_hit_given_occ, cl::between(0.0, 1.0))->value_name("P"),
        "sensor model: p(hit | occupied) (default 0.7)")
       ("p-hit-given-free", cl::number(&mapper.p_hit_given_free, cl::between(0.0, 1.0))->value_name("P"),
@@ -167,8 +164,6 @@ inline void addPoseCorrectionOptions(command_line::CommandLine& line, PoseCorrec
        "pose correction: the particles' random seed (default 1)")
       ("resample-threshold", cl::number(&filter.resample_below, cl::between(0.0, 1.0))->value_name("R"),
        "pose correction: resample when N_eff < R x particles (default 0.5)")
-      ("likelihood-temperature", cl::number(&filter.likelihood_temperature, cl::atLeast(1.0))->value_name("T"),
-       "pose correction: a scan's log-likelihood is divided by T in the weights (default 1)")
       ("no-scan-matching", boost::program_options::bool_switch()->notifier([&filter](bool off) {
          if (off) filter.scan_matching = false;
        }),

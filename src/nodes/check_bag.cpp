@@ -66,16 +66,6 @@ struct Options {
   dog::bag_tools::PoseCorrectionOptions correction;
 };
 
-const char* scheduleName(dog::core::StepSchedule schedule) {
-  return schedule == dog::core::StepSchedule::kRobbinsMonro ? "robbins_monro" : "harmonic";
-}
-
-dog::core::StepSchedule toSchedule(const std::string& text) {
-  if (text == "harmonic") return dog::core::StepSchedule::kHarmonic;
-  if (text == "robbins_monro") return dog::core::StepSchedule::kRobbinsMonro;
-  throw std::invalid_argument("needs harmonic or robbins_monro, got '" + text + "'");
-}
-
 Options parseArguments(int argc, char** argv) {
   namespace cl = dog::command_line;
   namespace po = boost::program_options;
@@ -104,22 +94,6 @@ Options parseArguments(int argc, char** argv) {
        "--p-hit-given-free (default: on, as the node's ~learn_sensor_model)")
       ("no-learn-sensor-model", po::bool_switch(&no_learn_sensor_model),
        "keep the sensor model fixed at --p-hit-given-occ / --p-hit-given-free")
-      ("learn-prior", po::bool_switch(&mapper.learn_prior),
-       "empirical-Bayes prior: new cells start from the transitions pooled over the map (default off, as the "
-       "node's ~learn_prior)")
-      ("schedule", cl::converted(toSchedule, [&mapper](dog::core::StepSchedule schedule) {
-         mapper.online_em.schedule = schedule;
-       })->value_name("NAME"),
-       "step sizes of online learning: harmonic (1/t, the default) or robbins_monro (Cappe's "
-       "(n + n0)^-alpha per observed step)")
-      ("step-size-exponent",
-       cl::number(&mapper.online_em.step_size_exponent, cl::Range<double>{0.5, 1.0, true})->value_name("A"),
-       "robbins_monro: alpha in (0.5, 1] (default 0.6)")
-      ("step-size-offset", cl::number(&mapper.online_em.step_size_offset, cl::atLeast(0.0))->value_name("N0"),
-       "robbins_monro: n0 >= 0 (default 2)")
-      ("averaging-start",
-       cl::number(&mapper.online_em.averaging_start, cl::atLeast<std::uint32_t>(0))->value_name("N"),
-       "Polyak-Ruppert averaging of a cell's M-step results from its observed step N on (default 0 = off)")
       ("retention-after", cl::number(&options.retention_after_s, cl::atLeast(0.0))->value_name("S"),
        "the end-of-run retention is also reported on the cells last observed at least S seconds before the "
        "end (default 10)")
@@ -151,27 +125,7 @@ Options parseArguments(int argc, char** argv) {
   }
   if (learn_sensor_model) mapper.learn_sensor_model = true;
   if (no_learn_sensor_model) mapper.learn_sensor_model = false;
-  if (no_learning) {
-    for (const char* name : {"learn-prior", "schedule", "step-size-exponent", "step-size-offset", "averaging-start"}) {
-      if (values.count(name) > 0 && !values[name].defaulted()) {
-        line.fail(std::string("--") + name +
-                  " tunes online learning of the transitions, which --no-learning turns off");
-      }
-    }
-    mapper.learn_transitions = false;
-  }
-  if (mapper.learner != dog::core::TransitionLearner::kCellEm) {
-    for (const char* name : {"learn-prior", "schedule", "step-size-exponent", "step-size-offset", "averaging-start"}) {
-      if (values.count(name) > 0 && !values[name].defaulted()) {
-        line.fail(std::string("--") + name + " tunes each cell's online EM: it needs --learner cell_em");
-      }
-    }
-  }
-  if (mapper.online_em.schedule != dog::core::StepSchedule::kRobbinsMonro) {
-    for (const char* name : {"step-size-exponent", "step-size-offset"}) {
-      if (values.count(name) > 0) line.fail(std::string("--") + name + " applies to --schedule robbins_monro only");
-    }
-  }
+  if (no_learning) mapper.learn_transitions = false;
   dog::bag_tools::validateSharedOptions(line, &options.shared);
   dog::bag_tools::validatePoseCorrectionOptions(line, options.shared, &options.correction);
   if (options.horizons_s.empty()) options.horizons_s = kDefaultHorizons_s;
@@ -226,7 +180,6 @@ struct EndOfRun {
   double p_hit_given_occ = 0.0;        ///< the sensor model in use (learned or fixed)
   double p_hit_given_free = 0.0;
   dog::core::SensorModelStats sensor_stats;
-  dog::core::TransitionParams prior;   ///< the prior a new cell would start from now
   /// learner kinds: the kinds learned (transitions and shares).
   std::array<dog::core::TransitionParams, dog::core::kKindCount> kinds{};
   std::array<double, dog::core::kKindCount> kind_shares{};
@@ -284,7 +237,6 @@ EndOfRun summarizeEnd(const dog::core::Mapper& mapper, std::int64_t retention_af
   end.p_hit_given_occ = mapper.sensor().pHitGivenOcc();
   end.p_hit_given_free = mapper.sensor().pHitGivenFree();
   end.sensor_stats = mapper.sensorModelStats();
-  end.prior = mapper.currentPrior();
   for (int k = 0; k < core::kKindCount; ++k) {
     end.kinds[k] = mapper.kinds().transitions(k);
     end.kind_shares[k] = mapper.kinds().weight(k);
@@ -382,9 +334,6 @@ void printEnd(const EndOfRun& end, const Options& options) {
                   end.kinds[k].p_free_given_occ, end.kind_shares[k]);
     }
     std::printf("\n");
-  } else if (mapper.learn_transitions && mapper.learn_prior) {
-    std::printf("  learned prior: p_occ_given_free %.5f, p_free_given_occ %.5f per step\n",
-                end.prior.p_occ_given_free, end.prior.p_free_given_occ);
   }
   std::printf("  static map (clamped log-odds, occupied > %g, free < %g): %zu free, %zu occupied of %zu observed "
               "cells\n",
@@ -485,26 +434,16 @@ void checkAndReport(dog::ros_layer::BagScanSource& source, const Options& option
   const dog::core::MapperConfig& mapper = options.shared.mapper;
   std::printf("mapper: resolution %g m, time step %g s, p_hit_given_occ %g, p_hit_given_free %g, "
               "prior p_occ_given_free %g, p_free_given_occ %g per step, online learning %s, "
-              "sensor model learning %s, mixed step probability %g, clipped corner chord %g\n",
+              "sensor model learning %s, mixed step probability %g\n",
               mapper.resolution_m, mapper.time_step_s, mapper.p_hit_given_occ, mapper.p_hit_given_free,
               mapper.prior_transitions.p_occ_given_free, mapper.prior_transitions.p_free_given_occ,
               mapper.learn_transitions ? "on" : "off", mapper.learn_sensor_model ? "on" : "off",
-              mapper.sensor_model_mixed_step_probability, mapper.clipped_corner_chord);
+              mapper.sensor_model_mixed_step_probability);
   if (mapper.learn_transitions && mapper.learner == dog::core::TransitionLearner::kKinds) {
     std::printf("online learning: kinds of cells (%d), switch probability %g, forgetting %g per step\n",
                 dog::core::kKindCount, mapper.kinds.switch_probability, mapper.kinds.forgetting);
   } else if (mapper.learn_transitions) {
-    const dog::core::OnlineEmConfig& em = mapper.online_em;
-    std::printf("online learning: each cell's online EM, schedule %s", scheduleName(em.schedule));
-    if (em.schedule == dog::core::StepSchedule::kRobbinsMonro) {
-      std::printf(" (step size exponent %g, offset %g)", em.step_size_exponent, em.step_size_offset);
-    }
-    if (em.averaging_start == 0) {
-      std::printf(", averaging off");
-    } else {
-      std::printf(", averaging from observed step %u", static_cast<unsigned>(em.averaging_start));
-    }
-    std::printf(", learned prior %s\n", mapper.learn_prior ? "on" : "off");
+    std::printf("online learning: each cell's online EM\n");
   }
   std::fflush(stdout);
 

@@ -51,18 +51,12 @@ struct Options {
   std::vector<std::string> learning_scenarios{"patrol", "patrol_office", "dynamic_25_25"};
   int learning_repetitions = 4;
   std::int64_t learning_steps = 0;
-  bool learning_ablations = false;
-  double learning_clipped_corner_chord = 0.0;
   int murphy_repetitions = 100;
   int murphy_doors_runs = 10;
   int pose_correction_runs = 0;
-  int pose_correction_learner_lag = 0;
   int pose_correction_particles = 30;
-  double pose_correction_temperature = 1.0;
   std::string pose_correction_scenario = "patrol_office";
   int pose_correction_steps = 400;
-  double pose_correction_learner_max_spread = 0.0;
-  int pose_correction_learner_miss_margin = 0;
   std::uint64_t seed = 1;
   unsigned threads = 0;
 };
@@ -129,12 +123,6 @@ Options parseOptions(int argc, char** argv) {
        "repetitions of each learning scenario (default 4; 0 skips it)")
       ("learning-steps", cl::number(&options.learning_steps, cl::between<std::int64_t>(0, 1000000))->value_name("N"),
        "steps of each learning scenario's runs (default 0: the scenario's own length)")
-      ("learning-ablations", boost::program_options::bool_switch(&options.learning_ablations),
-       "also the kinds learner with one choice changed each (docs/online_learning.md)")
-      ("learning-clipped-corner-chord",
-       cl::number(&options.learning_clipped_corner_chord, cl::between(0.0, 1.5))->value_name("C"),
-       "every mapper of the learning experiment counts no miss in a corner its beam clips over less than C cells "
-       "just before the beam's end (MapperConfig::clipped_corner_chord; default 0: every miss)")
       ("murphy-repetitions", cl::number(&options.murphy_repetitions, repetitions)->value_name("N"),
        "seeds of Murphy's 1D corridor (docs/murphy_corridor.md: exact Bayes, online and offline EM, the RBPF; "
        "default 100, about a second; 0 skips it)")
@@ -145,10 +133,6 @@ Options parseOptions(int argc, char** argv) {
        "runs of the pose filter's comparison with drifting odometry (docs/pose_correction.md: known pose, "
        "odometry, the RBPF with a static, learned and true-transition map; on patrol_office 400 steps, about a "
        "minute each with 30 particles; default 0 skips it)")
-      ("pose-correction-temperature",
-       cl::number(&options.pose_correction_temperature, cl::between(1.0, 1e6))->value_name("T"),
-       "every filter of the pose filter's comparison divides the scan's log-likelihood by T "
-       "(PoseFilterConfig::likelihood_temperature; default 1: the model's own)")
       ("pose-correction-particles", cl::number(&options.pose_correction_particles, cl::between(1, 10000))->value_name("N"),
        "particles of each filter in the pose filter's comparison (default 30)")
       ("pose-correction-scenario",
@@ -156,19 +140,8 @@ Options parseOptions(int argc, char** argv) {
                      [&options](const std::string& name) { options.pose_correction_scenario = name; })
            ->value_name("NAME"),
        "the world of the pose filter's comparison (default patrol_office; any of the simulator's scenarios)")
-      ("pose-correction-learner-max-spread",
-       cl::number(&options.pose_correction_learner_max_spread, cl::between(0.0, 1000.0))->value_name("M"),
-       "rbpf_hmm's learner maps a scan only while the particles' positions are within M m (RMS) of the best "
-       "particle's at the last update (default 0: every scan)")
-      ("pose-correction-learner-miss-margin",
-       cl::number(&options.pose_correction_learner_miss_margin, cl::between(0, 16))->value_name("N"),
-       "rbpf_hmm's learner counts no miss in the last N cells a beam that hits crosses before its end, nor in "
-       "the last N cells a beam without return clears (MapperConfig::end_miss_margin_cells; default 0: every miss)")
       ("pose-correction-steps", cl::number(&options.pose_correction_steps, cl::between(2, 1000000))->value_name("N"),
        "steps of each run of the pose filter's comparison (default 400: four loops of patrol_office)")
-      ("pose-correction-learner-lag", cl::number(&options.pose_correction_learner_lag, cl::between(0, 100000))->value_name("N"),
-       "rbpf_hmm's learner: 0 (default) maps every scan at the filter's estimate of its time; N maps the filter's "
-       "update scans N updates later at the best particle's trajectory then (a fixed-lag smoother)")
       ("seed",
        cl::number(&options.seed, cl::between<std::uint64_t>(0, std::numeric_limits<long long>::max()))
            ->value_name("S"),
@@ -327,9 +300,8 @@ std::string signedPercent(double before, double after) {
   return (change > 0.0 ? "+" : "") + fixed(change, 1) + " %";
 }
 
-// The five learners of the MRF experiment: offline EM plain and with the MRF, each cell's
-// online EM without and with the empirical-Bayes prior, and kinds of cells
-// (core::MrfRepetition).
+// The four learners of the MRF experiment: offline EM plain and with the MRF, each cell's
+// online EM, and kinds of cells (core::MrfRepetition).
 struct MrfMethod {
   const char* name;   ///< in the CSV files
   const char* label;  ///< in the summary
@@ -346,12 +318,11 @@ constexpr MrfMethod mrfMethod(const char* name, const char* label) {
                      return (r.*member).rmse_changing_by_data;
                    }};
 }
-constexpr std::size_t kMrfMethodCount = 5;
+constexpr std::size_t kMrfMethodCount = 4;
 const std::array<MrfMethod, kMrfMethodCount> kMrfMethods{{
     mrfMethod<core::MrfEmOutcome, &core::MrfRepetition::plain>("plain", "plain EM"),
     mrfMethod<core::MrfEmOutcome, &core::MrfRepetition::mrf>("mrf", "MRF EM"),
     mrfMethod<core::MrfOnlineOutcome, &core::MrfRepetition::online>("online", "online"),
-    mrfMethod<core::MrfOnlineOutcome, &core::MrfRepetition::online_eb>("online_eb", "online EB"),
     mrfMethod<core::MrfOnlineOutcome, &core::MrfRepetition::online_kinds>("online_kinds", "online kinds"),
 }};
 
@@ -426,13 +397,11 @@ std::string mrfRmseChangingCsv(const core::MrfExperimentResult& result) {
   return csv.str();
 }
 
-// The online learners per seed: the prior a new cell got at the end (with the
-// empirical-Bayes prior the population's; without it prior_transitions; empty for the kinds
-// learner), the mapping time, and the kinds learner's kinds at the end (transitions and
-// share of the cells per kind; empty for the others).
+// The online learners per seed: the mapping time, and the kinds learner's kinds at the end
+// (transitions and share of the cells per kind; empty for the others).
 std::string mrfOnlineCsv(const core::MrfExperimentResult& result) {
   std::ostringstream csv;
-  csv << "repetition,world_seed,run_seed,method,prior_p_occ_given_free,prior_p_free_given_occ,mapping_seconds";
+  csv << "repetition,world_seed,run_seed,method,mapping_seconds";
   for (int k = 0; k < core::kKindCount; ++k) {
     csv << ",kind_" << k << "_p_occ_given_free,kind_" << k << "_p_free_given_occ,kind_" << k << "_weight";
   }
@@ -440,11 +409,8 @@ std::string mrfOnlineCsv(const core::MrfExperimentResult& result) {
   for (std::size_t r = 0; r < result.repetitions.size(); ++r) {
     const core::MrfRepetition& run = result.repetitions[r];
     for (const auto& [method, outcome] :
-         {std::make_pair("online", &run.online), std::make_pair("online_eb", &run.online_eb),
-          std::make_pair("online_kinds", &run.online_kinds)}) {
-      csv << r << ',' << run.world_seed << ',' << run.run_seed << ',' << method << ','
-          << probability(outcome->prior_at_end.p_occ_given_free) << ','
-          << probability(outcome->prior_at_end.p_free_given_occ) << ',' << fixed(outcome->seconds, 6);
+         {std::make_pair("online", &run.online), std::make_pair("online_kinds", &run.online_kinds)}) {
+      csv << r << ',' << run.world_seed << ',' << run.run_seed << ',' << method << ',' << fixed(outcome->seconds, 6);
       for (std::size_t k = 0; k < static_cast<std::size_t>(core::kKindCount); ++k) {
         if (k < outcome->kinds.size()) {
           const core::MrfLearnedKind& kind = outcome->kinds[k];
@@ -486,14 +452,13 @@ std::string mrfMapsCsv(const core::MrfMaps& maps) {
   std::ostringstream csv;
   csv << "x,y,observed_steps,truth_p_occ_given_free,truth_p_free_given_occ,plain_p_occ_given_free,"
          "plain_p_free_given_occ,mrf_p_occ_given_free,mrf_p_free_given_occ,online_p_occ_given_free,"
-         "online_p_free_given_occ,online_eb_p_occ_given_free,online_eb_p_free_given_occ,"
-         "online_kinds_p_occ_given_free,online_kinds_p_free_given_occ\n";
+         "online_p_free_given_occ,online_kinds_p_occ_given_free,online_kinds_p_free_given_occ\n";
   for (std::int32_t y = 0; y < maps.height; ++y) {
     for (std::int32_t x = 0; x < maps.width; ++x) {
       const std::size_t i = static_cast<std::size_t>(y) * static_cast<std::size_t>(maps.width) + static_cast<std::size_t>(x);
       csv << x << ',' << y << ',' << maps.observed_steps[i];
-      for (const core::TransitionParams* p : {&maps.truth[i], &maps.plain[i], &maps.mrf[i], &maps.online[i],
-                                              &maps.online_eb[i], &maps.online_kinds[i]}) {
+      for (const core::TransitionParams* p :
+           {&maps.truth[i], &maps.plain[i], &maps.mrf[i], &maps.online[i], &maps.online_kinds[i]}) {
         csv << ',' << probability(p->p_occ_given_free) << ',' << probability(p->p_free_given_occ);
       }
       csv << '\n';
@@ -513,25 +478,24 @@ std::string mrfSummary(const core::ScenarioConfig& scenario, const core::MrfExpe
   const auto plus_minus = [](const MeanStd& v, int digits) { return fixed(v.mean, digits) + " ± " + fixed(v.std, digits); };
   const auto seeds = static_cast<double>(result.repetitions.size());
   // The per-kind tables' header: the RMSE of every method, and each borrowing against the
-  // learner it adds to (MRF EM against plain EM, online EB and online kinds against online).
+  // learner it adds to (MRF EM against plain EM, online kinds against online).
   const auto table_header = [](const std::string& first) {
     return "| " + first + " | cells | parameter | cells per run | plain EM | MRF EM | MRF vs plain | online | "
-           "online EB | EB vs online | online kinds | kinds vs online | best |\n"
-           "|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
+           "online kinds | kinds vs online | best |\n"
+           "|---|---|---|---|---|---|---|---|---|---|---|\n";
   };
   std::ostringstream text;
   text << "\n## MRF-smoothed transition maps (Li, Barão & Rato, Sec. IV)\n\n"
        << "Scenario " << scenario.name << ": " << scenario.description << ". Offline EM of every observed cell from "
        << "p = 0.5 (the paper's start), the tools' prior (2 pseudo-transitions), at most " << config.max_iterations
        << " iterations, without and with the MRF prior at T = " << config.temperature
-       << ". The same scans also go into three online learners of the Mapper (the package's defaults but the "
-          "learner): each cell's own online EM (learner kCellEm: prior 0.01 / 0.01 worth 10 pseudo-transitions, 1/t "
-          "schedule, a cell's filter on the prior until its 10th observed step) without (online) and with the "
-          "empirical-Bayes prior (online EB, learn_prior), and the package's default learner, kinds of cells (online "
-          "kinds, learner kKinds: five kinds learned from the whole map, each cell's kind a hidden variable of its "
-          "filter; a cell's transitions are the summary of its kind posterior). The MRF borrows strength from a "
-          "cell's neighbours, the empirical-Bayes prior from one prior pooled over the whole map, the kinds from the "
-          "cells of the same kind.\n\n"
+       << ". The same scans also go into two online learners of the Mapper (the package's defaults but the "
+          "learner): each cell's own online EM (online, learner kCellEm: prior 0.01 / 0.01 worth 10 "
+          "pseudo-transitions, 1/t schedule, a cell's filter on the prior until its 10th observed step), and the "
+          "package's default learner, kinds of cells (online kinds, learner kKinds: five kinds learned from the whole "
+          "map, each cell's kind a hidden variable of its filter; a cell's transitions are the summary of its kind "
+          "posterior). The MRF borrows strength from a cell's neighbours, the kinds from the cells of the same "
+          "kind.\n\n"
        << "RMSE of the learned probabilities per step against the truth (1 / hold time for the squares, 0 for "
           "static cells), per kind of cell and only on the parameters the cell's data carry: a static free cell is "
           "never occupied, so its p_free_given_occ is the prior's and the chain start's whatever the learner, and "
@@ -583,8 +547,8 @@ std::string mrfSummary(const core::ScenarioConfig& scenario, const core::MrfExpe
     text << "| " << label << " | " << (occ_given_free ? "p_occ_given_free" : "p_free_given_occ") << " | "
          << fixed(cells / seeds, 1) << " | " << fixed(pooled[0].rmse, 4) << " | " << fixed(pooled[1].rmse, 4) << " | "
          << compare(pooled[0], pooled[1]) << " | " << fixed(pooled[2].rmse, 4) << " | " << fixed(pooled[3].rmse, 4)
-         << " | " << compare(pooled[2], pooled[3]) << " | " << fixed(pooled[4].rmse, 4) << " | "
-         << compare(pooled[2], pooled[4]) << " | " << (cells > 0.0 ? kMrfMethods[best].label : "-") << " |\n";
+         << " | " << compare(pooled[2], pooled[3]) << " | " << (cells > 0.0 ? kMrfMethods[best].label : "-")
+         << " |\n";
     return std::make_pair(pooled, cells);
   };
   std::vector<std::string> well_observed_measured;
@@ -627,23 +591,20 @@ std::string mrfSummary(const core::ScenarioConfig& scenario, const core::MrfExpe
     }
   }
 
-  // The squares' cells seen in both states, and the empirical-Bayes prior the run ended with.
+  // The squares' cells seen in both states.
   std::array<MeanStd, 4> both{};
   for (std::size_t q = 0; q < both.size(); ++q) {
     both[q] = meanStd(
         values([q](const core::MrfRepetition& run) { return static_cast<double>(run.square_cells_both_states[q]); }));
   }
-  const MeanStd eb_of = meanStd(values([](const core::MrfRepetition& run) { return run.online_eb.prior_at_end.p_occ_given_free; }));
-  const MeanStd eb_fo = meanStd(values([](const core::MrfRepetition& run) { return run.online_eb.prior_at_end.p_free_given_occ; }));
   text << "\nCells of each square (of its 16) observed in both states (a step with more hits than misses and "
        << "one with more misses than hits), per run: " << plus_minus(both[0], 1) << ", " << plus_minus(both[1], 1) << ", "
        << plus_minus(both[2], 1) << ", " << plus_minus(both[3], 1)
        << " (holds " << scenario.square_hold_steps[0] << ", " << scenario.square_hold_steps[1] << ", "
        << scenario.square_hold_steps[2] << ", " << scenario.square_hold_steps[3]
        << " steps); the others are behind the front face while the square is occupied, seen only free. "
-       << "The empirical-Bayes prior at the end of a run: p_occ_given_free " << plus_minus(eb_of, 4)
-       << ", p_free_given_occ " << plus_minus(eb_fo, 4) << " (per seed in mrf_online.csv). The kinds at the end "
-       << "of a run (online kinds; p_occ_given_free / p_free_given_occ, share of the cells; mean over the seeds):";
+       << "The kinds at the end of a run (online kinds; p_occ_given_free / p_free_given_occ, share of the cells; "
+       << "mean over the seeds; per seed in mrf_online.csv):";
   for (std::size_t k = 0; k < static_cast<std::size_t>(core::kKindCount); ++k) {
     const auto kind_mean = [&](const auto& get) {
       return meanStd(values([&](const core::MrfRepetition& run) { return get(run.online_kinds.kinds.at(k)); })).mean;
@@ -688,7 +649,6 @@ std::string mrfSummary(const core::ScenarioConfig& scenario, const core::MrfExpe
   const MeanStd mrf_iterations =
       meanStd(values([](const core::MrfRepetition& run) { return static_cast<double>(run.mrf.em_iterations); }));
   const MeanStd online_seconds = meanStd(values([](const core::MrfRepetition& run) { return run.online.seconds; }));
-  const MeanStd eb_seconds = meanStd(values([](const core::MrfRepetition& run) { return run.online_eb.seconds; }));
   const MeanStd kinds_seconds =
       meanStd(values([](const core::MrfRepetition& run) { return run.online_kinds.seconds; }));
   // Newton iterations per M-step and map (p(occ -> occ), p(free -> free)).
@@ -705,10 +665,9 @@ std::string mrfSummary(const core::ScenarioConfig& scenario, const core::MrfExpe
        << plus_minus(plain_iterations, 1) << " (the most any cell used), MRF " << plus_minus(mrf_iterations, 1)
        << ". Newton iterations per MRF M-step: " << plus_minus(newton[0], 2) << " on p(occ → occ), "
        << plus_minus(newton[1], 2) << " on p(free → free). Online learners, mapping and learning the whole run: "
-       << plus_minus(online_seconds, 3) << " s, with the empirical-Bayes prior " << plus_minus(eb_seconds, 3)
-       << " s, kinds " << plus_minus(kinds_seconds, 3)
+       << plus_minus(online_seconds, 3) << " s, kinds " << plus_minus(kinds_seconds, 3)
        << " s. Per EM iteration (objective, Newton iterations) in mrf_iterations.csv, the first seed's maps of all "
-          "five in mrf_maps.csv.\n";
+          "four in mrf_maps.csv.\n";
 
   std::string measured;
   for (const std::string& part : well_observed_measured) measured += (measured.empty() ? "" : ", ") + part;
@@ -1098,10 +1057,6 @@ int main(int argc, char** argv) {
       config.repetitions = options.learning_repetitions;
       config.seed = options.seed;
       config.threads = options.threads;
-      config.clipped_corner_chord = options.learning_clipped_corner_chord;
-      if (options.learning_ablations) {
-        for (const core::LearnerVariant& variant : core::kindsAblationVariants()) config.variants.push_back(variant);
-      }
       std::cerr << "evaluate: learning experiment (" << name << "), " << config.repetitions << " repetitions ..."
                 << std::flush;
       const core::LearningExperimentResult result = core::runLearningExperiment(scenario, config);
@@ -1144,12 +1099,8 @@ int main(int argc, char** argv) {
       core::PoseCorrectionConfig config;
       config.filter.threads = options.threads;
       config.filter.particles = static_cast<std::size_t>(options.pose_correction_particles);
-      config.filter.likelihood_temperature = options.pose_correction_temperature;
-      config.learner_lag_updates = static_cast<std::size_t>(options.pose_correction_learner_lag);
       config.scenario = options.pose_correction_scenario;
       config.steps = options.pose_correction_steps;
-      config.learner_max_spread_m = options.pose_correction_learner_max_spread;
-      config.learner_end_miss_margin_cells = options.pose_correction_learner_miss_margin;
       std::vector<core::PoseCorrectionResult> runs;
       for (int r = 0; r < options.pose_correction_runs; ++r) {
         config.world_seed = options.seed;

@@ -110,13 +110,11 @@ std::string exact(double value) {
 }
 
 /// The mapping configuration's fingerprint: the header of an empty model with it (the
-/// MapperConfig as the model file stores it) and the two fields the file leaves out, the
-/// sensor model's mixed-step probability (how a step's beams are read) and the clipped
-/// corner chord (which misses a scan counts).
+/// MapperConfig as the model file stores it) and the field the file leaves out that changes
+/// what a scan records, the sensor model's mixed-step probability (how a step's beams are read).
 std::uint64_t configFingerprint(const dog::core::MapperConfig& config) {
   return fingerprint(dog::core::serializeModel(dog::core::Mapper(config)) + "mixed_step_probability " +
-                     exact(config.sensor_model_mixed_step_probability) + " clipped_corner_chord " +
-                     exact(config.clipped_corner_chord));
+                     exact(config.sensor_model_mixed_step_probability));
 }
 
 /// The offline EM options' fingerprint (all but the thread count, which changes nothing).
@@ -937,11 +935,9 @@ int assemble(const Options& options) {
     const std::string path = parts_dir + "/" + block + ".dogm";
     if (!fs::exists(path)) throw std::runtime_error("no part of " + block + " (" + path + "): em not run for it?");
     const std::unique_ptr<dog::core::Mapper> part = dog::core::loadModel(path);
-    // A model file holds neither the mixed-step probability nor the clipped corner chord:
-    // the part's are the run's.
+    // A model file does not hold the mixed-step probability: the part's is the run's.
     dog::core::MapperConfig part_config = part->config();
     part_config.sensor_model_mixed_step_probability = options.shared.mapper.sensor_model_mixed_step_probability;
-    part_config.clipped_corner_chord = options.shared.mapper.clipped_corner_chord;
     if (configFingerprint(part_config) != config) {
       throw std::runtime_error("part " + path + " was learned with another mapping configuration");
     }

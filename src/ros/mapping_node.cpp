@@ -77,38 +77,15 @@ void logLearners(const core::MapperConfig& config) {
              config.kinds.view_switch_probability);
   } else if (config.learn_transitions) {
     std::ostringstream line;
-    line << "online EM of the transitions: schedule ";
-    if (em.schedule == core::StepSchedule::kRobbinsMonro) {
-      line << "robbins_monro (step sizes max(" << em.learning_rate_floor << ", (n + " << em.step_size_offset
-           << ")^-" << em.step_size_exponent << "))";
-    } else {
-      line << "harmonic (prior weight " << em.prior_weight << ", learning rate floor " << em.learning_rate_floor
-           << ")";
-    }
-    line << ", averaging ";
-    if (em.averaging_start == 0) {
-      line << "off";
-    } else {
-      line << "from observed step " << em.averaging_start;
-    }
-    line << ", prior ";
-    if (config.learn_prior) {
-      line << "learned from the map (prior_population_weight " << config.prior_population_weight << ")";
-    } else {
-      line << "fixed (" << config.prior_transitions.p_occ_given_free << " / "
-           << config.prior_transitions.p_free_given_occ << ")";
-    }
+    line << "online EM of the transitions: prior weight " << em.prior_weight << ", learning rate floor "
+         << em.learning_rate_floor << ", prior fixed (" << config.prior_transitions.p_occ_given_free << " / "
+         << config.prior_transitions.p_free_given_occ << ")";
     ROS_INFO("%s", line.str().c_str());
   }
   if (config.sensor_model_mixed_step_probability > 0.0) {
     ROS_INFO("steps whose beams disagree may come from a partly covered cell with probability %g "
              "(sensor_model/mixed_step_probability)",
              config.sensor_model_mixed_step_probability);
-  }
-  if (config.clipped_corner_chord > 0.0) {
-    ROS_INFO("a beam that hits counts no miss in a corner it clips over less than %g cells just before its end "
-             "(clipped_corner_chord)",
-             config.clipped_corner_chord);
   }
   if (config.learn_sensor_model) {
     ROS_INFO("online learning of the sensor model: from p_hit_given_occ %g, p_hit_given_free %g, worth %g beam "
@@ -119,11 +96,10 @@ void logLearners(const core::MapperConfig& config) {
 }
 
 // A loaded model takes this node's settings for what model files leave out: how a step's
-// beams are read, which misses a scan counts and how readings change with the view.
+// beams are read and how readings change with the view.
 void applySettingsModelFilesLeaveOut(core::Mapper& mapper, const core::MapperConfig& config) {
   mapper.setViewSwitchProbability(config.kinds.view_switch_probability);
   mapper.setMixedStepProbability(config.sensor_model_mixed_step_probability);
-  mapper.setClippedCornerChord(config.clipped_corner_chord);
 }
 
 }  // namespace

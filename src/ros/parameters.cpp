@@ -141,8 +141,7 @@ std::string memoryParameterMessage(const std::string& message) {
 /// "sensor_model/p_min").
 std::string mapperParameterMessage(const std::string& message) {
   const auto starts_with = [&message](const std::string& prefix) { return message.compare(0, prefix.size(), prefix) == 0; };
-  for (const std::string field : {"prior_weight", "learning_rate_floor", "step_size_exponent", "step_size_offset",
-                                  "min_observed_steps"}) {
+  for (const std::string field : {"prior_weight", "learning_rate_floor", "min_observed_steps"}) {
     const std::string prefix = "online_em " + field + " ";
     if (starts_with(prefix)) return "online_em/" + message.substr(std::string("online_em ").size());
   }
@@ -164,8 +163,7 @@ std::string filterParameterMessage(const std::string& message) {
   if (text.compare(0, noise.size(), noise) == 0) return "rbpf/odom_alpha1..4:" + text.substr(noise.size());
   const std::pair<const char*, const char*> names[] = {
       {"particles", "rbpf/particles"}, {"update_distance_m", "rbpf/linear_update"},
-      {"update_angle_rad", "rbpf/angular_update"}, {"resample_below", "rbpf/resample_threshold"},
-      {"likelihood_temperature", "rbpf/likelihood_temperature"}};
+      {"update_angle_rad", "rbpf/angular_update"}, {"resample_below", "rbpf/resample_threshold"}};
   for (const auto& [field, parameter] : names) {
     const std::string name = field;
     if (text.compare(0, name.size() + 1, name + " ") == 0) return std::string(parameter) + text.substr(name.size());
@@ -247,7 +245,6 @@ bool readParameters(const ros::NodeHandle& private_nh, NodeParameters* parameter
   read.number("sensor_model/prior_weight", &m.sensor_model_prior_weight);
   read.number("sensor_model/p_min", &m.sensor_model_p_min);
   read.number("sensor_model/mixed_step_probability", &m.sensor_model_mixed_step_probability);
-  read.number("clipped_corner_chord", &m.clipped_corner_chord);
   std::string learner = "kinds";
   read.text("learner", &learner);
   if (learner == "kinds") {
@@ -262,22 +259,6 @@ bool readParameters(const ros::NodeHandle& private_nh, NodeParameters* parameter
   read.number("kinds/forgetting", &m.kinds.forgetting);
   read.number("kinds/transition_prior_weight", &m.kinds.transition_prior_weight);
   read.number("kinds/weight_prior_cells", &m.kinds.weight_prior_cells);
-  read.boolean("learn_prior", &m.learn_prior);
-  read.number("prior_population_weight", &m.prior_population_weight);
-  std::string schedule = "harmonic";
-  read.text("online_em/schedule", &schedule);
-  if (schedule == "harmonic") {
-    m.online_em.schedule = core::StepSchedule::kHarmonic;
-  } else if (schedule == "robbins_monro") {
-    m.online_em.schedule = core::StepSchedule::kRobbinsMonro;
-  } else {
-    read.fail("online_em/schedule", "must be \"harmonic\" or \"robbins_monro\", got \"" + schedule + "\"");
-  }
-  read.number("online_em/step_size_exponent", &m.online_em.step_size_exponent);
-  read.number("online_em/step_size_offset", &m.online_em.step_size_offset);
-  int averaging_start = static_cast<int>(m.online_em.averaging_start);
-  read.integer("online_em/averaging_start", &averaging_start, 0, std::numeric_limits<int>::max());
-  m.online_em.averaging_start = static_cast<std::uint32_t>(averaging_start);
   read.number("online_em/prior_weight", &m.online_em.prior_weight);
   read.number("online_em/learning_rate_floor", &m.online_em.learning_rate_floor);
   read.number("online_em/p_min", &m.online_em.p_min);
@@ -362,7 +343,6 @@ bool readParameters(const ros::NodeHandle& private_nh, NodeParameters* parameter
   read.number("rbpf/linear_update", &f.update_distance_m);
   read.number("rbpf/angular_update", &f.update_angle_rad);
   read.number("rbpf/resample_threshold", &f.resample_below);
-  read.number("rbpf/likelihood_temperature", &f.likelihood_temperature);
   read.boolean("rbpf/scan_matching", &f.scan_matching);
   int seed = static_cast<int>(f.seed);
   read.integer("rbpf/seed", &seed, 0, std::numeric_limits<int>::max());

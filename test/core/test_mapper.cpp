@@ -330,130 +330,6 @@ TEST(MapperBeams, HitBeamMissesCellsBeforeTheEndAndHitsTheEnd) {
   expectFirstStepEvidence(mapper, rowEvidence(0, 3, {0, 1}, {{{4, 0}, {1, 0}}}));
 }
 
-// clipped_corner_chord: a beam from lattice (0.5, 0.5) to (4.2, 1.05) crosses y = 1 at
-// x = 3.864, so it clips cell (3, 1) over 0.138 cells just before its end cell (4, 1); cell
-// (3, 0) before it is crossed over 0.87. With a chord of 0.3 the clipped cell counts no miss
-// (under range noise the surface hit may lie in it); every other cell, and any beam without
-// return, counts as before.
-TEST(MapperBeams, AHitBeamCountsNoMissInACornerItClipsJustBeforeItsEnd) {
-  const double dx = (4.2 - 0.5) * 0.25;
-  const double dy = (1.05 - 0.5) * 0.25;
-  const auto range = static_cast<float>(std::hypot(dx, dy));
-  const double angle = std::atan2(dy, dx);
-  for (const double chord : {0.0, 0.1, 0.3}) {
-    SCOPED_TRACE("clipped_corner_chord " + std::to_string(chord));
-    dog::MapperConfig config = testConfig();
-    config.clipped_corner_chord = chord;
-    dog::Mapper mapper(config);
-    ASSERT_EQ(mapper.integrate(makeScan(0.0, {range}, 0.0, angle)).status, dog::ScanStatus::kIntegrated);
-    mapper.finishStep();
-    const std::optional<dog::CellState> clipped = mapper.grid().cell(3, 1);
-    EXPECT_EQ(clipped.has_value(), chord < 0.138) << "the clipped corner";
-    EXPECT_TRUE(mapper.grid().cell(3, 0).has_value());
-    ASSERT_TRUE(mapper.grid().cell(4, 1).has_value());
-    EXPECT_GT(mapper.grid().cell(4, 1)->p_occ, 0.5);  // the end cell's hit
-    // A beam without return along the same line misses the corner cell whatever the chord.
-    dog::MapperConfig clearing = config;
-    clearing.max_free_range_m = range;  // cleared to the same end point
-    dog::Mapper no_return(clearing);
-    ASSERT_EQ(no_return.integrate(makeScan(0.0, {kInfF}, 0.0, angle)).status, dog::ScanStatus::kIntegrated);
-    no_return.finishStep();
-    EXPECT_TRUE(no_return.grid().cell(3, 1).has_value());
-  }
-  // A beam of 36 cells (more than the traversal's 32 pending misses): from (0.5, 0.5) to
-  // (36.2, 1.00567) it crosses y = 1 at x = 35.8, clipping cell (35, 1) over 0.2 cells.
-  const double long_dx = (36.2 - 0.5) * 0.25;
-  const double long_dy = (0.5 + 35.7 * (0.5 / 35.3) - 0.5) * 0.25;
-  for (const double chord : {0.1, 0.3}) {
-    SCOPED_TRACE("a long beam, clipped_corner_chord " + std::to_string(chord));
-    dog::MapperConfig config = testConfig();
-    config.clipped_corner_chord = chord;
-    dog::Mapper mapper(config);
-    ASSERT_EQ(mapper.integrate(makeScan(0.0, {static_cast<float>(std::hypot(long_dx, long_dy))}, 0.0,
-                                        std::atan2(long_dy, long_dx)))
-                  .status,
-              dog::ScanStatus::kIntegrated);
-    mapper.finishStep();
-    EXPECT_EQ(mapper.grid().cell(35, 1).has_value(), chord < 0.2);
-    EXPECT_TRUE(mapper.grid().cell(35, 0).has_value());
-    EXPECT_TRUE(mapper.grid().cell(36, 1).has_value());
-  }
-  // A beam whose end cell lies outside the map clips nothing: cells 0..3 x 0..1 only.
-  {
-    dog::MapperConfig config = testConfig();
-    config.clipped_corner_chord = 0.3;
-    config.fixed_bounds = true;
-    config.width_m = 1.0;
-    config.height_m = 0.5;
-    dog::Mapper mapper(config);
-    const dog::ScanResult result = mapper.integrate(makeScan(0.0, {range}, 0.0, angle));
-    ASSERT_EQ(result.status, dog::ScanStatus::kIntegrated);
-    EXPECT_EQ(result.cells_outside, 1U);  // the end cell (4, 1)
-    mapper.finishStep();
-    EXPECT_TRUE(mapper.grid().cell(3, 1).has_value());
-  }
-  dog::MapperConfig bad = testConfig();
-  bad.clipped_corner_chord = 1.6;
-  EXPECT_THROW(dog::Mapper{bad}, std::invalid_argument);
-  dog::Mapper mapper(testConfig());
-  EXPECT_THROW(mapper.setClippedCornerChord(-0.1), std::invalid_argument);
-  EXPECT_EQ(mapper.config().clipped_corner_chord, 0.0);
-  mapper.setClippedCornerChord(0.3);
-  EXPECT_EQ(mapper.config().clipped_corner_chord, 0.3);
-}
-
-// end_miss_margin_cells: a beam along +x from lattice (0.5, 0.5) ending in cell 9 (a hit)
-// crosses cells 0..8; with a margin of N the last N of them (9 - N .. 8) count no miss, the
-// end cell still its hit. A beam of 40 cells (more than the traversal's 32 pending misses)
-// drops its last N too. A beam without return clearing cells 0..9 drops its last N cells,
-// its end cell included; a beam whose end cell lies outside the map drops none; the margin
-// overrides the clipped corner rule.
-TEST(MapperBeams, AHitBeamCountsNoMissInTheLastCellsBeforeItsEnd) {
-  for (const int margin : {0, 1, 3, 16}) {
-    SCOPED_TRACE("end_miss_margin_cells " + std::to_string(margin));
-    dog::MapperConfig config = testConfig();
-    config.end_miss_margin_cells = margin;
-    config.clipped_corner_chord = 1.5;  // ignored with a margin: it would drop one cell
-    for (const int end_cell : {9, 40}) {
-      dog::Mapper mapper(config);
-      ASSERT_EQ(mapper.integrate(makeScan(0.0, {static_cast<float>(end_cell * 0.25)})).status,
-                dog::ScanStatus::kIntegrated);
-      mapper.finishStep();
-      for (int x = 0; x < end_cell; ++x) {
-        const bool dropped = margin > 0 ? x >= end_cell - margin : x == end_cell - 1;
-        EXPECT_EQ(mapper.grid().cell(x, 0).has_value(), !dropped) << "cell " << x << " of a beam to " << end_cell;
-      }
-      ASSERT_TRUE(mapper.grid().cell(end_cell, 0).has_value());
-      EXPECT_GT(mapper.grid().cell(end_cell, 0)->p_occ, 0.5);
-    }
-    dog::MapperConfig clearing = config;
-    clearing.max_free_range_m = 9 * 0.25;
-    dog::Mapper no_return(clearing);
-    ASSERT_EQ(no_return.integrate(makeScan(0.0, {kInfF})).status, dog::ScanStatus::kIntegrated);
-    no_return.finishStep();
-    // Cleared to lattice 9.5: cells 0..9, the last N of them (end cell included) dropped.
-    for (int x = 0; x <= 9; ++x) {
-      EXPECT_EQ(no_return.grid().cell(x, 0).has_value(), margin == 0 || x < 10 - margin) << "no return, cell " << x;
-    }
-    // The end cell (9, 0) outside a map of cells 0..7 x 0..1: nothing dropped.
-    dog::MapperConfig bounded = config;
-    bounded.fixed_bounds = true;
-    bounded.width_m = 2.0;
-    bounded.height_m = 0.5;
-    dog::Mapper inside(bounded);
-    const dog::ScanResult result = inside.integrate(makeScan(0.0, {9 * 0.25f}));
-    ASSERT_EQ(result.status, dog::ScanStatus::kIntegrated);
-    EXPECT_GT(result.cells_outside, 0U);
-    inside.finishStep();
-    for (int x = 0; x < 8; ++x) EXPECT_TRUE(inside.grid().cell(x, 0).has_value()) << "bounded, cell " << x;
-  }
-  for (const int bad : {-1, 17}) {
-    dog::MapperConfig config = testConfig();
-    config.end_miss_margin_cells = bad;
-    EXPECT_THROW(dog::Mapper{config}, std::invalid_argument);
-  }
-}
-
 TEST(MapperBeams, RangeEqualToRangeMinIsAHitBelowIsIgnored) {
   dog::Mapper mapper(testConfig());
   // range_min 0.25: 0.25 -> hit at lattice 1.5; 0.125 -> ignored.
@@ -1370,45 +1246,6 @@ TEST(MapperLearning, FlickeringCellLearnsToChangeAndAWallLearnsToStay) {
   EXPECT_GT(*wall_stationary, 0.9);
 }
 
-// learn_prior (empirical Bayes): the prior of a new cell is the population's pooled
-// transitions, sum over cells of S(i -> j) plus prior_population_weight cells of the guess,
-// over the same for the from-state; recomputed here from the grid's cells after every step.
-TEST(MapperLearning, LearnedPriorIsThePooledTransitionsOfTheCells) {
-  dog::MapperConfig config = learningConfig();
-  config.learn_prior = true;
-  config.prior_population_weight = 3.0;
-  config.prior_transitions = dog::TransitionParams{0.2, 0.3};
-  dog::Mapper mapper(config);
-  EXPECT_DOUBLE_EQ(mapper.currentPrior().p_occ_given_free, 0.2);
-  for (int step = 0; step < 120; ++step) {
-    const bool occupied = (step / 5) % 2 == 0;
-    ASSERT_EQ(mapper.integrate(makeScan(step, {0.25f * (occupied ? 4.0f : 8.0f)})).status,
-              dog::ScanStatus::kIntegrated);
-    if (step == 0) continue;  // the first step is applied by the second's scan
-    double pooled[2][2] = {{0.0, 0.0}, {0.0, 0.0}};
-    const dog::CellBox bounds = mapper.grid().bounds();
-    for (std::int32_t y = bounds.min_y; y <= bounds.max_y; ++y) {
-      for (std::int32_t x = bounds.min_x; x <= bounds.max_x; ++x) {
-        const auto cell = mapper.grid().cell(x, y);
-        if (!cell) continue;
-        dog::TransitionStats stats;
-        for (std::size_t k = 0; k < stats.s.size(); ++k) stats.s[k] = cell->em_stats[k];
-        for (int i = 0; i < 2; ++i)
-          for (int j = 0; j < 2; ++j) pooled[i][j] += stats.transitions(i, j);
-      }
-    }
-    const double w = 3.0 * config.online_em.prior_weight;
-    const double p_fo = (pooled[0][1] + w * 0.3) / (pooled[0][0] + pooled[0][1] + w);
-    const double p_of = (pooled[1][0] + w * 0.2) / (pooled[1][0] + pooled[1][1] + w);
-    ASSERT_NEAR(mapper.currentPrior().p_free_given_occ, p_fo, 1e-9) << "step " << step;
-    ASSERT_NEAR(mapper.currentPrior().p_occ_given_free, p_of, 1e-9) << "step " << step;
-  }
-  // Mostly free, rarely changing cells: the learned prior is far below the guess.
-  EXPECT_LT(mapper.currentPrior().p_occ_given_free, 0.1);
-  config.prior_population_weight = 0.0;
-  EXPECT_THROW(dog::Mapper{config}, std::invalid_argument);
-}
-
 TEST(MapperLearning, RecorderReceivesEveryAppliedCellStep) {
   dog::MapperConfig config = learningConfig();
   dog::Mapper mapper(config);
@@ -2283,9 +2120,8 @@ TEST(MapperKinds, OfflineEmKeepsTheKindPosteriorAndShowsItsTransitionsUntilTheNe
   EXPECT_NEAR(after.p_occ_given_free, mapper.kinds().summary(joint).p_occ_given_free, 1e-6);
 }
 
-TEST(MapperKinds, RestoredCellsMustHoldAKindPosteriorAndLeaveOnlineEmsPoolAlone) {
+TEST(MapperKinds, RestoredCellsMustHoldAKindPosterior) {
   dog::MapperConfig config = kindsConfig();
-  config.learn_prior = true;  // online EM's pool must not count a kinds cell's floats
   dog::Mapper mapper(config);
   mapper.restoreTime(0.0, 5);
   dog::CellState state{};
@@ -2298,8 +2134,6 @@ TEST(MapperKinds, RestoredCellsMustHoldAKindPosteriorAndLeaveOnlineEmsPoolAlone)
     state.em_stats[2 * k + 1] = 0.2f * 0.8f;
   }
   mapper.restoreCell(1, 1, state);
-  EXPECT_EQ(mapper.currentPrior().p_occ_given_free, config.prior_transitions.p_occ_given_free);
-  EXPECT_EQ(mapper.currentPrior().p_free_given_occ, config.prior_transitions.p_free_given_occ);
   const dog::CellState back = *mapper.grid().cell(1, 1);
   for (int k = 0; k < 2 * dog::kKindCount; ++k) EXPECT_EQ(back.em_stats[k], state.em_stats[k]);
   // All zero (or not summing to 1): its next step would divide by zero.

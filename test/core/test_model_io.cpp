@@ -239,12 +239,6 @@ dog::MapperConfig growingLearningConfig() {
   config.online_em.p_max = 0.45;
   config.online_em.symmetric = false;
   config.online_em.min_observed_steps = 3;
-  config.online_em.schedule = dog::StepSchedule::kRobbinsMonro;
-  config.online_em.step_size_exponent = 0.8;
-  config.online_em.step_size_offset = 3.0;
-  config.online_em.averaging_start = 5;
-  config.learn_prior = true;
-  config.prior_population_weight = 7.0;
   config.learn_sensor_model = true;
   config.sensor_model_prior_weight = 20.0;
   config.sensor_model_p_min = 0.02;
@@ -294,9 +288,6 @@ dog::KindsConfig distinctKinds() {
   kinds.weight_prior_cells = 50.0;
   kinds.switch_probability = 2e-3;
   kinds.forgetting = 5e-3;
-  kinds.summary = dog::KindSummary::kMean;
-  kinds.counting = dog::KindCounting::kPosterior;
-  kinds.learn_from_gaps = false;
   return kinds;
 }
 
@@ -374,12 +365,6 @@ void expectSameConfig(const dog::MapperConfig& a, const dog::MapperConfig& b) {
   EXPECT_TRUE(sameBits(a.width_m, b.width_m));
   EXPECT_TRUE(sameBits(a.height_m, b.height_m));
   EXPECT_TRUE(sameBits(a.max_map_size_m, b.max_map_size_m));
-  EXPECT_EQ(a.learn_prior, b.learn_prior);
-  EXPECT_TRUE(sameBits(a.prior_population_weight, b.prior_population_weight));
-  EXPECT_EQ(a.online_em.schedule, b.online_em.schedule);
-  EXPECT_TRUE(sameBits(a.online_em.step_size_exponent, b.online_em.step_size_exponent));
-  EXPECT_TRUE(sameBits(a.online_em.step_size_offset, b.online_em.step_size_offset));
-  EXPECT_EQ(a.online_em.averaging_start, b.online_em.averaging_start);
   EXPECT_EQ(a.learn_sensor_model, b.learn_sensor_model);
   EXPECT_TRUE(sameBits(a.sensor_model_prior_weight, b.sensor_model_prior_weight));
   EXPECT_TRUE(sameBits(a.sensor_model_p_min, b.sensor_model_p_min));
@@ -395,9 +380,6 @@ void expectSameConfig(const dog::MapperConfig& a, const dog::MapperConfig& b) {
   EXPECT_TRUE(sameBits(a.kinds.weight_prior_cells, b.kinds.weight_prior_cells));
   EXPECT_TRUE(sameBits(a.kinds.switch_probability, b.kinds.switch_probability));
   EXPECT_TRUE(sameBits(a.kinds.forgetting, b.kinds.forgetting));
-  EXPECT_EQ(a.kinds.summary, b.kinds.summary);
-  EXPECT_EQ(a.kinds.counting, b.kinds.counting);
-  EXPECT_EQ(a.kinds.learn_from_gaps, b.kinds.learn_from_gaps);
 }
 
 // The kinds' sums bit for bit (every pair of every distance bin, the memberships, the
@@ -692,13 +674,12 @@ TEST(ModelIoFormat, BytesAreAsDocumented) {
   dog::Mapper mapper(config);
   runSteps(mapper, 0, 6, 20.0);
   mapper.finishStep();
-  // Sums that are not zero, so that each one is found at its own offset (learn_from_gaps
-  // false: pairs of consecutive steps only, the first bin); KindsBlockHoldsEveryValueAtItsOffset
-  // checks every bin.
+  // Sums that are not zero, found at their offsets (in the first bin; each pair goes to its
+  // cell's likeliest kind, here the stable one); KindsBlockHoldsEveryValueAtItsOffset checks
+  // every slot with values of its own.
   const dog::CellKinds::Sums& sums = mapper.kinds().sums();
   ASSERT_GT(sums.cells, 0.0);
   ASSERT_GT(sums.pairs[0][0][3], 0.0);  // kind 0, free then and now, one step apart
-  ASSERT_GT(sums.pairs[4][0][1], 0.0);  // kind 4, occupied then, free now
   const std::string bytes = dog::serializeModel(mapper);
   const auto cells = cellsOf(mapper);
   ASSERT_EQ(bytes.size(), kCellsOffset + cells.size() * kCellSize + 4);
@@ -721,12 +702,14 @@ TEST(ModelIoFormat, BytesAreAsDocumented) {
   EXPECT_EQ(getLE<std::int64_t>(bytes, kLastStepOffset), 4);  // step 5 had no scans
   EXPECT_EQ(getLE<std::uint64_t>(bytes, kCountOffset), cells.size());
   // Version 2's learners' block.
-  EXPECT_EQ(getLE<std::uint8_t>(bytes, kLearnPriorOffset), 1);
-  EXPECT_EQ(getLE<double>(bytes, kLearnPriorOffset + 1), config.prior_population_weight);
-  EXPECT_EQ(getLE<std::uint8_t>(bytes, kScheduleOffset), 1);  // robbins_monro
-  EXPECT_EQ(getLE<double>(bytes, kScheduleOffset + 1), config.online_em.step_size_exponent);
-  EXPECT_EQ(getLE<double>(bytes, kScheduleOffset + 9), config.online_em.step_size_offset);
-  EXPECT_EQ(getLE<std::uint32_t>(bytes, kScheduleOffset + 17), config.online_em.averaging_start);
+  // The removed empirical-Bayes prior's fields hold its defaults.
+  EXPECT_EQ(getLE<std::uint8_t>(bytes, kLearnPriorOffset), 0);
+  EXPECT_EQ(getLE<double>(bytes, kLearnPriorOffset + 1), 10.0);
+  // The removed step-size schedule's fields hold what the harmonic schedule wrote.
+  EXPECT_EQ(getLE<std::uint8_t>(bytes, kScheduleOffset), 0);  // harmonic
+  EXPECT_EQ(getLE<double>(bytes, kScheduleOffset + 1), 0.6);
+  EXPECT_EQ(getLE<double>(bytes, kScheduleOffset + 9), 2.0);
+  EXPECT_EQ(getLE<std::uint32_t>(bytes, kScheduleOffset + 17), 0U);
   EXPECT_EQ(getLE<std::uint8_t>(bytes, kLearnSensorOffset), 1);
   EXPECT_EQ(getLE<double>(bytes, kLearnSensorOffset + 1), config.sensor_model_prior_weight);
   EXPECT_EQ(getLE<double>(bytes, kLearnSensorOffset + 9), config.sensor_model_p_min);
@@ -761,9 +744,10 @@ TEST(ModelIoFormat, BytesAreAsDocumented) {
   EXPECT_EQ(getLE<double>(bytes, kKindWeightPriorCellsOffset), config.kinds.weight_prior_cells);
   EXPECT_EQ(getLE<double>(bytes, kKindSwitchProbabilityOffset), config.kinds.switch_probability);
   EXPECT_EQ(getLE<double>(bytes, kKindForgettingOffset), config.kinds.forgetting);
-  EXPECT_EQ(getLE<std::uint8_t>(bytes, kKindSummaryOffset), 1);   // mean
-  EXPECT_EQ(getLE<std::uint8_t>(bytes, kKindCountingOffset), 0);  // posterior
-  EXPECT_EQ(getLE<std::uint8_t>(bytes, kKindLearnFromGapsOffset), 0);
+  // The removed kinds' choices hold the ones left.
+  EXPECT_EQ(getLE<std::uint8_t>(bytes, kKindSummaryOffset), 0);   // geometric mean
+  EXPECT_EQ(getLE<std::uint8_t>(bytes, kKindCountingOffset), 1);  // most probable
+  EXPECT_EQ(getLE<std::uint8_t>(bytes, kKindLearnFromGapsOffset), 1);
   EXPECT_EQ(getLE<std::uint16_t>(bytes, kKindBinCountOffset), kKindBins);
   EXPECT_EQ(static_cast<std::size_t>(dog::kGapBins), kKindBins);
   EXPECT_EQ(getLE<double>(bytes, kKindCellsOffset), sums.cells);
@@ -821,8 +805,8 @@ TEST(ModelIoFormat, KindsBlockHoldsEveryValueAtItsOffset) {
   learned[dog::kStableKind] = mapper.kinds().transitions(dog::kStableKind);
   mapper.restoreKinds(sums, learned);
   const std::string bytes = dog::serializeModel(mapper);
-  EXPECT_EQ(getLE<std::uint8_t>(bytes, kKindCountingOffset), 0);
-  EXPECT_EQ(getLE<std::uint8_t>(bytes, kKindLearnFromGapsOffset), 0);
+  EXPECT_EQ(getLE<std::uint8_t>(bytes, kKindCountingOffset), 1);
+  EXPECT_EQ(getLE<std::uint8_t>(bytes, kKindLearnFromGapsOffset), 1);
   EXPECT_EQ(getLE<std::uint16_t>(bytes, kKindBinCountOffset), kKindBins);
   std::size_t offset = kKindPairsOffset;
   for (std::size_t k = 0; k < 5; ++k) {
@@ -850,33 +834,37 @@ TEST(ModelIoFormat, KindsBlockHoldsEveryValueAtItsOffset) {
   }
 }
 
-TEST(ModelIoFormat, LearnerAndKindChoicesAreTheDocumentedNumbers) {
+TEST(ModelIoFormat, LearnerChoicesAreTheDocumentedNumbers) {
   using Learner = dog::TransitionLearner;
   for (const auto& [learner, learner_byte] : {std::pair{Learner::kCellEm, 0}, std::pair{Learner::kKinds, 1}}) {
-    for (const auto& [summary, summary_byte] :
-         {std::pair{dog::KindSummary::kGeometricMean, 0}, std::pair{dog::KindSummary::kMean, 1},
-          std::pair{dog::KindSummary::kMostProbable, 2}}) {
-      for (const auto& [counting, counting_byte] :
-           {std::pair{dog::KindCounting::kPosterior, 0}, std::pair{dog::KindCounting::kMostProbable, 1}}) {
-        for (const bool learn_from_gaps : {false, true}) {
-          dog::MapperConfig config = fixedStaticConfig();
-          config.learner = learner;
-          config.kinds.summary = summary;
-          config.kinds.counting = counting;
-          config.kinds.learn_from_gaps = learn_from_gaps;
-          const dog::Mapper mapper(config);
-          const std::string bytes = dog::serializeModel(mapper);
-          EXPECT_EQ(getLE<std::uint8_t>(bytes, kLearnerOffset), learner_byte);
-          EXPECT_EQ(getLE<std::uint8_t>(bytes, kKindSummaryOffset), summary_byte);
-          EXPECT_EQ(getLE<std::uint8_t>(bytes, kKindCountingOffset), counting_byte);
-          EXPECT_EQ(getLE<std::uint8_t>(bytes, kKindLearnFromGapsOffset), learn_from_gaps ? 1 : 0);
-          const std::unique_ptr<dog::Mapper> loaded = roundTrip(mapper);
-          ASSERT_NE(loaded, nullptr);
-          EXPECT_EQ(loaded->config().learner, learner);
-          EXPECT_EQ(loaded->config().kinds.summary, summary);
-          EXPECT_EQ(loaded->config().kinds.counting, counting);
-          EXPECT_EQ(loaded->config().kinds.learn_from_gaps, learn_from_gaps);
-        }
+    dog::MapperConfig config = fixedStaticConfig();
+    config.learner = learner;
+    const dog::Mapper mapper(config);
+    const std::string bytes = dog::serializeModel(mapper);
+    EXPECT_EQ(getLE<std::uint8_t>(bytes, kLearnerOffset), learner_byte);
+    const std::unique_ptr<dog::Mapper> loaded = roundTrip(mapper);
+    ASSERT_NE(loaded, nullptr);
+    EXPECT_EQ(loaded->config().learner, learner);
+  }
+}
+
+// Files written with the kinds' other summaries, counting or with pairs of consecutive steps
+// only (choices removed after a9ed7d5) still load: their kinds go on with the choices left.
+TEST(ModelIoFormat, FilesWithTheRemovedKindsChoicesLoad) {
+  dog::MapperConfig config = fixedStaticConfig();
+  config.learner = dog::TransitionLearner::kKinds;
+  const std::string bytes = dog::serializeModel(dog::Mapper(config));
+  for (int summary = 0; summary <= 2; ++summary) {
+    for (int counting = 0; counting <= 1; ++counting) {
+      for (int learn_from_gaps = 0; learn_from_gaps <= 1; ++learn_from_gaps) {
+        std::string edited = bytes;
+        edited[kKindSummaryOffset] = static_cast<char>(summary);
+        edited[kKindCountingOffset] = static_cast<char>(counting);
+        edited[kKindLearnFromGapsOffset] = static_cast<char>(learn_from_gaps);
+        fixChecksum(edited);
+        const std::unique_ptr<dog::Mapper> loaded = dog::deserializeModel(edited);
+        ASSERT_NE(loaded, nullptr);
+        EXPECT_EQ(dog::serializeModel(*loaded), bytes) << summary << counting << learn_from_gaps;
       }
     }
   }
@@ -981,9 +969,7 @@ TEST(ModelIoFormat, Version1FilesAreReadWithTheDefaultsOfWhatTheyLack) {
   const dog::MapperConfig defaults;
   EXPECT_EQ(loaded->config().p_hit_given_occ, config.p_hit_given_occ);
   EXPECT_EQ(loaded->config().online_em.prior_weight, config.online_em.prior_weight);
-  EXPECT_EQ(loaded->config().learn_prior, defaults.learn_prior);
   EXPECT_EQ(loaded->config().learn_sensor_model, defaults.learn_sensor_model);
-  EXPECT_EQ(loaded->config().online_em.schedule, defaults.online_em.schedule);
   EXPECT_NE(defaults.learner, dog::TransitionLearner::kCellEm);
   EXPECT_EQ(loaded->config().learner, dog::TransitionLearner::kCellEm);
   EXPECT_EQ(loaded->kinds().sums().cells, 0.0);
@@ -1028,21 +1014,18 @@ TEST(ModelIoRoundTrip, LearnedSensorModelComesBack) {
 }
 
 TEST(ModelIoRoundTrip, LearnedKindsComeBackAndGoOnTheSame) {
-  // With pairs of consecutive steps only (distinctKinds) and with pairs across gaps: the
-  // pair sums of every distance bin, the memberships, the cells and the transitions the
+  // The pair sums of every distance bin, the memberships, the cells and the transitions the
   // kinds learned come back bit for bit (expectSameKinds), and the loaded mapper maps on to
   // the same bytes as the original (expectSameFuture).
-  for (const bool learn_from_gaps : {false, true}) {
-    SCOPED_TRACE(learn_from_gaps ? "learn_from_gaps" : "consecutive steps only");
+  {
     dog::MapperConfig config = growingLearningConfig();
     config.kinds = distinctKinds();
-    config.kinds.learn_from_gaps = learn_from_gaps;
     ASSERT_EQ(config.learner, dog::TransitionLearner::kKinds);  // the default
     dog::Mapper original(config);
     const double origin_s = 4321.125;
     runSteps(original, 0, 300, origin_s);
     original.finishStep();
-    // The kinds learned something: changes in every kind's pairs, pairs in the bins the
+    // The kinds learned something: changes in the pairs of several kinds, pairs in the bins the
     // setting allows (steps % 3 == 2 have no scans: gaps of 2 steps, bin 1), transitions
     // away from where they began.
     const dog::CellKinds::Sums& sums = original.kinds().sums();
@@ -1056,20 +1039,18 @@ TEST(ModelIoRoundTrip, LearnedKindsComeBackAndGoOnTheSame) {
       }
       bins_used += total > 0.0 ? 1 : 0;
     }
-    if (learn_from_gaps) {
-      ASSERT_GE(bins_used, 2);
-    } else {
-      ASSERT_EQ(bins_used, 1);
-    }
+    ASSERT_GE(bins_used, 2);
+    int kinds_with_changes = 0;
     for (int k = 0; k < dog::kKindCount; ++k) {
       ASSERT_GT(sums.membership[k], 0.0) << k;
       double changes = 0.0;
       for (const auto& bin : sums.pairs[k]) changes += bin[1] + bin[2];  // occ -> free, free -> occ
-      ASSERT_GT(changes, 0.0) << k;
+      kinds_with_changes += changes > 0.0 ? 1 : 0;
       const dog::TransitionParams& start = config.kinds.initial_transitions[k];
       moved = moved || original.kinds().transitions(k).p_occ_given_free != start.p_occ_given_free ||
               original.kinds().transitions(k).p_free_given_occ != start.p_free_given_occ;
     }
+    ASSERT_GE(kinds_with_changes, 2);
     ASSERT_TRUE(moved);
 
     std::unique_ptr<dog::Mapper> loaded = roundTrip(original);  // also the kinds and every cell's 10 floats
@@ -1221,6 +1202,27 @@ TEST(ModelIoDamage, InvalidConfigurationIsRefusedWithValidatesMessage) {
     message = edited([offset](std::string& b) { b[offset] = 2; });
     EXPECT_TRUE(contains(message, "must be 0 or 1")) << offset << ": " << message;
   }
+}
+
+// Files written with the online EM's Robbins–Monro schedule or its averaging, or with the
+// empirical-Bayes prior (options removed after a9ed7d5) still load: their cells go on with
+// the 1/t schedule and the fixed prior. A schedule byte other than 0 or 1 is refused.
+TEST(ModelIoFormat, FilesWithTheRemovedLearnerOptionsLoad) {
+  const std::string bytes = smallModel();
+  std::string robbins_monro = bytes;
+  putLE<std::uint8_t>(robbins_monro, kLearnPriorOffset, 1);
+  putLE<double>(robbins_monro, kLearnPriorOffset + 1, 7.0);
+  putLE<std::uint8_t>(robbins_monro, kScheduleOffset, 1);
+  putLE<double>(robbins_monro, kScheduleOffset + 1, 0.8);
+  putLE<double>(robbins_monro, kScheduleOffset + 9, 3.0);
+  putLE<std::uint32_t>(robbins_monro, kScheduleOffset + 17, 5);
+  fixChecksum(robbins_monro);
+  const std::unique_ptr<dog::Mapper> loaded = dog::deserializeModel(robbins_monro);
+  ASSERT_NE(loaded, nullptr);
+  EXPECT_EQ(dog::serializeModel(*loaded), bytes);
+  putLE<std::uint8_t>(robbins_monro, kScheduleOffset, 2);
+  fixChecksum(robbins_monro);
+  EXPECT_TRUE(contains(errorOf(robbins_monro), "online_em.schedule is 2")) << errorOf(robbins_monro);
 }
 
 TEST(ModelIoDamage, InvalidTimeIsRefused) {

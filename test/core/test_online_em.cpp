@@ -102,9 +102,7 @@ RefCell refPrior(const dog::TransitionParams& prior, double prior_weight, double
 // One step of THEORY.md §6, as written there:
 //   c = sum_{k,m} q(k) a_km b_m,  r_km = a_km b_m / c,
 //   S'(i,j,m) = decay * sum_k S(i,j,k) r_km + delta(j,m) q(i) r_ij,   q'(m) = sum_k q(k) r_km.
-// `added` weighs the new term: 1 here; the Robbins–Monro schedule's steps use decay 1 - g
-// and added g (refWeightedStep below).
-void refStep(RefCell& cell, const Mat2& a, const Vec2& b, LD decay, LD added = 1.0L) {
+void refStep(RefCell& cell, const Mat2& a, const Vec2& b, LD decay) {
   LD c = 0.0L;
   for (int k = 0; k < 2; ++k)
     for (int m = 0; m < 2; ++m) c += cell.q[k] * a[k][m] * b[m];
@@ -117,7 +115,7 @@ void refStep(RefCell& cell, const Mat2& a, const Vec2& b, LD decay, LD added = 1
       for (int m = 0; m < 2; ++m) {
         LD carried = 0.0L;
         for (int k = 0; k < 2; ++k) carried += cell.s[i][j][k] * r[k][m];
-        next.s[i][j][m] = decay * carried + (j == m ? added * cell.q[i] * r[i][j] : 0.0L);
+        next.s[i][j][m] = decay * carried + (j == m ? cell.q[i] * r[i][j] : 0.0L);
       }
   for (int m = 0; m < 2; ++m) next.q[m] = cell.q[0] * r[0][m] + cell.q[1] * r[1][m];
   cell = next;
@@ -908,119 +906,4 @@ TEST(OnlineCell, LearnsTheTransitionsOfASimulatedCell) {
   EXPECT_EQ(cell.observed_steps, 20000u);
   EXPECT_NEAR(cell.params.p_occ_given_free, kTrueOccGivenFree, 0.01);
   EXPECT_NEAR(cell.params.p_free_given_occ, kTrueFreeGivenOcc, 0.01);
-}
-
-// =====================================================================================
-// The Robbins–Monro schedule (THEORY.md §6b, docs/online_learning.md): normalised
-// statistics, S' = (1 - g) sum_k S(., ., k) r_km + g delta(j, m) q(i) r_ij.
-// =====================================================================================
-
-namespace {
-
-// S' = (1 - g) sum_k S(., ., k) r_km + g delta(j, m) q(i) r_ij, step by step in long double
-// (not through the scaling identity the implementation uses).
-void refWeightedStep(RefCell& cell, const Mat2& a, const Vec2& b, LD gamma) { refStep(cell, a, b, 1.0L - gamma, gamma); }
-
-}  // namespace
-
-TEST(OnlineEmWeighted, StepMatchesReference) {
-  Random rng(777);
-  for (int trial = 0; trial < 2000; ++trial) {
-    const dog::TransitionParams a = randomParams(rng, 0.999);
-    const RefCell start = randomCell(rng, a, 0.99, 4);
-    const double gamma = trial % 10 == 0 ? 1.0 : rng.logUniform(1e-4, 1.0);
-    const double ratio = randomRatio(rng, kModerateRatio);
-    dog::TransitionStats stats = toStats(start);
-    const double p = dog::onlineEmStepWeighted(stats, static_cast<double>(start.q[0]), a, ratio, gamma);
-    RefCell expected = toRef(toStats(start), static_cast<double>(start.q[0]));
-    refWeightedStep(expected, transitionMatrix(a), likelihoods(ratio), gamma);
-    ASSERT_TRUE(statsNear(stats, expected, 1e-10)) << describe(a) << " gamma=" << gamma;
-    ASSERT_NEAR(p, static_cast<double>(expected.q[0]), 1e-10);
-  }
-}
-
-// A gap of k unobserved steps weighs gamma in all: per step rho = (1 - gamma)^(1/k), the
-// reference walks every step with g = 1 - rho (in long double), and the statistics' total
-// becomes (1 - gamma) total + gamma (each step adds weight one before scaling).
-TEST(OnlineEmWeighted, GapEqualsStepByStepReferenceAndWeighsGamma) {
-  Random rng(4242);
-  for (int trial = 0; trial < 600; ++trial) {
-    const dog::TransitionParams a = randomParams(rng, 0.999);
-    const RefCell start = randomCell(rng, a, 0.99, 4);
-    const std::int64_t gap = trial % 50 == 0 ? rng.integer(1000, 5000) : rng.integer(1, 300);
-    const double gamma = trial % 7 == 0 ? 1.0 : rng.logUniform(1e-4, 1.0);
-    dog::TransitionStats stats = toStats(start);
-    const double before_total = stats.total();
-    const double p = dog::onlineEmSkipWeighted(stats, static_cast<double>(start.q[0]), a, gap, gamma);
-    RefCell expected = toRef(toStats(start), static_cast<double>(start.q[0]));
-    const LD per_step = 1.0L - std::pow(1.0L - static_cast<LD>(gamma), 1.0L / static_cast<LD>(gap));
-    for (std::int64_t n = 0; n < gap; ++n) refWeightedStep(expected, transitionMatrix(a), likelihoods(0.0), per_step);
-    ASSERT_TRUE(statsNear(stats, expected, 1e-9)) << describe(a) << " gamma=" << gamma << " gap=" << gap;
-    ASSERT_NEAR(p, dog::predictOccupancy(static_cast<double>(start.q[0]), a, gap), 1e-12);
-    ASSERT_NEAR(stats.total(), (1.0 - gamma) * before_total + gamma, 1e-9 * std::max(1.0, before_total));
-  }
-}
-
-TEST(OnlineEmWeighted, StepSizeFollowsTheSchedule) {
-  dog::OnlineEmConfig config;
-  config.step_size_exponent = 0.6;
-  config.step_size_offset = 2.0;
-  config.learning_rate_floor = 1e-3;
-  EXPECT_DOUBLE_EQ(config.stepSize(1), std::pow(3.0, -0.6));
-  EXPECT_DOUBLE_EQ(config.stepSize(98), std::pow(100.0, -0.6));
-  config.learning_rate_floor = 0.2;
-  EXPECT_DOUBLE_EQ(config.stepSize(98), 0.2);  // the floor
-  config.step_size_offset = 0.0;
-  config.step_size_exponent = 1.0;
-  EXPECT_DOUBLE_EQ(config.stepSize(1), 1.0);
-  dog::OnlineEmConfig bad;
-  bad.step_size_exponent = 0.5;
-  EXPECT_THROW(bad.validate(), std::invalid_argument);
-  bad.step_size_exponent = 1.01;
-  EXPECT_THROW(bad.validate(), std::invalid_argument);
-  bad = dog::OnlineEmConfig{};
-  bad.step_size_offset = -1.0;
-  EXPECT_THROW(bad.validate(), std::invalid_argument);
-}
-
-// onlineLearnStep with kRobbinsMonro: the gap and the observed step each weigh gamma_n of
-// the cell's next observed step, then the M-step; with averaging, the running mean of the
-// M-step's results from max(averaging_start, min_observed_steps) on.
-TEST(OnlineEmWeighted, LearnStepIsWeightedGapStepMStepAndAverage) {
-  Random rng(99);
-  dog::OnlineEmConfig config = unclampedConfig();
-  config.schedule = dog::StepSchedule::kRobbinsMonro;
-  config.step_size_exponent = 0.7;
-  config.min_observed_steps = 3;
-  config.averaging_start = 5;
-  const dog::TransitionParams prior = params(0.02, 0.03);
-  dog::OnlineCell cell = dog::newOnlineCell(prior, 0.5, config);
-  EXPECT_NEAR(cell.stats.total(), 2.0, 1e-12);  // weight 1 per from-state
-  dog::TransitionStats stats = cell.stats;
-  double p_occ = 0.5;
-  dog::TransitionParams used = prior;
-  dog::TransitionParams mean{};
-  for (std::uint32_t n = 1; n <= 40; ++n) {
-    const std::int64_t gap = rng.integer(0, 20);
-    const double ratio = randomRatio(rng, 3.0);
-    dog::onlineLearnStep(cell, gap, ratio, prior, config);
-    const double gamma = config.stepSize(n);
-    p_occ = dog::onlineEmSkipWeighted(stats, p_occ, used, gap, gamma);
-    p_occ = dog::onlineEmStepWeighted(stats, p_occ, used, ratio, gamma);
-    const dog::TransitionParams estimate = dog::onlineMStep(stats, config, used);
-    if (n < 3) {
-      used = prior;
-    } else if (n <= 5) {
-      used = estimate;
-      mean = estimate;
-    } else {
-      const double w = 1.0 / static_cast<double>(n - 5 + 1);
-      mean.p_occ_given_free += w * (estimate.p_occ_given_free - mean.p_occ_given_free);
-      mean.p_free_given_occ += w * (estimate.p_free_given_occ - mean.p_free_given_occ);
-      used = mean;
-    }
-    ASSERT_NEAR(cell.p_occ, p_occ, 1e-12) << "n=" << n;
-    ASSERT_NEAR(cell.params.p_occ_given_free, used.p_occ_given_free, 1e-12) << "n=" << n;
-    ASSERT_NEAR(cell.params.p_free_given_occ, used.p_free_given_occ, 1e-12) << "n=" << n;
-  }
 }

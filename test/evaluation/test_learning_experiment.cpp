@@ -76,7 +76,7 @@ TEST(LearningExperiment, ScoresEveryMethodOnAShortPatrol) {
   std::vector<std::string> names;
   for (const auto& m : result.methods) names.push_back(m.method);
   EXPECT_EQ(names, (std::vector<std::string>{"static", "node_static", "node_default", "textbook", "learning_off",
-                                             "default", "cell_em", "eb", "rm", "rm_averaged", "offline", "oracle"}));
+                                             "default", "cell_em", "offline", "oracle"}));
   const auto& oracle = result.method("oracle");
   EXPECT_NEAR(oracle.dynamic_mae[0], 0.0, 1e-7);  // the truth, rounded to float
   EXPECT_TRUE(result.method("static").kinds.empty());

@@ -250,9 +250,6 @@ void expectSameOnline(const MrfOnlineOutcome& a, const MrfOnlineOutcome& b) {
     expectSameRmse(a.rmse_by_kind[k].sparse, b.rmse_by_kind[k].sparse);
     expectSameRmse(a.rmse_by_kind[k].well_observed, b.rmse_by_kind[k].well_observed);
   }
-  const auto same = [](double x, double y) { return x == y || (std::isnan(x) && std::isnan(y)); };
-  EXPECT_TRUE(same(a.prior_at_end.p_occ_given_free, b.prior_at_end.p_occ_given_free));
-  EXPECT_TRUE(same(a.prior_at_end.p_free_given_occ, b.prior_at_end.p_free_given_occ));
   ASSERT_EQ(a.kinds.size(), b.kinds.size());
   for (std::size_t k = 0; k < a.kinds.size(); ++k) {
     EXPECT_EQ(a.kinds[k].transitions.p_occ_given_free, b.kinds[k].transitions.p_occ_given_free);
@@ -308,7 +305,6 @@ TEST(MrfExperiment, ReproducibleAndIndependentOfThreads) {
     expectSameOutcome(one.repetitions[r].plain, two.repetitions[r].plain);
     expectSameOutcome(one.repetitions[r].mrf, two.repetitions[r].mrf);
     expectSameOnline(one.repetitions[r].online, two.repetitions[r].online);
-    expectSameOnline(one.repetitions[r].online_eb, two.repetitions[r].online_eb);
     expectSameOnline(one.repetitions[r].online_kinds, two.repetitions[r].online_kinds);
   }
   // Two repetitions are two different runs.
@@ -318,7 +314,6 @@ TEST(MrfExperiment, ReproducibleAndIndependentOfThreads) {
   EXPECT_TRUE(sameMap(one.first_maps.plain, two.first_maps.plain));
   EXPECT_TRUE(sameMap(one.first_maps.mrf, two.first_maps.mrf));
   EXPECT_TRUE(sameMap(one.first_maps.online, two.first_maps.online));
-  EXPECT_TRUE(sameMap(one.first_maps.online_eb, two.first_maps.online_eb));
   EXPECT_TRUE(sameMap(one.first_maps.online_kinds, two.first_maps.online_kinds));
   // Another seed, another experiment.
   config.seed = 2;
@@ -406,9 +401,8 @@ TEST(MrfExperiment, MapsAndIterationRecordsOfBothEms) {
 }
 
 // The online learners map the same scans: the same cells as offline EM, scored the same way.
-// Each cell's own online EM ("online", "online_eb"): the fixed prior stays
-// prior_transitions, the empirical-Bayes one is the population's; cells below
-// min_observed_steps use the prior. Kinds of cells ("online_kinds", the package's default):
+// Each cell's own online EM ("online"): cells below min_observed_steps use the prior,
+// prior_transitions. Kinds of cells ("online_kinds", the package's default):
 // its kinds are learned from the map, and a cell publishes its kind posterior's summary
 // from its first observed step on.
 TEST(MrfExperiment, OnlineLearnersAreScored) {
@@ -419,7 +413,7 @@ TEST(MrfExperiment, OnlineLearnersAreScored) {
   const MrfRepetition& run = result.repetitions.front();
   const MapperConfig defaults = evaluationMapperConfig(scenario);
   ASSERT_EQ(config.sparse_below, defaults.online_em.min_observed_steps);  // sparse = on the prior (cell EM)
-  for (const MrfOnlineOutcome* online : {&run.online, &run.online_eb, &run.online_kinds}) {
+  for (const MrfOnlineOutcome* online : {&run.online, &run.online_kinds}) {
     EXPECT_EQ(online->rmse.sparse.cells, run.plain.rmse.sparse.cells);
     EXPECT_EQ(online->rmse.well_observed.cells, run.plain.rmse.well_observed.cells);
     EXPECT_GT(online->seconds, 0.0);
@@ -438,11 +432,10 @@ TEST(MrfExperiment, OnlineLearnersAreScored) {
       }
     }
   }
-  // The changing cells by what their data show partition the changing kind, for all five.
+  // The changing cells by what their data show partition the changing kind, for all four.
   const auto changing_kind = static_cast<std::size_t>(CellKind::kChanging);
   for (const auto* by_data : {&run.plain.rmse_changing_by_data, &run.mrf.rmse_changing_by_data,
-                              &run.online.rmse_changing_by_data, &run.online_eb.rmse_changing_by_data,
-                              &run.online_kinds.rmse_changing_by_data}) {
+                              &run.online.rmse_changing_by_data, &run.online_kinds.rmse_changing_by_data}) {
     EXPECT_EQ((*by_data)[0].sparse.cells + (*by_data)[1].sparse.cells,
               run.plain.rmse_by_kind[changing_kind].sparse.cells);
     EXPECT_EQ((*by_data)[0].well_observed.cells + (*by_data)[1].well_observed.cells,
@@ -450,29 +443,18 @@ TEST(MrfExperiment, OnlineLearnersAreScored) {
     EXPECT_GT((*by_data)[0].sparse.cells + (*by_data)[0].well_observed.cells, 0U);  // the faces
   }
 
-  // Cell EM without the empirical-Bayes prior: every sparse cell keeps prior_transitions
-  // (0.01 / 0.01 as float): a static free cell's error is exactly that.
+  // Cell EM: every sparse cell keeps prior_transitions (0.01 / 0.01 as float): a static free
+  // cell's error is exactly that.
   const auto free_kind = static_cast<std::size_t>(CellKind::kStaticFree);
   ASSERT_GT(run.online.rmse_by_kind[free_kind].sparse.cells, 0U);
   EXPECT_NEAR(run.online.rmse_by_kind[free_kind].sparse.p_occ_given_free, defaults.prior_transitions.p_occ_given_free,
               1e-8);
-  EXPECT_EQ(run.online.prior_at_end.p_occ_given_free, defaults.prior_transitions.p_occ_given_free);
-  EXPECT_EQ(run.online.prior_at_end.p_free_given_occ, defaults.prior_transitions.p_free_given_occ);
-  // With it the prior is the map's: most cells are free and stay free, so a new cell's
-  // p_occ_given_free is far below the guess, and the sparse free cells are closer to the truth.
-  EXPECT_LT(run.online_eb.prior_at_end.p_occ_given_free, 0.5 * defaults.prior_transitions.p_occ_given_free);
-  EXPECT_NE(run.online_eb.prior_at_end.p_free_given_occ, defaults.prior_transitions.p_free_given_occ);
-  EXPECT_LT(run.online_eb.rmse_by_kind[free_kind].sparse.p_occ_given_free,
-            0.5 * run.online.rmse_by_kind[free_kind].sparse.p_occ_given_free);
   EXPECT_TRUE(run.online.kinds.empty());
-  EXPECT_TRUE(run.online_eb.kinds.empty());
 
-  // Kinds of cells: no single prior; the kinds learned from the map, shares summing to 1,
+  // Kinds of cells: the kinds learned from the map, shares summing to 1,
   // rates within the learner's bounds and moved from where they started; the biggest kind is
   // the free floor, so a sparse free cell, which the floor explains, is far closer to its
   // truth than on the fixed prior.
-  EXPECT_TRUE(std::isnan(run.online_kinds.prior_at_end.p_occ_given_free));
-  EXPECT_TRUE(std::isnan(run.online_kinds.prior_at_end.p_free_given_occ));
   ASSERT_EQ(run.online_kinds.kinds.size(), static_cast<std::size_t>(kKindCount));
   const KindsConfig kinds_config;
   double shares = 0.0;
@@ -499,15 +481,13 @@ TEST(MrfExperiment, OnlineLearnersAreScored) {
             0.5 * run.online.rmse_by_kind[free_kind].sparse.p_occ_given_free);
 
   // The maps: learned values exactly where offline EM has them, within the learners' bounds;
-  // the three learners are three learners.
+  // the two learners are two learners.
   const MrfMaps& maps = result.first_maps;
   ASSERT_EQ(maps.online.size(), maps.plain.size());
-  ASSERT_EQ(maps.online_eb.size(), maps.plain.size());
   ASSERT_EQ(maps.online_kinds.size(), maps.plain.size());
-  std::size_t eb_differs = 0;
   std::size_t kinds_differs = 0;
   for (std::size_t i = 0; i < maps.plain.size(); ++i) {
-    for (const TransitionParams& p : {maps.online[i], maps.online_eb[i], maps.online_kinds[i]}) {
+    for (const TransitionParams& p : {maps.online[i], maps.online_kinds[i]}) {
       EXPECT_EQ(std::isnan(p.p_occ_given_free), maps.observed_steps[i] == 0) << i;
       EXPECT_EQ(std::isnan(p.p_free_given_occ), maps.observed_steps[i] == 0) << i;
       if (maps.observed_steps[i] == 0) continue;
@@ -515,11 +495,8 @@ TEST(MrfExperiment, OnlineLearnersAreScored) {
       EXPECT_LE(p.p_free_given_occ, defaults.online_em.p_max * (1.0 + 1e-6));
     }
     if (maps.observed_steps[i] == 0) continue;
-    eb_differs += maps.online[i].p_occ_given_free != maps.online_eb[i].p_occ_given_free;
-    kinds_differs += maps.online[i].p_occ_given_free != maps.online_kinds[i].p_occ_given_free &&
-                     maps.online_eb[i].p_occ_given_free != maps.online_kinds[i].p_occ_given_free;
+    kinds_differs += maps.online[i].p_occ_given_free != maps.online_kinds[i].p_occ_given_free;
   }
-  EXPECT_GT(eb_differs, run.cells_observed / 2);
   EXPECT_GT(kinds_differs, run.cells_observed / 2);
 }
 

@@ -56,9 +56,6 @@ core::MapperConfig configFrom(FuzzedDataProvider& input) {
   config.max_free_range_m = input.ConsumeBool() ? 0.0 : 20.0;
   config.learn_transitions = input.ConsumeBool();
   config.learn_sensor_model = input.ConsumeBool();
-  // Both ways of counting a clipped corner's miss, without a byte of its own (the committed
-  // corpus keeps its meaning).
-  config.clipped_corner_chord = config.learn_transitions ? 0.3 : 0.0;
   if (input.ConsumeBool()) {
     config.fixed_bounds = true;
     config.origin_x_m = -5.0;

@@ -20,7 +20,7 @@ SMALL = ["--scenarios", "dynamic_5_5,redraw_100", "--repetitions", "2", "--path-
 MRF_WORLD = (46, 32)  # the mrf_squares scenario's cells (evaluation/simulator.cpp)
 # The MRF experiment's learners: the online ones (cell EM without and with the empirical-Bayes
 # prior, kinds of cells), and with the two offline EMs.
-ONLINE = ("online", "online_eb", "online_kinds")
+ONLINE = ("online", "online_kinds")
 ONLINE_AND_OFFLINE = ("plain", "mrf") + ONLINE
 
 
@@ -58,9 +58,9 @@ class EvaluateTool(unittest.TestCase):
         for cells in ("sparse", "well observed"):
             for parameter in ("p_occ_given_free", "p_free_given_occ"):
                 self.assertIn(f"| {cells} | {parameter} |", summary)
-        # The headline: per kind of cell, only the parameters its data carry, five methods.
+        # The headline: per kind of cell, only the parameters its data carry, four methods.
         self.assertIn("| kind | cells | parameter | cells per run | plain EM | MRF EM | MRF vs plain | online | "
-                      "online EB | EB vs online | online kinds | kinds vs online | best |", summary)
+                      "online kinds | kinds vs online | best |", summary)
         for kind, parameters in (("changing", ("p_occ_given_free", "p_free_given_occ")),
                                  ("static_free", ("p_occ_given_free",)), ("static_occupied", ("p_free_given_occ",))):
             for cells in ("sparse", "well observed"):
@@ -118,15 +118,15 @@ class EvaluateTool(unittest.TestCase):
                         self.assertLess(value, 0.5)  # the EM's bound on the learned probabilities
         self.assertNotEqual(rows[0]["run_seed"], rows[2]["run_seed"])
 
-        # Per kind of cell, five methods: the kinds partition each run's cells; each kind is
+        # Per kind of cell, four methods: the kinds partition each run's cells; each kind is
         # scored on the parameters its data carry (the other field empty), and their squared
         # errors are part of the whole set's.
         scored = {"changing": ("p_occ_given_free", "p_free_given_occ"), "static_free": ("p_occ_given_free",),
                   "static_occupied": ("p_free_given_occ",)}
         with open(os.path.join(self.out, "mrf_rmse_by_kind.csv")) as file:
             by_kind = list(csv.DictReader(file))
-        self.assertEqual(len(by_kind), 2 * 5 * 3 * 2)
-        self.assertEqual({k["method"] for k in by_kind}, {"plain", "mrf", "online", "online_eb", "online_kinds"})
+        self.assertEqual(len(by_kind), 2 * 4 * 3 * 2)
+        self.assertEqual({k["method"] for k in by_kind}, {"plain", "mrf", "online", "online_kinds"})
         for k in by_kind:
             for parameter in ("p_occ_given_free", "p_free_given_occ"):
                 value = k[f"{parameter}_rmse"]
@@ -142,7 +142,7 @@ class EvaluateTool(unittest.TestCase):
                             (row["repetition"], method, cells)]
                     self.assertEqual(sorted(k["kind"] for k in mine), ["changing", "static_free", "static_occupied"])
                     total = int(row[f"{cells}_cells"])
-                    self.assertEqual(sum(int(k["cells"]) for k in mine), total)  # the same cells for all five
+                    self.assertEqual(sum(int(k["cells"]) for k in mine), total)  # the same cells for all four
                 mine = [k for k in by_kind if (k["repetition"], k["method"], k["observed"]) ==
                         (row["repetition"], row["method"], cells)]
                 for parameter in ("p_occ_given_free", "p_free_given_occ"):
@@ -158,7 +158,7 @@ class EvaluateTool(unittest.TestCase):
         # The changing cells by what their data show: both states and one state partition them.
         with open(os.path.join(self.out, "mrf_rmse_changing.csv")) as file:
             changing = list(csv.DictReader(file))
-        self.assertEqual(len(changing), 2 * 5 * 2 * 2)
+        self.assertEqual(len(changing), 2 * 4 * 2 * 2)
         for k in by_kind:
             if k["kind"] != "changing":
                 continue
@@ -172,9 +172,8 @@ class EvaluateTool(unittest.TestCase):
         with open(os.path.join(self.out, "summary.md")) as file:
             self.assertIn("| seen in both states | well observed | p_occ_given_free |", file.read())
 
-        # The online learners: cell EM keeps prior_transitions without the empirical-Bayes
-        # prior and has the population's with it; the kinds learner has no single prior but
-        # its five kinds (transitions and shares of the cells).
+        # The online learners: the kinds learner has its five kinds (transitions and shares
+        # of the cells), cell EM none.
         with open(os.path.join(self.out, "mrf_online.csv")) as file:
             online = list(csv.DictReader(file))
         self.assertEqual([(o["repetition"], o["method"]) for o in online],
@@ -182,13 +181,8 @@ class EvaluateTool(unittest.TestCase):
         kind_columns = [f"kind_{k}_{c}" for k in range(5) for c in ("p_occ_given_free", "p_free_given_occ", "weight")]
         for o in online:
             self.assertGreater(float(o["mapping_seconds"]), 0.0)
-            if o["method"] == "online":
-                self.assertAlmostEqual(float(o["prior_p_occ_given_free"]), 0.01, places=8)
-                self.assertAlmostEqual(float(o["prior_p_free_given_occ"]), 0.01, places=8)
-            elif o["method"] == "online_eb":
-                self.assertLess(float(o["prior_p_occ_given_free"]), 0.005)
+            self.assertNotIn("prior_p_occ_given_free", o)
             if o["method"] == "online_kinds":
-                self.assertEqual((o["prior_p_occ_given_free"], o["prior_p_free_given_occ"]), ("", ""))
                 self.assertAlmostEqual(sum(float(o[f"kind_{k}_weight"]) for k in range(5)), 1.0, places=6)
                 for k in range(5):
                     for parameter in ("p_occ_given_free", "p_free_given_occ"):
@@ -196,7 +190,7 @@ class EvaluateTool(unittest.TestCase):
                         self.assertLessEqual(float(o[f"kind_{k}_{parameter}"]), 0.5)
             else:
                 self.assertEqual({o[c] for c in kind_columns}, {""})
-        self.assertEqual([o["world_seed"] for o in online[::3]], [r["world_seed"] for r in rows[::2]])
+        self.assertEqual([o["world_seed"] for o in online[::2]], [r["world_seed"] for r in rows[::2]])
 
         with open(os.path.join(self.out, "mrf_iterations.csv")) as file:
             iterations = list(csv.DictReader(file))
@@ -267,7 +261,7 @@ class EvaluateTool(unittest.TestCase):
             rows = list(csv.DictReader(file))
         methods = [row["method"] for row in rows]
         self.assertEqual(methods, ["static", "node_static", "node_default", "textbook", "learning_off", "default",
-                                   "cell_em", "eb", "rm", "rm_averaged", "offline", "oracle"])
+                                   "cell_em", "offline", "oracle"])
         by_method = {row["method"]: row for row in rows}
         self.assertLess(float(by_method["oracle"]["dynamic_mae"]), 1e-6)  # the truth, rounded to float
         self.assertEqual(float(by_method["static"]["retention"]), 1.0)  # static_map keeps itself
@@ -350,20 +344,6 @@ class EvaluateTool(unittest.TestCase):
             summary = file.read()
         self.assertIn("## Murphy's 2D world with doors", summary)
         self.assertIn("| Murphy's doors: the entropy-driven robot keeps the doors more current", summary)
-
-    def test_learning_ablations_add_the_kinds_variants(self):
-        ablations = os.path.join(self.tmp.name, "ablations")
-        rc, _, stderr = evaluate(["--out", ablations, "--scenarios", "none", "--path-repetitions", "0",
-                                  "--mrf-repetitions", "0", "--memory-repetitions", "0", "--murphy-repetitions", "0", "--murphy-doors-runs", "0",
-                                  "--learning-scenarios", "dynamic_5_5", "--learning-repetitions", "1",
-                                  "--learning-ablations", "--threads", "1"])
-        self.assertEqual(rc, 0, stderr)
-        with open(os.path.join(ablations, "learning_dynamic_5_5.csv")) as file:
-            methods = [row["method"] for row in csv.DictReader(file)]
-        for name in ("kinds_posterior_counting", "kinds_mean_summary", "kinds_most_probable_summary",
-                     "kinds_exact_prediction"):
-            self.assertIn(name, methods)
-        self.assertLess(methods.index("rm_averaged"), methods.index("kinds_posterior_counting"))
 
     def test_pose_correction_in_another_world(self):
         # --pose-correction-scenario and --pose-correction-steps pick the comparison's world
@@ -508,7 +488,6 @@ class EvaluateTool(unittest.TestCase):
                      ["--learning-scenarios", "patrol,patrol"],
                      ["--pose-correction-particles", "0"], ["--pose-correction-particles", "x"],
                      ["--pose-correction-scenario", ""], ["--pose-correction-steps", "x"],
-                     ["--pose-correction-learner-max-spread", "-0.1"], ["--pose-correction-learner-max-spread", "nan"],
                      ["--no-such-option", "1"], ["--out"]):
             rc, _, stderr = evaluate(args)
             self.assertEqual(rc, 2, args)

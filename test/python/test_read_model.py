@@ -240,9 +240,6 @@ class ReadModelTest(unittest.TestCase):
         # Kinds of cells, configured apart from the defaults, learned from the map.
         self.assertEqual(model.learner, "kinds")
         self.assertEqual(model.config["learner"], "kinds")
-        self.assertEqual(model.config["kinds"]["summary"], "mean")
-        self.assertEqual(model.config["kinds"]["counting"], "posterior")
-        self.assertTrue(model.config["kinds"]["learn_from_gaps"])
         self.assertNotEqual(model.config["kinds"], read_model.default_kinds())
         self.assertGreater(model.kind_sums["cells"], 1000.0)
         # Pairs across gaps: in more than one distance bin, changes of state among them.
@@ -335,7 +332,6 @@ class ReadModelTest(unittest.TestCase):
         self.assertEqual(model.config["kinds"], read_model.default_kinds())
         self.assertEqual(model.kind_transitions, newer.kind_transitions)
         self.assertFalse(model.config["learn_sensor_model"])
-        self.assertEqual(model.config["online_em"]["schedule"], "harmonic")
         self.assertEqual(model.sensor_model_stats["trials_occ"], 0.0)
         self.assertEqual(int(model.last_hits.sum()), 0)
         self.assertGreater(int(newer.last_hits.sum()), 0)
@@ -476,16 +472,14 @@ class ReadModelTest(unittest.TestCase):
         model = read_model.parse_model(edited(PAIRS_OFFSET + 8 * ((4 * read_model.GAP_BINS + 123) * 4 + 1),
                                               struct.pack("<d", 0.25)))
         self.assertEqual(model.kind_sums["pairs"][4, 123, 0, 1], 0.25)
-        model = read_model.parse_model(edited(LEARN_FROM_GAPS_OFFSET, b"\0"))
-        self.assertFalse(model.config["kinds"]["learn_from_gaps"])
-        # The learner and the choices as documented.
+        # The kinds' removed choices are read and ignored: the same model.
+        base = read_model.parse_model(data)
+        for offset, value in ((LEARN_FROM_GAPS_OFFSET, b"\0"), (422, b"\2"), (423, b"\0")):
+            self.assertEqual(read_model.parse_model(edited(offset, value)).config, base.config)
+        # The learner as documented.
         model = read_model.parse_model(edited(268, b"\0"))
         self.assertEqual(model.learner, "cell_em")
         self.assertIsNone(model.kind_posterior)
-        model = read_model.parse_model(edited(422, b"\2"))
-        self.assertEqual(model.config["kinds"]["summary"], "most_probable")
-        model = read_model.parse_model(edited(423, b"\1"))
-        self.assertEqual(model.config["kinds"]["counting"], "most_probable")
 
     def test_load_model_names_the_file(self):
         data = bytearray(self.bytes_of("growing"))

@@ -203,13 +203,9 @@ class TestCheckBag(unittest.TestCase):
                              (["--no-learn-sensor-model"] if fixed_sensor else []))
 
     def neato_learners(self):
-        """The other learner, each cell's online EM: Cappe's step sizes with averaging and the
-        empirical-Bayes prior."""
+        """The other learner, each cell's online EM."""
         return self.run_once("neato_learners", NEATO_BAG,
-                             NEATO_ARGS + ["--learner", "cell_em", "--learn-prior", "--schedule", "robbins_monro",
-                                           "--step-size-exponent",
-                                           "0.7", "--step-size-offset", "3", "--averaging-start", "15",
-                                           "--retention-after", "5"])
+                             NEATO_ARGS + ["--learner", "cell_em", "--retention-after", "5"])
 
     def assert_consistent(self, run, horizons_s):
         """Table and CSV: one row per horizon, the same numbers, values in range."""
@@ -413,9 +409,7 @@ class TestCheckBag(unittest.TestCase):
 
     def test_end_report_other_learners(self):
         stdout = self.neato_learners()[0]
-        self.assertIn("online learning: each cell's online EM, schedule robbins_monro (step size exponent 0.7, "
-                      "offset 3), averaging from observed step 15, learned prior on", stdout)
-        self.assertRegex(stdout, r"learned prior: p_occ_given_free [0-9.]+, p_free_given_occ [0-9.]+ per step")
+        self.assertIn("online learning: each cell's online EM\n", stdout)
         end = self.assert_end_report(self.neato_learners())
         self.assertTrue(end["sensor_learned"])
         self.assertEqual(end["retention_after_s"], 5.0)
@@ -543,30 +537,15 @@ class TestCheckBag(unittest.TestCase):
         for args in ([NEATO_BAG, "--horizon", "-1"], [NEATO_BAG, "--horizon", "abc"], [NEATO_BAG, "--horizon"],
                      [NEATO_BAG, "--resolution", "0"], [NEATO_BAG, "--no-such-option"], [NEATO_BAG, NEATO_BAG],
                      [NEATO_BAG, "--csv", ""], [NEATO_BAG, "--horizon", "0.4"], [],
-                     [NEATO_BAG, "--schedule", "constant"], [NEATO_BAG, "--averaging-start", "-1"],
-                     [NEATO_BAG, "--retention-after", "-1"], [NEATO_BAG, "--prediction-horizon", "-1"],
-                     [NEATO_BAG, "--schedule", "robbins_monro", "--step-size-exponent", "0.5"],
-                     [NEATO_BAG, "--schedule", "robbins_monro", "--step-size-exponent", "1.1"],
-                     [NEATO_BAG, "--schedule", "robbins_monro", "--step-size-offset", "-1"]):
+                     [NEATO_BAG, "--retention-after", "-1"], [NEATO_BAG, "--prediction-horizon", "-1"]):
             self.assert_fails(args, 2, "usage: check_bag")
 
     def test_learner_options_that_contradict(self):
         self.assert_fails([NEATO_BAG, "--learn-sensor-model", "--no-learn-sensor-model"], 2, "contradict")
-        for option in (["--learn-prior"], ["--schedule", "harmonic"], ["--averaging-start", "5"]):
-            self.assert_fails([NEATO_BAG, "--no-learning"] + option, 2, option[0], "--no-learning turns off")
-        for option in (["--step-size-exponent", "0.7"], ["--step-size-offset", "1"]):
-            self.assert_fails([NEATO_BAG, "--learner", "cell_em"] + option, 2,
-                              option[0] + " applies to --schedule robbins_monro only")
-        # The options of each cell's online EM need that learner.
-        for option in (["--learn-prior"], ["--schedule", "robbins_monro"], ["--averaging-start", "5"]):
-            self.assert_fails([NEATO_BAG] + option, 2, option[0] + " tunes each cell's online EM",
-                              "--learner cell_em")
         self.assert_fails([NEATO_BAG, "--learner", "em"], 2, "--learner", "kinds or cell_em")
         rc, stdout, _ = check_bag(["--help"])
         self.assertEqual(rc, 0)
-        for option in ("--learn-sensor-model", "--no-learn-sensor-model", "--learn-prior", "--schedule",
-                       "--step-size-exponent", "--step-size-offset", "--averaging-start", "--retention-after",
-                       "--prediction-horizon"):
+        for option in ("--learn-sensor-model", "--no-learn-sensor-model", "--retention-after", "--prediction-horizon"):
             self.assertIn(option, stdout)
         self.assertIn("(default: on, as the node's ~learn_sensor_model)", " ".join(stdout.split()))
 

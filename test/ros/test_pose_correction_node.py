@@ -353,7 +353,6 @@ class PoseCorrectionNodeTest(unittest.TestCase):
             ('rbpf/linear_update', '_pose_correction:=rbpf _rbpf/linear_update:=0.0'),
             ('rbpf/odom_alpha1..4', '_pose_correction:=rbpf _rbpf/odom_alpha3:=-0.1'),
             ('rbpf/transform_publish_period', '_pose_correction:=rbpf _rbpf/transform_publish_period:=0.0'),
-            ('rbpf/likelihood_temperature', '_pose_correction:=rbpf _rbpf/likelihood_temperature:=0.5'),
             ('rbpf/transform_tolerance', '_pose_correction:=rbpf _rbpf/transform_tolerance:=1e10'),
         ], 'bad_pose_correction')
         # A list cannot be given on the command line: on the parameter server first.

@@ -134,22 +134,12 @@ class TestRobustness(unittest.TestCase):
             ('diagnostics/max_scan_rate_hz', '_diagnostics/min_scan_rate_hz:=20 _diagnostics/max_scan_rate_hz:=10'),
             ('diagnostics/period', '_diagnostics/period:=0'),
             # The learners' options (core::MapperConfig, core::OnlineEmConfig).
-            (('online_em/schedule', '"harmonic" or "robbins_monro", got "cappe"'), '_online_em/schedule:=cappe'),
-            (('online_em/schedule', 'must be a string'), '_online_em/schedule:=1'),
-            (('online_em/step_size_exponent', '(0.5, 1]'), '_online_em/step_size_exponent:=0.5'),
-            (('online_em/step_size_exponent', '(0.5, 1]'), '_online_em/step_size_exponent:=1.5'),
-            (('online_em/step_size_offset', '>= 0'), '_online_em/step_size_offset:=-1'),
-            (('online_em/averaging_start', 'must be in [0, '), '_online_em/averaging_start:=-1'),
-            (('online_em/averaging_start', 'must be an integer'), '_online_em/averaging_start:=2.5'),
-            (('learn_prior', 'true or false'), '_learn_prior:=maybe'),
-            (('prior_population_weight', '> 0'), '_prior_population_weight:=0'),
             (('learn_sensor_model', 'true or false'), '_learn_sensor_model:=maybe'),
             (('sensor_model/prior_weight', '> 0'), '_sensor_model/prior_weight:=0'),
             (('sensor_model/prior_weight', 'must be a number'), '_sensor_model/prior_weight:=abc'),
             (('sensor_model/p_min', '(0, 0.4]'), '_sensor_model/p_min:=0.5'),
             (('sensor_model/p_min', '(0, 0.4]'), '_sensor_model/p_min:=0'),
             (('sensor_model/mixed_step_probability', '[0, 0.5]'), '_sensor_model/mixed_step_probability:=0.6'),
-            (('clipped_corner_chord', '[0, 1.5]'), '_clipped_corner_chord:=2'),
             (('learner', '"kinds" or "cell_em", got "em"'), '_learner:=em'),
             (('kinds/switch_probability', '[0, 1)'), '_kinds/switch_probability:=1'),
             (('kinds/view_switch_probability', '[0, 0.5)'), '_kinds/view_switch_probability:=0.5'),
@@ -167,23 +157,17 @@ class TestRobustness(unittest.TestCase):
     def test_01b_learner_parameters_are_read(self):
         """Good values of the learners' options start the node, none is taken for a typo, and
         the start-up lines report them; by default the node learns the sensor model."""
-        arguments = ['_learner:=cell_em', '_online_em/schedule:=robbins_monro', '_online_em/step_size_exponent:=0.75',
-                     '_online_em/step_size_offset:=5', '_online_em/averaging_start:=20', '_learn_prior:=true',
-                     '_prior_population_weight:=25', '_learn_sensor_model:=true', '_sensor_model/prior_weight:=400',
+        arguments = ['_learner:=cell_em', '_learn_sensor_model:=true', '_sensor_model/prior_weight:=400',
                      '_sensor_model/p_min:=0.02', '_online_em/learning_rate_floor:=0.002',
-                     '_sensor_model/mixed_step_probability:=0.01', '_clipped_corner_chord:=0.3']
+                     '_sensor_model/mixed_step_probability:=0.01']
         output = ''.join(wall_scene.node_startup_output(self, 'good_learner_parameters', arguments,
                                                         'online learning of the sensor model'))
         self.assertNotIn('is not one of this node\'s parameters', output)
         self.assertIn('sensor model learned online', output)
-        self.assertIn('schedule robbins_monro (step sizes max(0.002, (n + 5)^-0.75))', output)
-        self.assertIn('averaging from observed step 20', output)
-        self.assertIn('prior learned from the map (prior_population_weight 25)', output)
+        self.assertIn('prior weight 10, learning rate floor 0.002', output)
         self.assertIn('from p_hit_given_occ 0.7, p_hit_given_free 0.2, worth 400 beam ends per state', output)
         self.assertIn('within [0.02, 0.98]', output)
         self.assertIn('partly covered cell with probability 0.01 (sensor_model/mixed_step_probability)', output)
-        self.assertIn('no miss in a corner it clips over less than 0.3 cells just before its end '
-                      '(clipped_corner_chord)', output)
 
         # The defaults: the kinds of cells, the sensor model learned.
         output = ''.join(wall_scene.node_startup_output(self, 'default_learner_parameters', [],
@@ -201,10 +185,10 @@ class TestRobustness(unittest.TestCase):
         self.assertNotIn('is not one of this node\'s parameters', output)
         self.assertIn('(kind switch probability 0.001 per step, forgetting 0.0002 per step, a cell\'s state switches '
                       'with probability 0.02 at an observed step', output)
-        # Each cell's online EM at its defaults: the harmonic schedule, no averaging, a fixed prior.
+        # Each cell's online EM at its defaults: a fixed prior.
         output = ''.join(wall_scene.node_startup_output(self, 'cell_em_learner', ['_learner:=cell_em'],
                                                         'online learning of the sensor model'))
-        self.assertIn('schedule harmonic (prior weight 10, learning rate floor 0.001), averaging off, '
+        self.assertIn('online EM of the transitions: prior weight 10, learning rate floor 0.001, '
                       'prior fixed (0.01 / 0.01)', output)
         self.assertIn('worth 1000 beam ends per state', output)
         self.assertIn('within [0.01, 0.99]', output)

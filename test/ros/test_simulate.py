@@ -545,9 +545,7 @@ class TestSimulate(unittest.TestCase):
                             (["--pose-correction", "rbpf", "--odometry-alphas", "0.1,0.1,-0.1,0.1"],
                              "--odometry-alphas"),
                             (["--pose-correction", "rbpf", "--update-distance", "0"], "--update-distance"),
-                            (["--pose-correction", "rbpf", "--resample-threshold", "2"], "--resample-threshold"),
-                            (["--pose-correction", "rbpf", "--likelihood-temperature", "0.5"],
-                             "--likelihood-temperature")):
+                            (["--pose-correction", "rbpf", "--resample-threshold", "2"], "--resample-threshold")):
             rc, _, stderr = run_tool("process_bag", [bag, "--out", os.path.join(self.tmp, "bad")] + args)
             self.assertEqual(rc, 2, f"{args}: {stderr}")
             self.assertIn("usage: process_bag", stderr)

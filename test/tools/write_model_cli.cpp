@@ -6,8 +6,8 @@
 //
 // Usage: write_model_cli [--fixed | --empty | --cell-em] MODEL_PATH VALUES_PATH
 //   (default)  a growing map that learns transitions with kinds of cells (configured apart
-//              from the defaults, but for learn_from_gaps: on, so that the pairs fill
-//              several distance bins), 30 steps with gaps
+//              from the defaults; pairs across gaps fill several distance bins), 30 steps
+//              with gaps
 //   --cell-em  the same map learning with each cell's own online EM (kinds' defaults)
 //   --fixed    a fixed-bounds map (partly outside the room) with fixed transitions
 //   --empty    a growing map that has seen nothing
@@ -103,7 +103,6 @@ dog::MapperConfig growingConfig() {
   config.online_em.min_observed_steps = 3;
   config.learn_sensor_model = true;
   config.sensor_model_prior_weight = 30.0;
-  config.learn_prior = true;
   config.initial_p_occ = 0.45;
   config.max_free_range_m = 3.5;
   config.origin_x_m = -0.35;
@@ -115,8 +114,6 @@ dog::MapperConfig growingConfig() {
   config.kinds.weight_prior_cells = 50.0;
   config.kinds.switch_probability = 2e-3;
   config.kinds.forgetting = 5e-3;
-  config.kinds.summary = dog::KindSummary::kMean;
-  config.kinds.counting = dog::KindCounting::kPosterior;
   return config;
 }
 
@@ -125,18 +122,6 @@ dog::MapperConfig cellEmConfig() {
   config.learner = dog::TransitionLearner::kCellEm;
   config.kinds = dog::KindsConfig{};
   return config;
-}
-
-const char* summaryName(dog::KindSummary summary) {
-  switch (summary) {
-    case dog::KindSummary::kGeometricMean:
-      return "geometric_mean";
-    case dog::KindSummary::kMean:
-      return "mean";
-    case dog::KindSummary::kMostProbable:
-      return "most_probable";
-  }
-  return "?";
 }
 
 dog::MapperConfig fixedConfig() {
@@ -197,13 +182,6 @@ void writeValues(const dog::Mapper& mapper, std::FILE* out) {
   real("width_m", c.width_m);
   real("height_m", c.height_m);
   real("max_map_size_m", c.max_map_size_m);
-  integer("learn_prior", c.learn_prior);
-  real("prior_population_weight", c.prior_population_weight);
-  std::fprintf(out, "# config online_em.schedule %s\n",
-               c.online_em.schedule == dog::StepSchedule::kHarmonic ? "harmonic" : "robbins_monro");
-  real("online_em.step_size_exponent", c.online_em.step_size_exponent);
-  real("online_em.step_size_offset", c.online_em.step_size_offset);
-  integer("online_em.averaging_start", c.online_em.averaging_start);
   integer("learn_sensor_model", c.learn_sensor_model);
   real("sensor_model_prior_weight", c.sensor_model_prior_weight);
   real("sensor_model_p_min", c.sensor_model_p_min);
@@ -220,10 +198,6 @@ void writeValues(const dog::Mapper& mapper, std::FILE* out) {
   real("kinds.weight_prior_cells", c.kinds.weight_prior_cells);
   real("kinds.switch_probability", c.kinds.switch_probability);
   real("kinds.forgetting", c.kinds.forgetting);
-  std::fprintf(out, "# config kinds.summary %s\n", summaryName(c.kinds.summary));
-  std::fprintf(out, "# config kinds.counting %s\n",
-               c.kinds.counting == dog::KindCounting::kPosterior ? "posterior" : "most_probable");
-  integer("kinds.learn_from_gaps", c.kinds.learn_from_gaps);
   const dog::SensorModelStats& stats = mapper.sensorModelStats();
   std::fprintf(out, "# sensor_model_stats %a %a %a %a\n", stats.trials[0], stats.trials[1], stats.hits[0],
                stats.hits[1]);

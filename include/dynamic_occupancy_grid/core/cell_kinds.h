@@ -51,8 +51,7 @@
 //   visits do not depend on the state. Unlike the expected one-step transitions inside a
 //   gap (EM's E-step), a pair does not repeat the current estimate back to it: on a patrol
 //   nine steps of ten are gaps, and that echo is what keeps each cell's online EM slow.
-//   With consecutive steps only (learn_from_gaps false) the maximum is the ratio of expected
-//   transitions. The sums decay by 1 - forgetting per step.
+//   The sums decay by 1 - forgetting per step.
 //   w_k = (sum over cells of p(kind = k | z) + weight_prior_cells * w0_k) / (cells + weight_prior_cells).
 //   The stable kind's pairs teach nothing: its transitions stay initial_transitions[0].
 //
@@ -70,30 +69,6 @@ namespace core {
 constexpr int kKindCount = 5;
 /// The stable kind: no change between observations, never learned (cell_kinds.h above).
 constexpr int kStableKind = 0;
-
-/// How a cell's kind posterior becomes the two transition probabilities it publishes
-/// (the transition layers, the belief layers' prediction, the model file).
-enum class KindSummary {
-  /// exp(sum_k p(k) log p_k): the posterior mean in log space. A cell 95 % floor and 5 %
-  /// people keeps the floor's tiny rates (times 1.4), not a twentieth of the people's.
-  kGeometricMean,
-  /// sum_k p(k) p_k, the posterior mean.
-  kMean,
-  /// The rates of the most probable kind.
-  kMostProbable,
-};
-
-/// Which kinds a cell's pairs teach.
-enum class KindCounting {
-  /// All, each weighed by the cell's posterior of the kind (plain EM). A cell seen free for
-  /// minutes fits every kind whose p_occ_given_free is small about as well as the floor, so
-  /// the floor's many cells keep a share of every such kind and drown the few cells that
-  /// really change: a kind of fast cells never gets its p_occ_given_free up.
-  kPosterior,
-  /// Only the cell's most probable kind, with the cell's pair given that kind
-  /// (classification EM): cells the kinds explain equally well go to the biggest.
-  kMostProbable,
-};
 
 struct KindsConfig {
   /// Where each kind's transitions start, per step. Learned from there, except kind 0's:
@@ -118,11 +93,6 @@ struct KindsConfig {
   double view_switch_probability = 0.05;
   /// Per applied step, the kinds' transition sums decay by 1 - forgetting (0 = never).
   double forgetting = 1e-3;
-  KindSummary summary = KindSummary::kGeometricMean;
-  KindCounting counting = KindCounting::kMostProbable;
-  /// Learn from every pair of a cell's consecutive observations, whatever the steps between
-  /// them; false: only from observations in consecutive steps.
-  bool learn_from_gaps = true;
 
   /// Throws std::invalid_argument naming the first bad field.
   void validate() const;
@@ -200,9 +170,10 @@ class CellKinds {
   /// observedStepSwitch), the evidence (log p(z|occ)/p(z|free)). Returns p(occ).
   double observe(KindJoint& joint, std::int64_t gap, double log_likelihood_ratio, double view_change = 1.0) const;
   double observe(KindJoint& joint, std::int64_t gap, const KindEvidence& evidence, double view_change = 1.0) const;
-  /// p(occ) `steps` (>= 0) steps after the joint's step, exact (a mixture of closed forms).
-  double predict(const KindJoint& joint, std::int64_t steps) const;
-  /// The cell's two transition probabilities as the configured summary.
+  /// The cell's two transition probabilities (the transition layers, the belief layers'
+  /// prediction, the model file): exp(sum_k p(k) log p_k), the posterior mean in log space.
+  /// A cell 95 % floor and 5 % people keeps the floor's tiny rates (times 1.4), not a
+  /// twentieth of the people's.
   TransitionParams summary(const KindJoint& joint) const;
 
   /// Learning: a cell's pair (its state at its last observed step, its state now), `steps`

@@ -65,39 +65,12 @@ struct MapperConfig {
   TransitionLearner learner = TransitionLearner::kKinds;
   /// learner kKinds: the kinds and how they are learned.
   KindsConfig kinds;
-  /// With learning on: the prior a new cell starts from (and uses until
-  /// online_em.min_observed_steps) is learned from the map itself (empirical Bayes,
-  /// docs/online_learning.md): the transitions pooled over every learning cell's
-  /// statistics, with prior_transitions as a guess worth prior_population_weight cells.
-  /// Off by default: one pool for all cells gives static cells the changing cells' rates
-  /// (dynamic_25_25: 1.5 points less accuracy over all cells).
-  bool learn_prior = false;
-  double prior_population_weight = 10.0;
   OnlineEmConfig online_em;
   double initial_p_occ = 0.5;         ///< belief of a cell before its first observation
   LogOddsClamp static_clamp;          ///< clamping of the static baseline
   /// Beams without return (range >= range_max or +inf) clear cells up to this distance
   /// (and never beyond the scan's range_max); 0 ignores such beams.
   double max_free_range_m = 10.0;
-  /// A beam that hits counts no miss in the cell it crosses just before its end cell when
-  /// it crosses that cell over less than this length, in cells: a corner the beam only
-  /// clips, where under the laser's range noise the surface it hit may lie (a wall's face
-  /// cell, seen at a grazing angle, would otherwise be missed at one visit and hit at the
-  /// next, and learned as changing; docs/online_learning.md, "Corners a beam clips before
-  /// its end"). A beam that leaves the map, or ends outside it, clips nothing. 0 (the
-  /// default) counts every miss; 0.3 is the measured choice. In [0, 1.5].
-  /// Like sensor_model_mixed_step_probability, not in model files: a loaded model takes
-  /// the loader's (Mapper::setClippedCornerChord).
-  double clipped_corner_chord = 0.0;
-  /// A beam that hits counts no miss in the last N cells it crosses before its end cell,
-  /// a beam without return none in the last N cells it clears (when none of its cells is
-  /// outside the map): where a laser pose off by up to about N cells along the beam puts
-  /// the surface it hit, or one just beyond its reach. A learner fed scans at a pose
-  /// filter's estimates would otherwise see a wall missed whenever the estimate stood too
-  /// far from it, and learn it as changing (docs/pose_correction.md, "Walls learned as
-  /// changing"). 0 (the default) counts every miss; with N >= 1 clipped_corner_chord has
-  /// nothing left to drop. In [0, 16]. Not in model files, like clipped_corner_chord.
-  int end_miss_margin_cells = 0;
   double origin_x_m = 0.0;            ///< world position of the lattice's cell (0, 0) corner
   double origin_y_m = 0.0;
   /// Fixed bounds: only [origin, origin + size) is mapped and nothing grows.
@@ -172,9 +145,6 @@ class Mapper {
   /// p(occ) of cell (x, y) at `step` (>= its last update: predicted in closed form), NaN if
   /// the cell was never observed.
   double beliefAt(std::int32_t x, std::int32_t y, std::int64_t step) const;
-  /// The prior a cell observed for the first time now starts from: prior_transitions, or
-  /// with learn_prior the population's pooled transitions (see MapperConfig::learn_prior).
-  TransitionParams currentPrior() const { return current_prior_; }
   /// Cells changed by steps applied since the last call.
   CellBox takeChangedCells();
   /// From now on, every applied cell step is also added to `recorder` (offline EM input);
@@ -235,9 +205,6 @@ class Mapper {
   /// sets the reader's own). Throws std::invalid_argument (and changes nothing) outside
   /// [0, 0.5).
   void setViewSwitchProbability(double view_switch_probability);
-  /// How scans count misses from now on (MapperConfig::clipped_corner_chord; model files do
-  /// not hold it). Throws std::invalid_argument (and changes nothing) outside [0, 1.5].
-  void setClippedCornerChord(double clipped_corner_chord);
   /// Turns online learning of the sensor model on or off while mapping. Off: the model
   /// learned so far stays in use, fixed; on again: learning goes on from its sums.
   void setLearnSensorModel(bool learn_sensor_model) { config_.learn_sensor_model = learn_sensor_model; }
@@ -273,9 +240,8 @@ class Mapper {
   /// being applied, in [0, 1] (KindsConfig::view_switch_probability): the laser's motion
   /// between the two, in cells, at most 1; 1 when the last step is no longer remembered.
   double viewChangeSince(std::int32_t last_step) const;
-  /// Writes a cell's statistics, keeping the population's pooled transitions up to date.
+  /// Writes a cell's statistics (as floats).
   void storeStats(CellGrid::Tile& tile, int offset, const TransitionStats& stats);
-  void updatePrior();
   /// learn_sensor_model: adds the previous observed step of a cell to the sums, weighed by
   /// its state given this step's evidence too.
   void addSensorEvidence(const CellGrid::Tile& tile, int offset, std::int32_t step, double evidence);
@@ -313,9 +279,6 @@ class Mapper {
   CellBox changed_cells_;
   TileVersions tile_versions_;
   SequenceBuilder* recorder_ = nullptr;
-  /// Sum over cells of their statistics' expected transitions i -> j, [i][j] (learn_prior).
-  double population_[2][2] = {{0.0, 0.0}, {0.0, 0.0}};
-  TransitionParams current_prior_;
   CellKinds kinds_;
   SensorModelStats sensor_stats_;
   /// The laser's motion since the first scan, in cells: its path plus kViewRadiusM times its

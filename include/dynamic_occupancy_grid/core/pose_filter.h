@@ -66,11 +66,6 @@ struct PoseFilterConfig {
   /// least, and a filter resampling on it shrinks every corridor (patrol_office: a 15 m
   /// leg mapped 3 m short).
   bool unknown_cells_as_prior = false;
-  /// The weight takes the scan's log-likelihood divided by this (1: the model's own). The
-  /// model counts every cell of every beam as independent evidence, which makes weights
-  /// of neighbouring poses differ by hundreds of nats, so that every update resamples the
-  /// particles to one; gmapping divides its likelihood by a gain for the same reason.
-  double likelihood_temperature = 1.0;
   double max_free_range_m = 10.0;     ///< beams without return clear up to here (0: ignored)
   double max_range_m = 30.0;          ///< no beam is walked further (at most 1022 cells)
   /// Scan matching: on by default; off, the proposal is the motion model alone.

@@ -38,21 +38,11 @@ namespace core {
 struct LearnerVariant {
   std::string name;
   std::function<void(MapperConfig&)> configure;
-  /// learner kKinds: score the exact mixture prediction of each cell (CellKinds::predict)
-  /// instead of the published two-parameter summary (what the layers show).
-  bool exact_kinds = false;
 };
 /// The learners of the comparison in docs/online_learning.md: "default" (the package's
 /// defaults: kinds of cells, cell_kinds.h), "cell_em" (each cell's own online EM with the
-/// 1/t schedule, the default before), "eb" (the same with the empirical-Bayes prior), "rm"
-/// (Robbins–Monro, alpha 0.75, with the empirical-Bayes prior), "rm_averaged" (the same
-/// with Polyak–Ruppert averaging from the 30th observed step).
+/// 1/t schedule, the default before).
 std::vector<LearnerVariant> defaultLearnerVariants();
-/// The kinds learner with one choice changed (docs/online_learning.md, "Kinds of cells"):
-/// counting by posterior instead of the most probable kind, the mean or the most probable
-/// kind's rates as the published summary, and the exact mixture prediction scored instead
-/// of the summary.
-std::vector<LearnerVariant> kindsAblationVariants();
 
 struct LearningExperimentConfig {
   int repetitions = 4;
@@ -70,9 +60,6 @@ struct LearningExperimentConfig {
   /// the sensor model online, as the node does by default (~learn_sensor_model), and
   /// offline EM learns it with the transitions; false keeps the scenario's configured model.
   bool learn_sensor_model = true;
-  /// Every method's mapper (offline EM's recording too) counts misses with this
-  /// MapperConfig::clipped_corner_chord (0: every miss, the core's default).
-  double clipped_corner_chord = 0.0;
 };
 
 /// One kind of cell: a truth shared by its cells (dynamic cells grouped by their true

@@ -1,14 +1,13 @@
 #pragma once
 // The simulation of Li, Barão & Rato (Sec. IV; THEORY.md §7) as a measurement: on the
 // scenario "mrf_squares" (simulator.h), offline EM of the transition maps without and with
-// the MRF prior, and three online learners of core::Mapper on the same scans, each scored
+// the MRF prior, and two online learners of core::Mapper on the same scans, each scored
 // against the world's true transitions by RMSE per kind of cell on the parameters the
 // cell's data carry, separately on sparsely and on well observed cells, with the EM's wall
-// time and the MRF's work per EM iteration. The online learners: each cell's own online EM without and with
-// its empirical-Bayes prior (MapperConfig::learn_prior), and the package's default learner,
-// kinds of cells (TransitionLearner::kKinds). Three ways to borrow strength from other
-// cells: the MRF from a cell's neighbours, the empirical-Bayes prior from one prior pooled
-// over the whole map, the kinds from the cells of the same (learned, hidden) kind.
+// time and the MRF's work per EM iteration. The online learners: each cell's own online EM,
+// and the package's default learner, kinds of cells (TransitionLearner::kKinds). Two ways
+// to borrow strength from other cells: the MRF from a cell's neighbours, the kinds from the
+// cells of the same (learned, hidden) kind.
 //
 // ROS-free: standard library only.
 
@@ -121,8 +120,6 @@ struct MrfOnlineOutcome {
   SplitRmse rmse;
   std::array<SplitRmse, kCellKinds> rmse_by_kind;
   std::array<SplitRmse, 2> rmse_changing_by_data;  ///< changingRmseBySeenStates
-  /// Mapper::currentPrior() after the last step; NaN for learner kKinds (its prior is the kinds).
-  TransitionParams prior_at_end;
   /// learner kKinds: the kinds after the last step (Mapper::kinds(), in its order); empty
   /// for kCellEm.
   std::vector<MrfLearnedKind> kinds;
@@ -137,10 +134,8 @@ struct MrfRepetition {
   std::array<std::size_t, 4> square_cells_both_states{};
   MrfEmOutcome plain;
   MrfEmOutcome mrf;
-  /// learner kCellEm, learn_prior = false: every cell starts from prior_transitions.
+  /// learner kCellEm: every cell starts from prior_transitions.
   MrfOnlineOutcome online;
-  /// learner kCellEm, learn_prior = true: the empirical-Bayes prior.
-  MrfOnlineOutcome online_eb;
   /// learner kKinds (the package's default): kinds of cells, a hierarchical prior.
   MrfOnlineOutcome online_kinds;
 };
@@ -155,7 +150,6 @@ struct MrfMaps {
   std::vector<TransitionParams> plain;
   std::vector<TransitionParams> mrf;
   std::vector<TransitionParams> online;
-  std::vector<TransitionParams> online_eb;
   std::vector<TransitionParams> online_kinds;
 };
 
@@ -169,10 +163,10 @@ struct MrfExperimentResult {
 /// each records its observations with a Mapper of evaluationMapperConfig(scenario), then
 /// runs offline EM with evaluationOfflineEmConfig (the tools' prior), initial parameters 0.5
 /// (the paper's) and config.max_iterations, once plain and once with mrf_temperature =
-/// config.temperature. The same scans are mapped by three online learners, Mappers of
+/// config.temperature. The same scans are mapped by two online learners, Mappers of
 /// evaluationMapperConfig(scenario) with the package's online-learning defaults (same
-/// sensor model, prior_transitions as the guess) but the learner: kCellEm with learn_prior
-/// false and true, and kKinds. All five are scored against the truth. Results do not
+/// sensor model, prior_transitions as the guess) but the learner: kCellEm and kKinds. All
+/// four are scored against the truth. Results do not
 /// depend on the number of threads (the timings aside). `progress` (optional) is called
 /// after each repetition.
 MrfExperimentResult runMrfExperiment(const ScenarioConfig& scenario, const MrfExperimentConfig& config,

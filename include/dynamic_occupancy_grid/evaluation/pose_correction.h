@@ -44,18 +44,6 @@ struct PoseCorrectionConfig {
   std::size_t relative_error_scans = 10;  ///< the relative error's span
   /// rbpf_hmm: cells its learner has observed in fewer steps stay static (MapperTransitions).
   std::uint32_t learned_min_observed_steps = 30;
-  /// rbpf_hmm's learner: 0 maps every scan at the filter's estimate of its time; n > 0 maps
-  /// only the filter's update scans, n updates later, at the pose the best particle's
-  /// trajectory gives them then (a fixed-lag smoother: resampling has pruned the
-  /// hypotheses that lost by then).
-  std::size_t learner_lag_updates = 0;
-  /// rbpf_hmm's learner (lag 0): > 0 maps a scan only while the particles agree, their
-  /// positions' RMS distance from the best particle's at the last update below this (m);
-  /// 0 maps every scan.
-  double learner_max_spread_m = 0.0;
-  /// rbpf_hmm's learner: MapperConfig::end_miss_margin_cells (0: every miss, as the other
-  /// Mappers; the filters read every miss).
-  int learner_end_miss_margin_cells = 0;
   /// Throws std::invalid_argument naming the first bad field.
   void validate() const;
 };
