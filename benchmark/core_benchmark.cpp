@@ -24,12 +24,12 @@
 #include <utility>
 #include <vector>
 
-#include "dynamic_occupancy_grid/core/cell_model.h"
-#include "dynamic_occupancy_grid/core/mapper.h"
-#include "dynamic_occupancy_grid/core/offline_em.h"
-#include "dynamic_occupancy_grid/core/online_em.h"
-#include "dynamic_occupancy_grid/core/pose_filter.h"
-#include "dynamic_occupancy_grid/core/traversal.h"
+#include "dynamic_occupancy_grid/core/cell/cell_model.h"
+#include "dynamic_occupancy_grid/core/grid/mapper.h"
+#include "dynamic_occupancy_grid/core/cell/offline_em.h"
+#include "dynamic_occupancy_grid/core/cell/online_em.h"
+#include "dynamic_occupancy_grid/core/pose/pose_filter.h"
+#include "dynamic_occupancy_grid/core/grid/traversal.h"
 
 #include "scan_fixtures.h"
 

@@ -23,8 +23,8 @@
 #include <string>
 #include <vector>
 
-#include "dynamic_occupancy_grid/core/mapper.h"
-#include "dynamic_occupancy_grid/core/traversal.h"
+#include "dynamic_occupancy_grid/core/grid/mapper.h"
+#include "dynamic_occupancy_grid/core/grid/traversal.h"
 
 #include "scan_fixtures.h"
 

@@ -21,10 +21,10 @@
 #include <thread>
 #include <vector>
 
-#include "dynamic_occupancy_grid/core/parallel.h"
+#include "dynamic_occupancy_grid/core/common/parallel.h"
 
-#include "dynamic_occupancy_grid/core/cell_kinds.h"
-#include "dynamic_occupancy_grid/core/mapper.h"
+#include "dynamic_occupancy_grid/core/cell/cell_kinds.h"
+#include "dynamic_occupancy_grid/core/grid/mapper.h"
 #include "dynamic_occupancy_grid/ros/grid_messages.h"
 
 namespace dog = dynamic_occupancy_grid::core;

@@ -6,8 +6,8 @@
 #include <cmath>
 #include <cstdint>
 
-#include "dynamic_occupancy_grid/core/mapper.h"
-#include "dynamic_occupancy_grid/core/traversal.h"
+#include "dynamic_occupancy_grid/core/grid/mapper.h"
+#include "dynamic_occupancy_grid/core/grid/traversal.h"
 
 #ifdef DOG_BENCHMARK_OCTOMAP
 #include <octomap/octomap.h>

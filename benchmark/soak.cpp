@@ -29,7 +29,7 @@
 #include <string>
 #include <vector>
 
-#include "dynamic_occupancy_grid/core/mapper.h"
+#include "dynamic_occupancy_grid/core/grid/mapper.h"
 #include "dynamic_occupancy_grid/evaluation/simulator.h"
 #include "dynamic_occupancy_grid/ros/grid_messages.h"
 #include "dynamic_occupancy_grid/ros/parameters.h"

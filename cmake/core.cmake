@@ -11,28 +11,28 @@ find_package(ZLIB REQUIRED)
 set(DOG_ROOT ${CMAKE_CURRENT_LIST_DIR}/..)
 add_library(dynamic_occupancy_grid_core
   # the cell and its learning
-  ${DOG_ROOT}/src/core/cell_model.cpp
-  ${DOG_ROOT}/src/core/online_em.cpp
-  ${DOG_ROOT}/src/core/cell_kinds.cpp
-  ${DOG_ROOT}/src/core/offline_em.cpp
-  ${DOG_ROOT}/src/core/mrf.cpp
+  ${DOG_ROOT}/src/core/cell/cell_model.cpp
+  ${DOG_ROOT}/src/core/cell/online_em.cpp
+  ${DOG_ROOT}/src/core/cell/cell_kinds.cpp
+  ${DOG_ROOT}/src/core/cell/offline_em.cpp
+  ${DOG_ROOT}/src/core/cell/mrf.cpp
   # the grid and a scan's way into it
-  ${DOG_ROOT}/src/core/cell_grid.cpp
-  ${DOG_ROOT}/src/core/scan_beams.cpp
-  ${DOG_ROOT}/src/core/step_clock.cpp
-  ${DOG_ROOT}/src/core/mapper.cpp
-  ${DOG_ROOT}/src/core/memory_model.cpp
+  ${DOG_ROOT}/src/core/grid/cell_grid.cpp
+  ${DOG_ROOT}/src/core/grid/scan_beams.cpp
+  ${DOG_ROOT}/src/core/grid/step_clock.cpp
+  ${DOG_ROOT}/src/core/grid/mapper.cpp
+  ${DOG_ROOT}/src/core/memory/memory_model.cpp
   # the laser's pose when tf cannot be trusted: odometry, particles whose maps are cell HMMs
-  ${DOG_ROOT}/src/core/motion_model.cpp
-  ${DOG_ROOT}/src/core/resampling.cpp
-  ${DOG_ROOT}/src/core/particle_map.cpp
-  ${DOG_ROOT}/src/core/pose_filter.cpp
-  ${DOG_ROOT}/src/core/corrected_mapping.cpp
+  ${DOG_ROOT}/src/core/pose/motion_model.cpp
+  ${DOG_ROOT}/src/core/pose/resampling.cpp
+  ${DOG_ROOT}/src/core/pose/particle_map.cpp
+  ${DOG_ROOT}/src/core/pose/pose_filter.cpp
+  ${DOG_ROOT}/src/core/pose/corrected_mapping.cpp
   # what leaves the map: layers and files (file_io: regular files only, atomic writes)
-  ${DOG_ROOT}/src/core/file_io.cpp
-  ${DOG_ROOT}/src/core/layers.cpp
-  ${DOG_ROOT}/src/core/map_export.cpp
-  ${DOG_ROOT}/src/core/model_io.cpp
+  ${DOG_ROOT}/src/core/layers/file_io.cpp
+  ${DOG_ROOT}/src/core/layers/layers.cpp
+  ${DOG_ROOT}/src/core/layers/map_export.cpp
+  ${DOG_ROOT}/src/core/layers/model_io.cpp
 )
 target_include_directories(dynamic_occupancy_grid_core PUBLIC ${DOG_ROOT}/include)
 target_link_libraries(dynamic_occupancy_grid_core PUBLIC Eigen3::Eigen Threads::Threads)

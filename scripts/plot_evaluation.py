@@ -104,7 +104,7 @@ MURPHY_TV_ESTIMATORS = (("dead_reckoning", "dead reckoning", "#7f7f7f"), ("onlin
                         ("rbpf_optimal", "RBPF, optimal proposal", "#ff7f0e"))
 MURPHY_RETURN_T = 10  # the robot turns back at t = 10 (kMurphyReturnStep + 1)
 
-# The layers process_bag writes (core/layers.cpp, layerName), in its order.
+# The layers process_bag writes (core/layers/layers.cpp, layerName), in its order.
 LAYERS = (("belief", "belief: p(occ) now"), ("predicted", "predicted p(occ)"),
           ("stationary", "stationary p(occ)"), ("p_occ_given_free", "p(occ | free) per step"),
           ("p_free_given_occ", "p(free | occ) per step"), ("static_map", "static map"))

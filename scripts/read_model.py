@@ -33,9 +33,9 @@ import numpy as np
 
 MAGIC = b"DOGMODEL"
 FORMAT_VERSION = 3  # the version the C++ writes; versions 1 and 2 are read too
-KIND_COUNT = 5  # core/cell_kinds.h kKindCount
-GAP_BINS = 124  # core/cell_kinds.h kGapBins: distance bins of the kinds' pairs (gap_bin)
-LEARNER_STATE_SIZE = 10  # core/cell_grid.h kLearnerStateSize: floats of a cell's learner state
+KIND_COUNT = 5  # core/cell/cell_kinds.h kKindCount
+GAP_BINS = 124  # core/cell/cell_kinds.h kGapBins: distance bins of the kinds' pairs (gap_bin)
+LEARNER_STATE_SIZE = 10  # core/grid/cell_grid.h kLearnerStateSize: floats of a cell's learner state
 LEARNERS = ("cell_em", "kinds")  # the learner byte's values (TransitionLearner)
 # The kinds' summaries and countings files may hold (choices removed after a9ed7d5: checked
 # and ignored, as the core's reader does).
@@ -122,7 +122,7 @@ class ModelFormatError(ValueError):
 
 
 def default_kinds():
-    """KindsConfig's defaults (core/cell_kinds.h), which version 1 and 2 files get."""
+    """KindsConfig's defaults (core/cell/cell_kinds.h), which version 1 and 2 files get."""
     return {
         "initial_transitions": [{"p_occ_given_free": rate, "p_free_given_occ": rate}
                                 for rate in (1e-4, 2e-3, 0.01, 0.05, 0.25)],
@@ -136,7 +136,7 @@ def default_kinds():
 
 def gap_bin(steps):
     """The distance bin (0 .. GAP_BINS - 1) of a pair `steps` >= 1 steps apart, as
-    core/cell_kinds.cpp gapBin: 1 to 16 steps one bin each, then four bins per octave."""
+    core/cell/cell_kinds.cpp gapBin: 1 to 16 steps one bin each, then four bins per octave."""
     if steps <= 16:
         return max(int(steps), 1) - 1
     return min(16 + math.floor(4.0 * math.log2(float(steps) / 16.0)), GAP_BINS - 1)
@@ -316,7 +316,7 @@ def parse_model(data):
     config["learner"] = "cell_em"
     config["kinds"] = default_kinds()
     kind_sums = {"pairs": np.zeros((KIND_COUNT, GAP_BINS, 2, 2)), "membership": np.zeros(KIND_COUNT), "cells": 0.0}
-    # The bounds of the kinds' transitions (core/mapper.cpp builds CellKinds with these).
+    # The bounds of the kinds' transitions (core/grid/mapper.cpp builds CellKinds with these).
     low = max(p_min, 1e-6)
     high = min(p_max, 0.5)
     kind_transitions = [{name: min(max(rate, low), high) for name, rate in start.items()}

@@ -1,6 +1,6 @@
 #include "dynamic_occupancy_grid/evaluation/evaluation.h"
 
-#include "dynamic_occupancy_grid/core/parallel.h"
+#include "dynamic_occupancy_grid/core/common/parallel.h"
 
 #include <algorithm>
 #include <chrono>

@@ -10,7 +10,7 @@
 #include <optional>
 #include <stdexcept>
 
-#include "dynamic_occupancy_grid/core/parallel.h"
+#include "dynamic_occupancy_grid/core/common/parallel.h"
 #include "dynamic_occupancy_grid/evaluation/evaluation.h"
 
 namespace dynamic_occupancy_grid {

@@ -1,6 +1,6 @@
 #include "dynamic_occupancy_grid/evaluation/memory_experiment.h"
 
-#include "dynamic_occupancy_grid/core/parallel.h"
+#include "dynamic_occupancy_grid/core/common/parallel.h"
 
 #include <algorithm>
 #include <chrono>
@@ -13,8 +13,8 @@
 #include <stdexcept>
 
 #include "dynamic_occupancy_grid/evaluation/evaluation.h"
-#include "dynamic_occupancy_grid/core/mapper.h"
-#include "dynamic_occupancy_grid/core/scan_beams.h"
+#include "dynamic_occupancy_grid/core/grid/mapper.h"
+#include "dynamic_occupancy_grid/core/grid/scan_beams.h"
 
 namespace dynamic_occupancy_grid {
 namespace core {

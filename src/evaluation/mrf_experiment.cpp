@@ -1,6 +1,6 @@
 #include "dynamic_occupancy_grid/evaluation/mrf_experiment.h"
 
-#include "dynamic_occupancy_grid/core/parallel.h"
+#include "dynamic_occupancy_grid/core/common/parallel.h"
 
 #include <chrono>
 #include <cmath>
@@ -12,7 +12,7 @@
 #include <utility>
 
 #include "dynamic_occupancy_grid/evaluation/evaluation.h"
-#include "dynamic_occupancy_grid/core/mapper.h"
+#include "dynamic_occupancy_grid/core/grid/mapper.h"
 
 namespace dynamic_occupancy_grid {
 namespace core {

@@ -8,8 +8,8 @@
 #include <string>
 #include <utility>
 
-#include "dynamic_occupancy_grid/core/parallel.h"
-#include "dynamic_occupancy_grid/core/resampling.h"
+#include "dynamic_occupancy_grid/core/common/parallel.h"
+#include "dynamic_occupancy_grid/core/pose/resampling.h"
 
 namespace dynamic_occupancy_grid {
 namespace core {

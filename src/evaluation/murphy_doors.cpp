@@ -9,8 +9,8 @@
 #include <sstream>
 #include <stdexcept>
 
-#include "dynamic_occupancy_grid/core/parallel.h"
-#include "dynamic_occupancy_grid/core/resampling.h"
+#include "dynamic_occupancy_grid/core/common/parallel.h"
+#include "dynamic_occupancy_grid/core/pose/resampling.h"
 #include "dynamic_occupancy_grid/evaluation/simulator.h"
 
 namespace dynamic_occupancy_grid {

@@ -9,7 +9,7 @@
 #include <sstream>
 #include <stdexcept>
 
-#include "dynamic_occupancy_grid/core/mapper.h"
+#include "dynamic_occupancy_grid/core/grid/mapper.h"
 #include "dynamic_occupancy_grid/evaluation/evaluation.h"
 
 namespace dynamic_occupancy_grid {

@@ -5,9 +5,9 @@
 #include <optional>
 #include <stdexcept>
 
-#include "dynamic_occupancy_grid/core/cell_grid.h"
-#include "dynamic_occupancy_grid/core/cell_model.h"
-#include "dynamic_occupancy_grid/core/offline_em.h"
+#include "dynamic_occupancy_grid/core/grid/cell_grid.h"
+#include "dynamic_occupancy_grid/core/cell/cell_model.h"
+#include "dynamic_occupancy_grid/core/cell/offline_em.h"
 
 namespace dynamic_occupancy_grid {
 namespace core {

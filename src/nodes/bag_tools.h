@@ -23,10 +23,10 @@
 #include <boost/algorithm/string/split.hpp>
 
 #include "command_line.h"
-#include "dynamic_occupancy_grid/core/corrected_mapping.h"
-#include "dynamic_occupancy_grid/core/mapper.h"
-#include "dynamic_occupancy_grid/core/motion_model.h"
-#include "dynamic_occupancy_grid/core/offline_em.h"
+#include "dynamic_occupancy_grid/core/pose/corrected_mapping.h"
+#include "dynamic_occupancy_grid/core/grid/mapper.h"
+#include "dynamic_occupancy_grid/core/pose/motion_model.h"
+#include "dynamic_occupancy_grid/core/cell/offline_em.h"
 #include "dynamic_occupancy_grid/ros/bag_offline_em.h"
 #include "dynamic_occupancy_grid/ros/bag_scan_source.h"
 #include "dynamic_occupancy_grid/ros/parameters.h"

@@ -25,8 +25,8 @@
 
 #include "command_line.h"
 #include "dynamic_occupancy_grid/evaluation/evaluation.h"
-#include "dynamic_occupancy_grid/core/cell_kinds.h"
-#include "dynamic_occupancy_grid/core/map_export.h"
+#include "dynamic_occupancy_grid/core/cell/cell_kinds.h"
+#include "dynamic_occupancy_grid/core/layers/map_export.h"
 #include "dynamic_occupancy_grid/evaluation/learning_experiment.h"
 #include "dynamic_occupancy_grid/evaluation/memory_experiment.h"
 #include "dynamic_occupancy_grid/evaluation/mrf_experiment.h"

@@ -11,9 +11,9 @@
 #include <vector>
 
 #include "bag_tools.h"
-#include "dynamic_occupancy_grid/core/mapper.h"
-#include "dynamic_occupancy_grid/core/model_io.h"
-#include "dynamic_occupancy_grid/core/offline_em.h"
+#include "dynamic_occupancy_grid/core/grid/mapper.h"
+#include "dynamic_occupancy_grid/core/layers/model_io.h"
+#include "dynamic_occupancy_grid/core/cell/offline_em.h"
 #include "dynamic_occupancy_grid/ros/bag_offline_em.h"
 #include "dynamic_occupancy_grid/ros/bag_scan_source.h"
 

@@ -48,11 +48,11 @@
 #include <vector>
 
 #include "bag_tools.h"
-#include "dynamic_occupancy_grid/core/file_io.h"
-#include "dynamic_occupancy_grid/core/mapper.h"
-#include "dynamic_occupancy_grid/core/model_io.h"
-#include "dynamic_occupancy_grid/core/offline_em.h"
-#include "dynamic_occupancy_grid/core/step_clock.h"
+#include "dynamic_occupancy_grid/core/layers/file_io.h"
+#include "dynamic_occupancy_grid/core/grid/mapper.h"
+#include "dynamic_occupancy_grid/core/layers/model_io.h"
+#include "dynamic_occupancy_grid/core/cell/offline_em.h"
+#include "dynamic_occupancy_grid/core/grid/step_clock.h"
 #include "dynamic_occupancy_grid/ros/bag_offline_em.h"
 #include "dynamic_occupancy_grid/ros/bag_scan_source.h"
 

@@ -9,7 +9,7 @@ namespace ros_layer {
 std::vector<std::int8_t> layerValues(const core::CellGrid& grid, const LayerView& view, std::int64_t step,
                                      const core::CellBox& box) {
   // One pass to int8, rows over the cores; the same values as evaluateLayer followed by
-  // toOccupancyValues / toThresholdedOccupancyValues (core/layers.h).
+  // toOccupancyValues / toThresholdedOccupancyValues (core/layers/layers.h).
   std::vector<std::int8_t> occupancy;
   core::layerOccupancy(grid, view.layer, step, view.horizon_steps, box,
                        core::OccupancyScaling{view.full_scale, view.thresholds}, &occupancy);

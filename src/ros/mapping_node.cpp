@@ -20,12 +20,12 @@
 #include <sstream>
 #include <utility>
 
-#include "dynamic_occupancy_grid/core/cell_grid.h"
-#include "dynamic_occupancy_grid/core/cell_model.h"
-#include "dynamic_occupancy_grid/core/file_io.h"
-#include "dynamic_occupancy_grid/core/map_export.h"
-#include "dynamic_occupancy_grid/core/model_io.h"
-#include "dynamic_occupancy_grid/core/online_em.h"
+#include "dynamic_occupancy_grid/core/grid/cell_grid.h"
+#include "dynamic_occupancy_grid/core/cell/cell_model.h"
+#include "dynamic_occupancy_grid/core/layers/file_io.h"
+#include "dynamic_occupancy_grid/core/layers/map_export.h"
+#include "dynamic_occupancy_grid/core/layers/model_io.h"
+#include "dynamic_occupancy_grid/core/cell/online_em.h"
 #include "dynamic_occupancy_grid/ros/bag_offline_em.h"
 #include "dynamic_occupancy_grid/ros/conversions.h"
 

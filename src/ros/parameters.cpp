@@ -4,7 +4,7 @@
 #include <ros/param.h>
 #include <xmlrpcpp/XmlRpcValue.h>
 
-#include "dynamic_occupancy_grid/core/corrected_mapping.h"
+#include "dynamic_occupancy_grid/core/pose/corrected_mapping.h"
 #include "dynamic_occupancy_grid/ros/bag_offline_em.h"
 
 #include <algorithm>
@@ -322,7 +322,7 @@ bool readParameters(const ros::NodeHandle& private_nh, NodeParameters* parameter
   memory.max_free_range_m = m.max_free_range_m;
   memory.max_map_size_m = m.max_map_size_m;
 
-  // Pose correction: the pose filter (core/pose_filter.h) under gmapping's and amcl's names.
+  // Pose correction: the pose filter (core/pose/pose_filter.h) under gmapping's and amcl's names.
   std::string pose_correction = "none";
   read.text("pose_correction", &pose_correction);
   if (pose_correction == "rbpf") {

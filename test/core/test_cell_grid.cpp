@@ -1,4 +1,4 @@
-// Tests of the tiled cell storage (core/cell_grid.h) and of the map geometry the mapper
+// Tests of the tiled cell storage (core/grid/cell_grid.h) and of the map geometry the mapper
 // builds on it: world <-> lattice coordinates, the map window, row-major layer layout,
 // growth in whole 64 x 64 tiles (also towards negative coordinates), fixed bounds, the map
 // size limit, and the memory per cell.
@@ -6,7 +6,7 @@
 // References are written out independently in this file: floor division / modulo by 64 in
 // plain integer arithmetic, a std::map of every value written, hand-computed cell indices.
 
-#include "dynamic_occupancy_grid/core/cell_grid.h"
+#include "dynamic_occupancy_grid/core/grid/cell_grid.h"
 
 #include <gtest/gtest.h>
 
@@ -20,9 +20,9 @@
 #include <utility>
 #include <vector>
 
-#include "dynamic_occupancy_grid/core/layers.h"
-#include "dynamic_occupancy_grid/core/mapper.h"
-#include "dynamic_occupancy_grid/core/scan.h"
+#include "dynamic_occupancy_grid/core/layers/layers.h"
+#include "dynamic_occupancy_grid/core/grid/mapper.h"
+#include "dynamic_occupancy_grid/core/grid/scan.h"
 
 namespace dog = dynamic_occupancy_grid::core;
 

@@ -1,4 +1,4 @@
-// Tests of the kinds of cells (core/cell_kinds.h; docs/online_learning.md, "Kinds of cells").
+// Tests of the kinds of cells (core/cell/cell_kinds.h; docs/online_learning.md, "Kinds of cells").
 //
 // The oracle is a plain reference written here in long double: the model of cell_kinds.h as
 // a hidden Markov model on (kind, state), one loop iteration per time step, no closed forms
@@ -7,7 +7,7 @@
 // the configured probability for the step's view change, and weighs it by the evidence). No reference calls CellKinds' model. The M-step is checked against its formula
 // by hand, and the learning against a simulated population whose kinds are known.
 
-#include "dynamic_occupancy_grid/core/cell_kinds.h"
+#include "dynamic_occupancy_grid/core/cell/cell_kinds.h"
 
 #include <gtest/gtest.h>
 

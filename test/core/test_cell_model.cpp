@@ -1,4 +1,4 @@
-// Tests of the per-cell HMM of THEORY.md §1-3 (core/cell_model.h).
+// Tests of the per-cell HMM of THEORY.md §1-3 (core/cell/cell_model.h).
 //
 // Every reference value below is computed independently of the code under test: either
 // by hand (the arithmetic is written in a comment) or by plain 2-vector / 2x2-matrix
@@ -8,7 +8,7 @@
 // (index 0 = occ, 1 = free), mostly in long double. No reference calls predictOneStep,
 // predictOccupancy, bayesUpdate, filterStep or mixingTime.
 
-#include "dynamic_occupancy_grid/core/cell_model.h"
+#include "dynamic_occupancy_grid/core/cell/cell_model.h"
 
 #include <gtest/gtest.h>
 

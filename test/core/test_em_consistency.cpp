@@ -1,5 +1,5 @@
 // Consistency of the two estimators of a cell's transition probabilities: online EM
-// (core/online_em.h, THEORY.md §6) and offline EM (core/offline_em.h, THEORY.md §5).
+// (core/cell/online_em.h, THEORY.md §6) and offline EM (core/cell/offline_em.h, THEORY.md §5).
 //
 // The data are simulated here, independently of the code under test: every cell is a true
 // 2-state Markov chain with known (p_of, p_fo); it is observed on a random 30 % of the steps,
@@ -19,9 +19,9 @@
 // where the issue needs it, with a learning-rate floor (the change of truth below).
 // Offline EM starts far from every truth.
 
-#include "dynamic_occupancy_grid/core/cell_model.h"
-#include "dynamic_occupancy_grid/core/offline_em.h"
-#include "dynamic_occupancy_grid/core/online_em.h"
+#include "dynamic_occupancy_grid/core/cell/cell_model.h"
+#include "dynamic_occupancy_grid/core/cell/offline_em.h"
+#include "dynamic_occupancy_grid/core/cell/online_em.h"
 
 #include <gtest/gtest.h>
 

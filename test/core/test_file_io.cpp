@@ -1,4 +1,4 @@
-// Tests of the file helpers every user-given path goes through (core/file_io.h): only
+// Tests of the file helpers every user-given path goes through (core/layers/file_io.h): only
 // regular files are read, never blocking on a FIFO or opening a device; reads are as long
 // as the caller asks; writes never replace anything but a regular file, go through unique
 // temporaries that every failure removes; stale temporaries of killed writers are cleaned,
@@ -8,7 +8,7 @@
 // failures need another user (permissions do not bind root): run as root, those tests act
 // as the user nobody for the call; run as another user, the ones that need root skip.
 
-#include "dynamic_occupancy_grid/core/file_io.h"
+#include "dynamic_occupancy_grid/core/layers/file_io.h"
 
 #include <fcntl.h>
 #include <gtest/gtest.h>

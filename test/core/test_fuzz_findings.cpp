@@ -18,9 +18,9 @@
 #include <string>
 #include <vector>
 
-#include "dynamic_occupancy_grid/core/mapper.h"
-#include "dynamic_occupancy_grid/core/model_io.h"
-#include "dynamic_occupancy_grid/core/scan_beams.h"
+#include "dynamic_occupancy_grid/core/grid/mapper.h"
+#include "dynamic_occupancy_grid/core/layers/model_io.h"
+#include "dynamic_occupancy_grid/core/grid/scan_beams.h"
 
 namespace dog = dynamic_occupancy_grid::core;
 

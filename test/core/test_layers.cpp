@@ -1,9 +1,9 @@
-// Tests of the published layers (core/layers.h): every layer evaluated from cell state
+// Tests of the published layers (core/layers/layers.h): every layer evaluated from cell state
 // written directly into a CellGrid, against references computed here (2x2 matrix powers by
 // iteration, stationary p_of / (p_of + p_fo), the logistic of the log-odds), NaN for cells
 // never observed, the row-major layout, and the one scaling to OccupancyGrid values.
 
-#include "dynamic_occupancy_grid/core/layers.h"
+#include "dynamic_occupancy_grid/core/layers/layers.h"
 
 #include <gtest/gtest.h>
 
@@ -22,9 +22,9 @@
 #include <utility>
 #include <vector>
 
-#include "dynamic_occupancy_grid/core/cell_grid.h"
-#include "dynamic_occupancy_grid/core/cell_model.h"
-#include "dynamic_occupancy_grid/core/mapper.h"
+#include "dynamic_occupancy_grid/core/grid/cell_grid.h"
+#include "dynamic_occupancy_grid/core/cell/cell_model.h"
+#include "dynamic_occupancy_grid/core/grid/mapper.h"
 
 namespace dog = dynamic_occupancy_grid::core;
 

@@ -1,4 +1,4 @@
-// Tests of the map_server export (core/map_export.h): the binary PGM (P5) and its YAML,
+// Tests of the map_server export (core/layers/map_export.h): the binary PGM (P5) and its YAML,
 // pixel values (occupied 0, free 254, unknown 205), the north-up row flip, the YAML fields,
 // map_server's own reading of the pair, and the atomic-write guarantees (no temporary file
 // left, failures throw std::runtime_error and leave older files intact); the .npy values
@@ -6,7 +6,7 @@
 //
 // Every test works in its own fresh directory under the system temporary directory.
 
-#include "dynamic_occupancy_grid/core/map_export.h"
+#include "dynamic_occupancy_grid/core/layers/map_export.h"
 
 #include <gtest/gtest.h>
 #include <sys/stat.h>
@@ -28,9 +28,9 @@
 #include <string>
 #include <vector>
 
-#include "dynamic_occupancy_grid/core/cell_grid.h"
-#include "dynamic_occupancy_grid/core/layers.h"
-#include "dynamic_occupancy_grid/core/mapper.h"
+#include "dynamic_occupancy_grid/core/grid/cell_grid.h"
+#include "dynamic_occupancy_grid/core/layers/layers.h"
+#include "dynamic_occupancy_grid/core/grid/mapper.h"
 
 namespace dog = dynamic_occupancy_grid::core;
 namespace fs = std::filesystem;

@@ -1,4 +1,4 @@
-// Tests of the mapping pipeline (core/mapper.h): grouping scans into HMM steps, per-scan and
+// Tests of the mapping pipeline (core/grid/mapper.h): grouping scans into HMM steps, per-scan and
 // per-step fusion of hits and misses, the beam rules, rejection of invalid and late scans,
 // lazy evaluation of unobserved cells, and a small end-to-end wall scenario.
 //
@@ -13,7 +13,7 @@
 // a cell's state is stored as float once per applied step; the references round the same
 // way, and comparisons use a tolerance of 1e-6.
 
-#include "dynamic_occupancy_grid/core/mapper.h"
+#include "dynamic_occupancy_grid/core/grid/mapper.h"
 
 #include <gtest/gtest.h>
 
@@ -31,8 +31,8 @@
 #include <utility>
 #include <vector>
 
-#include "dynamic_occupancy_grid/core/layers.h"
-#include "dynamic_occupancy_grid/core/model_io.h"
+#include "dynamic_occupancy_grid/core/layers/layers.h"
+#include "dynamic_occupancy_grid/core/layers/model_io.h"
 
 namespace dog = dynamic_occupancy_grid::core;
 

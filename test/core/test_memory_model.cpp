@@ -1,7 +1,7 @@
 // The STM/LTM memory model (Morris et al., THEORY.md §8): the update policies against
 // numbers worked out by hand from Table I, the view rules, configurations and hypotheses,
 // and the whole model against a plain step-by-step reference over random observations.
-#include "dynamic_occupancy_grid/core/memory_model.h"
+#include "dynamic_occupancy_grid/core/memory/memory_model.h"
 
 #include <gtest/gtest.h>
 

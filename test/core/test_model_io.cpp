@@ -1,4 +1,4 @@
-// Tests of the model file (core/model_io.h, docs/model_format.md): a saved and loaded
+// Tests of the model file (core/layers/model_io.h, docs/model_format.md): a saved and loaded
 // Mapper is the same Mapper (every cell bit for bit, the configuration field by field, the
 // time, the kinds of cells' sums), and it goes on mapping exactly as the original does, with
 // either transition learner; the file's bytes are the ones documented; files of versions 1
@@ -13,7 +13,7 @@
 // zlib the library calls (the file promises the CRC-32 of zlib, which the Python reader
 // uses too).
 
-#include "dynamic_occupancy_grid/core/model_io.h"
+#include "dynamic_occupancy_grid/core/layers/model_io.h"
 
 #include <gtest/gtest.h>
 #include <signal.h>
@@ -86,7 +86,7 @@ constexpr std::size_t kKindCountingOffset = 423;
 constexpr std::size_t kKindLearnFromGapsOffset = 424;
 constexpr std::size_t kKindBinCountOffset = 425;  // u16
 constexpr std::size_t kKindPairsOffset = 427;     // [kind][bin][2 i + j] (i: state then, j: now)
-constexpr std::size_t kKindBins = 124;            // core/cell_kinds.h kGapBins
+constexpr std::size_t kKindBins = 124;            // core/cell/cell_kinds.h kGapBins
 constexpr std::size_t kKindPairsSize = 5 * kKindBins * 4 * 8;
 constexpr std::size_t kKindMembershipOffset = kKindPairsOffset + kKindPairsSize;
 constexpr std::size_t kKindCellsOffset = kKindMembershipOffset + 5 * 8;

@@ -1,5 +1,5 @@
 // The MRF-smoothed M-step (mrf.h) and offline EM with it (offline_em.h, mrf_temperature).
-#include "dynamic_occupancy_grid/core/mrf.h"
+#include "dynamic_occupancy_grid/core/cell/mrf.h"
 
 #include <gtest/gtest.h>
 
@@ -9,7 +9,7 @@
 #include <random>
 #include <stdexcept>
 
-#include "dynamic_occupancy_grid/core/offline_em.h"
+#include "dynamic_occupancy_grid/core/cell/offline_em.h"
 
 namespace dog = dynamic_occupancy_grid::core;
 

@@ -1,4 +1,4 @@
-// Tests of the offline EM (Baum–Welch) of THEORY.md §5 (core/offline_em.h).
+// Tests of the offline EM (Baum–Welch) of THEORY.md §5 (core/cell/offline_em.h).
 //
 // The optimized forward–backward crosses runs of steps without observation in closed form.
 // Every reference value below is computed independently of it, in long double, by a plain
@@ -10,7 +10,7 @@
 // The reference M-step and EM loop are written from the header's promises; no reference
 // calls forwardBackward, offlineMStep or runOfflineEm.
 
-#include "dynamic_occupancy_grid/core/offline_em.h"
+#include "dynamic_occupancy_grid/core/cell/offline_em.h"
 
 #include <gtest/gtest.h>
 

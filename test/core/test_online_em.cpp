@@ -1,4 +1,4 @@
-// Tests of online EM (core/online_em.h; THEORY.md §6, Mongillo & Deneve 2008 eq. (13)).
+// Tests of online EM (core/cell/online_em.h; THEORY.md §6, Mongillo & Deneve 2008 eq. (13)).
 //
 // The oracle is a plain reference implementation written here in long double: the
 // recursion of THEORY.md §6 exactly as stated there (explicit sums over k and m, one loop
@@ -9,7 +9,7 @@
 //
 // Index 0 = occ, 1 = free; A = [[1 - p_fo, p_fo], [p_of, 1 - p_of]] (rows: from).
 
-#include "dynamic_occupancy_grid/core/online_em.h"
+#include "dynamic_occupancy_grid/core/cell/online_em.h"
 
 #include <gtest/gtest.h>
 

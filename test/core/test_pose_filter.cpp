@@ -1,12 +1,12 @@
-// Tests of mapping under pose uncertainty (core/motion_model.h, core/resampling.h,
-// core/particle_map.h, core/pose_filter.h): the odometry motion model's formulas, the
+// Tests of mapping under pose uncertainty (core/pose/motion_model.h, core/pose/resampling.h,
+// core/pose/particle_map.h, core/pose/pose_filter.h): the odometry motion model's formulas, the
 // particle maps' closed-form cells against the core Mapper fed the same scans at the same
 // poses, copy-on-write tiles, a scan's evidence and its likelihood against sums written out
 // here, the filter on a room with drifting odometry, where it must end nearer the truth
-// than odometry, and mapping at the filter's corrected poses (core/corrected_mapping.h).
+// than odometry, and mapping at the filter's corrected poses (core/pose/corrected_mapping.h).
 
-#include "dynamic_occupancy_grid/core/pose_filter.h"
-#include "dynamic_occupancy_grid/core/corrected_mapping.h"
+#include "dynamic_occupancy_grid/core/pose/pose_filter.h"
+#include "dynamic_occupancy_grid/core/pose/corrected_mapping.h"
 
 #include <gtest/gtest.h>
 
@@ -23,9 +23,9 @@
 #include <utility>
 #include <vector>
 
-#include "dynamic_occupancy_grid/core/mapper.h"
-#include "dynamic_occupancy_grid/core/model_io.h"
-#include "dynamic_occupancy_grid/core/resampling.h"
+#include "dynamic_occupancy_grid/core/grid/mapper.h"
+#include "dynamic_occupancy_grid/core/layers/model_io.h"
+#include "dynamic_occupancy_grid/core/pose/resampling.h"
 
 namespace dog = dynamic_occupancy_grid::core;
 
@@ -488,7 +488,7 @@ TEST(PoseFilter, BadConfigsAreRefused) {
   EXPECT_THROW(filter.integrate(dog::Scan{}), std::invalid_argument);  // no ranges
 }
 
-// --- mapping with corrected poses (core/corrected_mapping.h) ---------------------------------
+// --- mapping with corrected poses (core/pose/corrected_mapping.h) ---------------------------------
 
 TEST(CorrectedMapping, ConfigTakesTheMappersMapAndSensor) {
   dog::MapperConfig mapper;

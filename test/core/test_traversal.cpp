@@ -1,4 +1,4 @@
-// Tests for core::traverseSegment (include/dynamic_occupancy_grid/core/traversal.h).
+// Tests for core::traverseSegment (include/dynamic_occupancy_grid/core/grid/traversal.h).
 //
 // Contract under test: for the closed segment P(t) = P0 + t * (P1 - P0), t in [0, 1], the
 // cells visited (visitor calls, then the returned end cell) are exactly the set
@@ -28,7 +28,7 @@
 #include <utility>
 #include <vector>
 
-#include "dynamic_occupancy_grid/core/traversal.h"
+#include "dynamic_occupancy_grid/core/grid/traversal.h"
 
 namespace {
 

@@ -29,7 +29,7 @@ for file in "$@"; do
     allowed "$path" && continue                              # the libraries themselves
     case "$path" in
       "$eigen_dir"/*) ;;                                     # Eigen
-      # zlib: the model file's CRC-32 (src/core/model_io.cpp) is zlib's, the checksum the
+      # zlib: the model file's CRC-32 (src/core/layers/model_io.cpp) is zlib's, the checksum the
       # format promises; named here so the rule says it, not only the libc catch-all below.
       /usr/include/zlib.h|/usr/include/zconf.h|/usr/include/*-linux-gnu/zconf.h) ;;
       /usr/include/c++/*|/usr/include/x86_64-linux-gnu/*|/usr/include/aarch64-linux-gnu/*) ;;

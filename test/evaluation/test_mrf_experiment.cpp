@@ -13,8 +13,8 @@
 #include <set>
 #include <stdexcept>
 
-#include "dynamic_occupancy_grid/core/cell_kinds.h"
-#include "dynamic_occupancy_grid/core/mapper.h"
+#include "dynamic_occupancy_grid/core/cell/cell_kinds.h"
+#include "dynamic_occupancy_grid/core/grid/mapper.h"
 #include "dynamic_occupancy_grid/evaluation/evaluation.h"
 
 namespace dynamic_occupancy_grid {

@@ -29,8 +29,8 @@
 #include <utility>
 #include <vector>
 
-#include "dynamic_occupancy_grid/core/cell_model.h"
-#include "dynamic_occupancy_grid/core/mapper.h"
+#include "dynamic_occupancy_grid/core/cell/cell_model.h"
+#include "dynamic_occupancy_grid/core/grid/mapper.h"
 
 namespace dog = dynamic_occupancy_grid::core;
 

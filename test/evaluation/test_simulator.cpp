@@ -16,8 +16,8 @@
 #include <stdexcept>
 #include <string>
 
-#include "dynamic_occupancy_grid/core/mapper.h"
-#include "dynamic_occupancy_grid/core/offline_em.h"
+#include "dynamic_occupancy_grid/core/grid/mapper.h"
+#include "dynamic_occupancy_grid/core/cell/offline_em.h"
 
 namespace dynamic_occupancy_grid {
 namespace core {

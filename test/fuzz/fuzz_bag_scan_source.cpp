@@ -26,7 +26,7 @@
 #include <stdexcept>
 #include <string>
 
-#include "dynamic_occupancy_grid/core/mapper.h"
+#include "dynamic_occupancy_grid/core/grid/mapper.h"
 #include "dynamic_occupancy_grid/ros/bag_scan_source.h"
 #include "scratch_file.h"
 

@@ -1,4 +1,4 @@
-// libFuzzer target: the model-file reader (core/model_io.h) on arbitrary bytes.
+// libFuzzer target: the model-file reader (core/layers/model_io.h) on arbitrary bytes.
 //
 // Every input is read twice: as it is (almost always refused by the checksum), and with its
 // last four bytes replaced by the CRC-32 of the rest, so that mutations reach the header and
@@ -19,8 +19,8 @@
 #include <stdexcept>
 #include <string>
 
-#include "dynamic_occupancy_grid/core/mapper.h"
-#include "dynamic_occupancy_grid/core/model_io.h"
+#include "dynamic_occupancy_grid/core/grid/mapper.h"
+#include "dynamic_occupancy_grid/core/layers/model_io.h"
 #include "scratch_file.h"
 
 namespace core = dynamic_occupancy_grid::core;

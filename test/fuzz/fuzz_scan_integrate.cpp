@@ -20,8 +20,8 @@
 #include <optional>
 #include <string>
 
-#include "dynamic_occupancy_grid/core/mapper.h"
-#include "dynamic_occupancy_grid/core/model_io.h"
+#include "dynamic_occupancy_grid/core/grid/mapper.h"
+#include "dynamic_occupancy_grid/core/layers/model_io.h"
 #include "dynamic_occupancy_grid/ros/conversions.h"
 
 namespace core = dynamic_occupancy_grid::core;

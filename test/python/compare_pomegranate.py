@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""Cross-check of the core's offline EM (src/core/offline_em.cpp) against pomegranate.
+"""Cross-check of the core's offline EM (src/core/cell/offline_em.cpp) against pomegranate.
 
 Usage:
     compare_pomegranate.py OFFLINE_EM_CLI [--cells N] [--iterations N] [--seed S]

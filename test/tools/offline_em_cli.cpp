@@ -1,4 +1,4 @@
-// offline_em_cli: a small test tool that runs the core's offline EM (core/offline_em.h) on
+// offline_em_cli: a small test tool that runs the core's offline EM (core/cell/offline_em.h) on
 // per-cell observation sequences read from stdin and prints what it learned, so that an
 // outside implementation (test/python/compare_pomegranate.py, pomegranate's Baum-Welch)
 // can check it. Not installed; built by test/core_standalone.
@@ -38,8 +38,8 @@
 #include <string>
 #include <vector>
 
-#include "dynamic_occupancy_grid/core/cell_model.h"
-#include "dynamic_occupancy_grid/core/offline_em.h"
+#include "dynamic_occupancy_grid/core/cell/cell_model.h"
+#include "dynamic_occupancy_grid/core/cell/offline_em.h"
 
 namespace dog = dynamic_occupancy_grid::core;
 

@@ -42,8 +42,8 @@
 #include <string>
 #include <vector>
 
-#include "dynamic_occupancy_grid/core/mapper.h"
-#include "dynamic_occupancy_grid/core/model_io.h"
+#include "dynamic_occupancy_grid/core/grid/mapper.h"
+#include "dynamic_occupancy_grid/core/layers/model_io.h"
 
 namespace dog = dynamic_occupancy_grid::core;
 

@@ -20,9 +20,9 @@
 #include <string>
 #include <vector>
 
-#include "dynamic_occupancy_grid/core/cell_grid.h"
-#include "dynamic_occupancy_grid/core/layers.h"
-#include "dynamic_occupancy_grid/core/map_export.h"
+#include "dynamic_occupancy_grid/core/grid/cell_grid.h"
+#include "dynamic_occupancy_grid/core/layers/layers.h"
+#include "dynamic_occupancy_grid/core/layers/map_export.h"
 
 namespace dog = dynamic_occupancy_grid::core;
 

@@ -22,8 +22,8 @@
 #include <string>
 #include <vector>
 
-#include "dynamic_occupancy_grid/core/mapper.h"
-#include "dynamic_occupancy_grid/core/offline_em.h"
+#include "dynamic_occupancy_grid/core/grid/mapper.h"
+#include "dynamic_occupancy_grid/core/cell/offline_em.h"
 #include "dynamic_occupancy_grid/evaluation/simulator.h"
 
 namespace dynamic_occupancy_grid {

@@ -62,7 +62,7 @@
 #include <string>
 #include <vector>
 
-#include "dynamic_occupancy_grid/core/memory_model.h"
+#include "dynamic_occupancy_grid/core/memory/memory_model.h"
 #include "dynamic_occupancy_grid/evaluation/path_planning.h"
 #include "dynamic_occupancy_grid/evaluation/planner.h"
 #include "dynamic_occupancy_grid/evaluation/simulator.h"

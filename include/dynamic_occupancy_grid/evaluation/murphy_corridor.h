@@ -27,7 +27,7 @@
 #include <utility>
 #include <vector>
 
-#include "dynamic_occupancy_grid/core/cell_model.h"
+#include "dynamic_occupancy_grid/core/cell/cell_model.h"
 #include "dynamic_occupancy_grid/evaluation/simulator.h"
 
 namespace dynamic_occupancy_grid {

@@ -68,7 +68,7 @@
 #include <string>
 #include <vector>
 
-#include "dynamic_occupancy_grid/core/cell_model.h"
+#include "dynamic_occupancy_grid/core/cell/cell_model.h"
 #include "dynamic_occupancy_grid/evaluation/simulator.h"
 
 namespace dynamic_occupancy_grid {

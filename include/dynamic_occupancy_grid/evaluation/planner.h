@@ -9,7 +9,7 @@
 #include <cstdint>
 #include <vector>
 
-#include "dynamic_occupancy_grid/core/traversal.h"
+#include "dynamic_occupancy_grid/core/grid/traversal.h"
 
 namespace dynamic_occupancy_grid {
 namespace core {

@@ -1,5 +1,5 @@
 #pragma once
-// Mapping under pose uncertainty, measured (issue 19; core/pose_filter.h): one simulated
+// Mapping under pose uncertainty, measured (issue 19; core/pose/pose_filter.h): one simulated
 // run of a changing world, the same scans, the laser's pose known only through drifting
 // odometry, mapped side by side by
 //   known_pose   the package's Mapper at the true laser poses (the bound)
@@ -25,8 +25,8 @@
 #include <string>
 #include <vector>
 
-#include "dynamic_occupancy_grid/core/motion_model.h"
-#include "dynamic_occupancy_grid/core/pose_filter.h"
+#include "dynamic_occupancy_grid/core/pose/motion_model.h"
+#include "dynamic_occupancy_grid/core/pose/pose_filter.h"
 #include "dynamic_occupancy_grid/evaluation/simulator.h"
 
 namespace dynamic_occupancy_grid {

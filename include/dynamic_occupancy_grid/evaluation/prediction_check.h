@@ -41,8 +41,8 @@
 #include <string>
 #include <vector>
 
-#include "dynamic_occupancy_grid/core/mapper.h"
-#include "dynamic_occupancy_grid/core/scan.h"
+#include "dynamic_occupancy_grid/core/grid/mapper.h"
+#include "dynamic_occupancy_grid/core/grid/scan.h"
 
 namespace dynamic_occupancy_grid {
 namespace core {

@@ -17,10 +17,10 @@
 #include <string>
 #include <vector>
 
-#include "dynamic_occupancy_grid/core/cell_model.h"
-#include "dynamic_occupancy_grid/core/motion_model.h"
-#include "dynamic_occupancy_grid/core/scan.h"
-#include "dynamic_occupancy_grid/core/traversal.h"
+#include "dynamic_occupancy_grid/core/cell/cell_model.h"
+#include "dynamic_occupancy_grid/core/pose/motion_model.h"
+#include "dynamic_occupancy_grid/core/grid/scan.h"
+#include "dynamic_occupancy_grid/core/grid/traversal.h"
 
 namespace dynamic_occupancy_grid {
 namespace core {

@@ -1,16 +1,16 @@
 #pragma once
 // Bags into a mapper, and offline EM over a recorded bag: the bag's scans are ray-traced
 // with a mapper's geometry (so its cells are the same lattice cells as the map's), every
-// cell's observed steps are recorded, and Baum-Welch runs on them (core/offline_em.h).
+// cell's observed steps are recorded, and Baum-Welch runs on them (core/cell/offline_em.h).
 // Shared by process_bag, the offline_em tool and the node's ~run_offline_em service.
 
 #include <cstddef>
 #include <functional>
 #include <string>
 
-#include "dynamic_occupancy_grid/core/corrected_mapping.h"
-#include "dynamic_occupancy_grid/core/mapper.h"
-#include "dynamic_occupancy_grid/core/offline_em.h"
+#include "dynamic_occupancy_grid/core/pose/corrected_mapping.h"
+#include "dynamic_occupancy_grid/core/grid/mapper.h"
+#include "dynamic_occupancy_grid/core/cell/offline_em.h"
 #include "dynamic_occupancy_grid/ros/bag_scan_source.h"
 
 namespace dynamic_occupancy_grid {

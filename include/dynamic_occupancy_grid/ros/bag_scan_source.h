@@ -16,7 +16,7 @@
 #include <optional>
 #include <string>
 
-#include "dynamic_occupancy_grid/core/scan.h"
+#include "dynamic_occupancy_grid/core/grid/scan.h"
 
 namespace dynamic_occupancy_grid {
 namespace ros_layer {

@@ -6,7 +6,7 @@
 
 #include <string>
 
-#include "dynamic_occupancy_grid/core/scan.h"
+#include "dynamic_occupancy_grid/core/grid/scan.h"
 
 namespace dynamic_occupancy_grid {
 namespace ros_layer {

@@ -12,9 +12,9 @@
 #include <string>
 #include <vector>
 
-#include "dynamic_occupancy_grid/core/cell_grid.h"
-#include "dynamic_occupancy_grid/core/layers.h"
-#include "dynamic_occupancy_grid/core/memory_model.h"
+#include "dynamic_occupancy_grid/core/grid/cell_grid.h"
+#include "dynamic_occupancy_grid/core/layers/layers.h"
+#include "dynamic_occupancy_grid/core/memory/memory_model.h"
 #include "dynamic_occupancy_grid/MapHypotheses.h"
 
 namespace dynamic_occupancy_grid {

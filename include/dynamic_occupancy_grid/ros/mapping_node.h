@@ -52,9 +52,9 @@
 #include "dynamic_occupancy_grid/PredictMap.h"
 #include "dynamic_occupancy_grid/RunOfflineEm.h"
 #include "dynamic_occupancy_grid/SaveModel.h"
-#include "dynamic_occupancy_grid/core/corrected_mapping.h"
-#include "dynamic_occupancy_grid/core/mapper.h"
-#include "dynamic_occupancy_grid/core/memory_model.h"
+#include "dynamic_occupancy_grid/core/pose/corrected_mapping.h"
+#include "dynamic_occupancy_grid/core/grid/mapper.h"
+#include "dynamic_occupancy_grid/core/memory/memory_model.h"
 #include "dynamic_occupancy_grid/ros/grid_messages.h"
 #include "dynamic_occupancy_grid/ros/parameters.h"
 

@@ -9,11 +9,11 @@
 #include <string>
 #include <vector>
 
-#include "dynamic_occupancy_grid/core/layers.h"
-#include "dynamic_occupancy_grid/core/mapper.h"
-#include "dynamic_occupancy_grid/core/memory_model.h"
-#include "dynamic_occupancy_grid/core/offline_em.h"
-#include "dynamic_occupancy_grid/core/pose_filter.h"
+#include "dynamic_occupancy_grid/core/layers/layers.h"
+#include "dynamic_occupancy_grid/core/grid/mapper.h"
+#include "dynamic_occupancy_grid/core/memory/memory_model.h"
+#include "dynamic_occupancy_grid/core/cell/offline_em.h"
+#include "dynamic_occupancy_grid/core/pose/pose_filter.h"
 
 namespace dynamic_occupancy_grid {
 namespace ros_layer {
@@ -57,7 +57,7 @@ struct NodeParameters {
   core::MemoryModelConfig memory;
   int max_published_hypotheses = 4;    ///< best hypotheses in ~hypotheses
   /// ~pose_correction "rbpf": the laser's pose in ~odom_frame is odometry, corrected by the
-  /// pose filter (core/corrected_mapping.h), which publishes ~fixed_frame -> ~odom_frame;
+  /// pose filter (core/pose/corrected_mapping.h), which publishes ~fixed_frame -> ~odom_frame;
   /// "none" (false): tf's pose in ~fixed_frame is the truth.
   bool pose_correction = false;
   std::string odom_frame = "odom";

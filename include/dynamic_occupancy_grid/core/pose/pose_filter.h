@@ -1,0 +1,209 @@
+#pragma once
+// Mapping under pose uncertainty: a Rao-Blackwellised particle filter whose particles
+// sample the laser's trajectory and carry, each, the map given that trajectory as cell
+// HMMs (Murphy, "Bayesian map learning in dynamic environments", NIPS 1999, §4; the map
+// per particle as in gmapping, Grisetti et al. 2007).
+//
+// One update, once odometry has moved update_distance_m or update_angle_rad since the last:
+//   1. proposal: each particle's pose moved by the odometry's motion read with the motion
+//      model's noise (motion_model.h), then refined by scan matching against the
+//      particle's map *predicted* to the scan's step (a hill climb of gmapping's kind on the
+//      beam end points' distance to predicted-occupied cells);
+//   2. weight: times the scan's likelihood under the particle's predicted map. Cells are
+//      independent given the trajectory, so p(z | trajectory, past scans) is the product
+//      over the cells the scan reaches of q p(z_c | occ) + (1 - q) p(z_c | free), q the
+//      cell's predicted p(occ) (the RBPF's exact incremental weight under the package's
+//      sensor model); cells the particle has never seen count as explained
+//      (PoseFilterConfig::unknown_cells_as_prior says why);
+//   3. resampling (Liu's residual resampling) when N_eff = 1 / sum w^2 falls below
+//      resample_below * N. Maps are copied by their tile pointers (particle_map.h);
+//   4. map: each cell the scan reaches takes one filter step with its evidence from the
+//      particle's pose. After resampling, the copies of one particle have one pose and one
+//      map: that map is updated once and shared (gmapping also maps after resampling), so
+//      only the distinct survivors' maps copy the tiles the scan writes.
+// A door the model predicts open (or a parked car predicted gone) is no evidence against a
+// particle that sees it open: that is where a dynamic map keeps particles where a static
+// one pulls them away.
+//
+// ROS-free: standard library only.
+
+#include <array>
+#include <cstddef>
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <random>
+#include <vector>
+
+#include "dynamic_occupancy_grid/core/pose/motion_model.h"
+#include "dynamic_occupancy_grid/core/pose/particle_map.h"
+#include "dynamic_occupancy_grid/core/grid/scan.h"
+#include "dynamic_occupancy_grid/core/grid/step_clock.h"
+
+namespace dynamic_occupancy_grid {
+namespace core {
+
+struct PoseFilterConfig {
+  std::size_t particles = 30;
+  /// The odometry's noise (amcl's odom_alpha1..4) for the proposal.
+  OdometryNoise motion_noise{0.05, 0.05, 0.05, 0.05};
+  /// An update once odometry moved this far or turned this much since the last (gmapping's
+  /// linearUpdate / angularUpdate); the first scan is always one.
+  double update_distance_m = 0.5;
+  double update_angle_rad = 0.5;
+  /// Resample when N_eff < resample_below * particles (1: at every update).
+  double resample_below = 0.5;
+  double resolution_m = 0.05;
+  double time_step_s = 1.0;           ///< one HMM step of the maps, seconds of sensor time
+  double p_hit_given_occ = 0.7;       ///< sensor model, as MapperConfig's
+  double p_hit_given_free = 0.2;
+  double unknown_p_occ = 0.5;         ///< p(occ) of a cell no scan has reached
+  /// The weight's term of a cell the particle's map has not observed. true: its evidence's
+  /// likelihood under unknown_p_occ (the exact incremental weight of the model). false (the
+  /// default): under the state that explains it best. With an uninformed prior the exact
+  /// weight favours the particles whose scan falls on cells their map has seen: every
+  /// unseen cell costs about log 2. Along a corridor that is the particles that moved
+  /// least, and a filter resampling on it shrinks every corridor (patrol_office: a 15 m
+  /// leg mapped 3 m short).
+  bool unknown_cells_as_prior = false;
+  double max_free_range_m = 10.0;     ///< beams without return clear up to here (0: ignored)
+  double max_range_m = 30.0;          ///< no beam is walked further (at most 1022 cells)
+  /// Scan matching: on by default; off, the proposal is the motion model alone.
+  bool scan_matching = true;
+  std::size_t match_beam_stride = 2;      ///< every n-th beam with a return takes part
+  double match_sigma_m = 0.05;            ///< the score's kernel exp(-d^2 / 2 sigma^2)
+  double match_linear_step_m = 0.05;      ///< first step of the hill climb, halved 4 times
+  double match_angular_step_rad = 0.03;
+  int match_max_iterations = 40;
+  /// Matching keeps the motion model's pose unless the score, per beam taking part, is at
+  /// least this (a particle's map that has not seen the place yet).
+  double match_min_score = 0.2;
+  std::uint64_t seed = 1;
+  /// Threads for the particles (0 = one per core); results do not depend on it.
+  unsigned threads = 0;
+
+  /// Throws std::invalid_argument naming the first bad field.
+  void validate() const;
+};
+
+/// The laser's poses of a particle, newest first; shared by the particles resampled from it.
+struct TrajectoryNode {
+  double stamp_s = 0.0;
+  Pose2D pose;
+  std::shared_ptr<const TrajectoryNode> parent;
+};
+
+struct Particle {
+  Pose2D pose;              ///< the laser's pose in the map frame at the last update
+  double log_weight = 0.0;  ///< since the last resampling, up to a constant
+  ParticleMap map;
+  std::shared_ptr<const TrajectoryNode> trajectory;
+};
+
+/// What one scan did.
+struct PoseUpdate {
+  bool updated = false;   ///< false: odometry had not moved enough (the scan is not used)
+  bool resampled = false;
+  double effective_sample_size = 0.0;  ///< before resampling
+  /// Bytes of the particles' maps after the update (each tile shared by several particles
+  /// once): the filter's peak, but for the tile being copied.
+  std::size_t map_bytes = 0;
+};
+
+/// A scan's evidence for one cell: one hit or one miss (a scan observes a cell once).
+struct CellEvidence {
+  std::int32_t x = 0;
+  std::int32_t y = 0;
+  std::uint32_t hits = 0;
+  std::uint32_t misses = 0;
+};
+
+/// The cells a scan from `laser_pose` reaches on a lattice of `resolution_m` (corner at the
+/// origin) and their evidence, in the order the beams first reach them; the reading rules of
+/// scan_beams.h and the Mapper's rule of one observation per cell and scan (a hit if any
+/// beam ends there with a return, otherwise a miss). Throws std::invalid_argument for a scan
+/// scanFieldsError refuses, a beam beyond the lattice, or a scan whose box of cells is
+/// wider than 2048 cells (max_range_m too long for resolution_m).
+std::vector<CellEvidence> scanEvidence(const Scan& scan, const Pose2D& laser_pose, double resolution_m,
+                                       double max_free_range_m, double max_range_m);
+
+class PoseFilter {
+ public:
+  /// A beam's end in the laser frame (x, y; m).
+  using LaserPoint = std::array<double, 2>;
+
+  /// Throws std::invalid_argument for a bad config or a null source.
+  PoseFilter(const PoseFilterConfig& config, std::shared_ptr<const TransitionSource> transitions);
+
+  /// A scan whose laser_pose is the laser's *odometry* pose at the scan's stamp. The first
+  /// scan puts every particle at that pose (the map frame starts at odometry's) and maps
+  /// it; a later one updates the particles once odometry has moved enough (else it is not
+  /// used). Stamps must not go back past the first scan's step. Throws
+  /// std::invalid_argument (nothing changed) for a scan scanFieldsError or scanEvidence
+  /// refuses, a stamp before the last update's step, or a first scan outside step 0 of
+  /// startStepsAt's origin.
+  PoseUpdate integrate(const Scan& scan);
+  /// Before the first scan: step 0 starts at `origin_s` instead of at the first scan's
+  /// stamp, which must then be in step 0 (integrate throws std::invalid_argument otherwise),
+  /// so that the filter's steps are another clock's (a Mapper's) moved by whole steps. A
+  /// later call before the first scan replaces it. Throws std::logic_error once started.
+  void startStepsAt(double origin_s);
+
+  const PoseFilterConfig& config() const { return config_; }
+  const std::vector<Particle>& particles() const { return particles_; }
+  bool started() const { return last_odometry_.has_value(); }
+  /// The particle with the highest weight (the first of equals; after resampling, a copy of
+  /// the particle that had the highest weight before). Requires started().
+  std::size_t bestIndex() const;
+  const Particle& best() const { return particles_[bestIndex()]; }
+  /// The particles' normalised weights.
+  std::vector<double> weights() const;
+  double effectiveSampleSize() const;
+  /// Entropy (nats) of a Gaussian fitted to the weighted particle poses (x, y, yaw), as
+  /// gmapping's ~entropy; a floor of 1e-12 per variance keeps it finite for equal poses.
+  double poseEntropy() const;
+  /// The map frame's correction of odometry: the best particle's pose times the inverse of
+  /// the odometry pose of the last update (map -> odom for the laser's poses).
+  Pose2D mapToOdometry() const;
+  /// The best particle's trajectory, oldest first.
+  std::vector<TrajectoryNode> bestTrajectory() const;
+  const TransitionSource& transitions() const { return *transitions_; }
+  std::size_t updates() const { return updates_; }
+  /// The step of the last update (0 before the first scan's).
+  std::int64_t lastUpdateStep() const { return last_step_; }
+  std::size_t resamplings() const { return resamplings_; }
+  /// The filter's steps (started by the first scan): step 0 starts at startStepsAt's origin,
+  /// or else at the first scan's stamp.
+  const StepClock& clock() const { return clock_; }
+
+ private:
+  /// `beams`: the ends of the scan's beams that take part in matching.
+  Pose2D matchPose(const Particle& particle, const std::vector<LaserPoint>& beams, const Pose2D& start,
+                   std::int64_t step) const;
+  /// Moves and weighs one particle (its map is updated after resampling: mapScan).
+  void updateParticle(Particle& particle, const Scan& scan, const std::vector<LaserPoint>& match_beams,
+                      const OdometryMotion& motion, const std::array<double, 3>& normals, std::int64_t step) const;
+  /// Maps `scan` in every particle's map from its pose; `ancestors[i]` the particle that
+  /// particle i was copied from at resampling (the copies of one share pose and map: one
+  /// update, shared).
+  void mapScan(const Scan& scan, const std::vector<std::size_t>& ancestors, std::int64_t step);
+  /// One filter step of every cell of `evidence` in `map`.
+  void mapEvidence(ParticleMap& map, const std::vector<CellEvidence>& evidence, std::int64_t step) const;
+  /// Returns each new particle's index before resampling; the best particle's copies first.
+  std::vector<std::size_t> resample();
+
+  PoseFilterConfig config_;
+  std::shared_ptr<const TransitionSource> transitions_;
+  ObservationModel sensor_;
+  StepClock clock_;
+  std::mt19937_64 rng_;
+  std::vector<Particle> particles_;
+  std::optional<Pose2D> last_odometry_;  ///< at the last update
+  std::int64_t last_step_ = 0;           ///< the last update's step
+  std::optional<double> steps_origin_s_;  ///< startStepsAt's, until the first scan
+  std::size_t updates_ = 0;
+  std::size_t resamplings_ = 0;
+};
+
+}  // namespace core
+}  // namespace dynamic_occupancy_grid
