@@ -36,6 +36,7 @@
 #include "../src/nodes/command_line.h"
 
 namespace dog = dynamic_occupancy_grid::core;
+namespace evaluation = dynamic_occupancy_grid::evaluation;
 namespace rl = dynamic_occupancy_grid::ros_layer;
 namespace cl = dynamic_occupancy_grid::command_line;
 
@@ -107,7 +108,7 @@ class Building {
     moveParts(0.0);
   }
 
-  const dog::World& world() const { return world_; }
+  const evaluation::World& world() const { return world_; }
   const std::vector<std::array<double, 2>>& route() const { return route_; }
 
   // Moves the people to where they are at `stamp_s`.
@@ -172,8 +173,8 @@ class Building {
     route_.push_back({centre_x, 10.0});  // back in the corridor
   }
 
-  dog::World world_;
-  dog::Rng rng_;
+  evaluation::World world_;
+  evaluation::Rng rng_;
   std::vector<Part> parts_;
   std::vector<Person> people_;
   std::vector<std::array<double, 2>> route_{{2.0, 10.0}};
@@ -371,11 +372,11 @@ int main(int argc, char** argv) {
   // The evaluation's default laser (LaserConfig: 360 beams over 360 degrees, 8 m, 1 cm
   // noise, 1 % dropouts), an RPLIDAR-class sensor: a scan costs about as much to simulate as
   // to map, so a million of them fit in about a quarter of an hour of one core.
-  const dog::LaserConfig laser{};
+  const evaluation::LaserConfig laser{};
   const double scan_period_s = 1.0 / options.scan_rate_hz;
-  const dog::LoopPath path(building.route(), options.speed_m_s * scan_period_s);
+  const evaluation::LoopPath path(building.route(), options.speed_m_s * scan_period_s);
   const double lap_scans = path.lengthM() / (options.speed_m_s * scan_period_s);
-  dog::Rng sensor_rng(dog::mixSeed(options.seed + 1));
+  evaluation::Rng sensor_rng(evaluation::mixSeed(options.seed + 1));
 
   std::ofstream csv;
   if (!options.csv.empty()) {
@@ -424,7 +425,8 @@ int main(int argc, char** argv) {
       next_publish_s += node.publish_period_s;
     }
     building.moveParts(stamp_s);
-    dog::Scan scan = dog::simulateScan(building.world(), path.poseAt(static_cast<double>(i)), laser, stamp_s, sensor_rng);
+    dog::Scan scan =
+        evaluation::simulateScan(building.world(), path.poseAt(static_cast<double>(i)), laser, stamp_s, sensor_rng);
     scan.range_max_m = std::min(scan.range_max_m, node.max_range_m);  // as the node does
     const double wall0 = wallSeconds();
     const double cpu0 = cpuSeconds();

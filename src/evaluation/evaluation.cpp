@@ -9,13 +9,13 @@
 #include <stdexcept>
 
 namespace dynamic_occupancy_grid {
-namespace core {
+namespace evaluation {
 namespace {
 
 // A clamp the textbook grid never reaches: log-odds of 1e6 is p = 1 in any float.
-constexpr LogOddsClamp kUnclamped{-1e6, 1e6};
+constexpr core::LogOddsClamp kUnclamped{-1e6, 1e6};
 
-MapperConfig fixedTransitions(MapperConfig config) {
+core::MapperConfig fixedTransitions(core::MapperConfig config) {
   config.learn_transitions = false;
   config.static_clamp = kUnclamped;
   return config;
@@ -39,8 +39,8 @@ std::string methodName(Method method) {
   return "unknown";
 }
 
-MapperConfig evaluationMapperConfig(const ScenarioConfig& scenario) {
-  MapperConfig config;
+core::MapperConfig evaluationMapperConfig(const ScenarioConfig& scenario) {
+  core::MapperConfig config;
   config.resolution_m = scenario.resolution_m;
   config.time_step_s = scenario.time_step_s;
   config.p_hit_given_occ = scenario.p_hit_given_occ;
@@ -53,8 +53,8 @@ MapperConfig evaluationMapperConfig(const ScenarioConfig& scenario) {
   return config;
 }
 
-OfflineEmConfig evaluationOfflineEmConfig(const MapperConfig& mapper_config) {
-  OfflineEmConfig config;
+core::OfflineEmConfig evaluationOfflineEmConfig(const core::MapperConfig& mapper_config) {
+  core::OfflineEmConfig config;
   config.initial_p_occ = mapper_config.initial_p_occ;
   config.prior = mapper_config.prior_transitions;
   // The tools' default (ros_layer::kDefaultOfflinePriorWeight): with maximum likelihood a
@@ -67,18 +67,19 @@ OfflineEmConfig evaluationOfflineEmConfig(const MapperConfig& mapper_config) {
   return config;
 }
 
-OfflineTraining trainOffline(Simulation& training, const MapperConfig& mapper_config, std::int64_t steps,
-                             const OfflineEmConfig& em_config) {
-  MapperConfig config = mapper_config;
+OfflineTraining trainOffline(Simulation& training, const core::MapperConfig& mapper_config, std::int64_t steps,
+                             const core::OfflineEmConfig& em_config) {
+  core::MapperConfig config = mapper_config;
   config.learn_transitions = false;  // only the observations matter here
   config.learn_sensor_model = false;  // offline EM starts from the configured sensor model
-  Mapper mapper(config);
-  SequenceBuilder recorder;
+  core::Mapper mapper(config);
+  core::SequenceBuilder recorder;
   mapper.recordObservations(&recorder);
   for (std::int64_t t = 0; t < steps; ++t) {
     for (int k = 0; k < training.config().scans_per_step; ++k) {
-      const ScanResult result = mapper.integrate(training.scan(k));
-      if (result.status != ScanStatus::kIntegrated) throw std::runtime_error("trainOffline: scan rejected: " + result.error);
+      const core::ScanResult result = mapper.integrate(training.scan(k));
+      if (result.status != core::ScanStatus::kIntegrated)
+        throw std::runtime_error("trainOffline: scan rejected: " + result.error);
     }
     training.advance();
   }
@@ -86,20 +87,20 @@ OfflineTraining trainOffline(Simulation& training, const MapperConfig& mapper_co
   mapper.recordObservations(nullptr);
   OfflineTraining training_result;
   training_result.sequences = recorder.build();
-  training_result.result = runOfflineEm(training_result.sequences, mapper.sensor(), em_config);
+  training_result.result = core::runOfflineEm(training_result.sequences, mapper.sensor(), em_config);
   return training_result;
 }
 
-MethodMappers::MethodMappers(const MapperConfig& base, const World& world)
+MethodMappers::MethodMappers(const core::MapperConfig& base, const World& world)
     : online_([&] {
-        MapperConfig config = base;
+        core::MapperConfig config = base;
         config.learn_transitions = true;
         return config;
       }()),
       offline_(fixedTransitions(base)),
       oracle_(fixedTransitions(base)) {
-  const auto fits = [&](const Mapper& mapper) {
-    const MapperConfig& c = mapper.config();
+  const auto fits = [&](const core::Mapper& mapper) {
+    const core::MapperConfig& c = mapper.config();
     return c.fixed_bounds && c.origin_x_m == 0.0 && c.origin_y_m == 0.0 && c.resolution_m == world.resolution() &&
            std::llround(c.width_m / c.resolution_m) == world.width() &&
            std::llround(c.height_m / c.resolution_m) == world.height();
@@ -112,7 +113,7 @@ MethodMappers::MethodMappers(const MapperConfig& base, const World& world)
 
 void MethodMappers::setOffline(const OfflineTraining& training) {
   for (std::size_t i = 0; i < training.sequences.cellCount(); ++i) {
-    const CellXY c = training.sequences.cell(i);
+    const core::CellXY c = training.sequences.cell(i);
     offline_.setCellTransitions(c.x, c.y, training.result.params[i]);
   }
 }
@@ -123,18 +124,19 @@ void MethodMappers::setOracle(const World& world) {
   }
 }
 
-void MethodMappers::integrate(const Scan& scan) {
-  for (Mapper* mapper : {&online_, &offline_, &oracle_}) {
-    const ScanResult result = mapper->integrate(scan);
-    if (result.status != ScanStatus::kIntegrated) throw std::runtime_error("MethodMappers: scan rejected: " + result.error);
+void MethodMappers::integrate(const core::Scan& scan) {
+  for (core::Mapper* mapper : {&online_, &offline_, &oracle_}) {
+    const core::ScanResult result = mapper->integrate(scan);
+    if (result.status != core::ScanStatus::kIntegrated)
+      throw std::runtime_error("MethodMappers: scan rejected: " + result.error);
   }
 }
 
 void MethodMappers::finishStep() {
-  for (Mapper* mapper : {&online_, &offline_, &oracle_}) mapper->finishStep();
+  for (core::Mapper* mapper : {&online_, &offline_, &oracle_}) mapper->finishStep();
 }
 
-const Mapper& MethodMappers::mapper(Method method) const {
+const core::Mapper& MethodMappers::mapper(Method method) const {
   switch (method) {
     case Method::kStatic:
     case Method::kOnline:
@@ -149,22 +151,23 @@ const Mapper& MethodMappers::mapper(Method method) const {
 }
 
 double MethodMappers::belief(Method method, std::int32_t x, std::int32_t y) const {
-  const Mapper& source = mapper(method);
-  const std::optional<CellState> cell = source.grid().cell(x, y);
+  const core::Mapper& source = mapper(method);
+  const std::optional<core::CellState> cell = source.grid().cell(x, y);
   if (!cell) return std::numeric_limits<double>::quiet_NaN();
-  if (method == Method::kStatic || method == Method::kStaticUnclamped) return logOddsToProbability(cell->log_odds);
-  const TransitionParams params{cell->p_occ_given_free, cell->p_free_given_occ};
+  if (method == Method::kStatic || method == Method::kStaticUnclamped)
+    return core::logOddsToProbability(cell->log_odds);
+  const core::TransitionParams params{cell->p_occ_given_free, cell->p_free_given_occ};
   const std::int64_t now = source.lastAppliedStep().value_or(cell->last_step);
-  return predictOccupancy(cell->p_occ, params, now - cell->last_step);
+  return core::predictOccupancy(cell->p_occ, params, now - cell->last_step);
 }
 
-std::optional<TransitionParams> MethodMappers::transitions(Method method, std::int32_t x, std::int32_t y) const {
+std::optional<core::TransitionParams> MethodMappers::transitions(Method method, std::int32_t x, std::int32_t y) const {
   if (method == Method::kStatic || method == Method::kStaticUnclamped) {
     throw std::invalid_argument("MethodMappers::transitions: " + methodName(method) + " has no transitions");
   }
-  const std::optional<CellState> cell = mapper(method).grid().cell(x, y);
+  const std::optional<core::CellState> cell = mapper(method).grid().cell(x, y);
   if (!cell) return std::nullopt;
-  return TransitionParams{cell->p_occ_given_free, cell->p_free_given_occ};
+  return core::TransitionParams{cell->p_occ_given_free, cell->p_free_given_occ};
 }
 
 Accuracy accuracyOf(const MethodMappers& mappers, Method method, const World& world,
@@ -189,9 +192,9 @@ ParameterError parameterErrorOf(const MethodMappers& mappers, Method method, con
   ParameterError error;
   for (std::int32_t y = 0; y < world.height(); ++y) {
     for (std::int32_t x = 0; x < world.width(); ++x) {
-      const std::optional<TransitionParams> learned = mappers.transitions(method, x, y);
+      const std::optional<core::TransitionParams> learned = mappers.transitions(method, x, y);
       if (!learned) continue;
-      const TransitionParams truth = world.truth(x, y);
+      const core::TransitionParams truth = world.truth(x, y);
       const double e_of = std::abs(learned->p_occ_given_free - truth.p_occ_given_free);
       const double e_fo = std::abs(learned->p_free_given_occ - truth.p_free_given_occ);
       if (truth.isStatic()) {
@@ -226,7 +229,7 @@ struct Repetition {
 
 Repetition runRepetition(const ScenarioConfig& scenario, std::uint64_t seed, int repetition) {
   const std::uint64_t world_seed = mixSeed(seed * 1000003ULL + static_cast<std::uint64_t>(repetition));
-  const MapperConfig mapper_config = evaluationMapperConfig(scenario);
+  const core::MapperConfig mapper_config = evaluationMapperConfig(scenario);
 
   // The offline method's a-priori training run: the same place (world seed) on another
   // day (run seed), as it was at the start (no re-draw), as long as the evaluation run.
@@ -245,15 +248,15 @@ Repetition runRepetition(const ScenarioConfig& scenario, std::uint64_t seed, int
   for (auto& series : result.accuracy) series.reserve(static_cast<std::size_t>(scenario.steps));
   const bool per_hour = scenario.kind == ScenarioKind::kParkingLot;
   std::vector<std::uint8_t> seen_this_hour(simulation.world().occupancy().size(), 0);
-  const Mapper& observer = mappers.mapper(Method::kOracle);  // all mappers see the same cells
+  const core::Mapper& observer = mappers.mapper(Method::kOracle);  // all mappers see the same cells
   for (std::int64_t t = 0; t < scenario.steps; ++t) {
     for (int k = 0; k < scenario.scans_per_step; ++k) mappers.integrate(simulation.scan(k));
     mappers.finishStep();
     if (per_hour) {
       if (t % scenario.steps_per_hour == 0) std::fill(seen_this_hour.begin(), seen_this_hour.end(), 0);
       for (std::size_t i = 0; i < seen_this_hour.size(); ++i) {
-        const CellXY c = simulation.world().cellOf(i);
-        const std::optional<CellState> cell = observer.grid().cell(c.x, c.y);
+        const core::CellXY c = simulation.world().cellOf(i);
+        const std::optional<core::CellState> cell = observer.grid().cell(c.x, c.y);
         if (cell && cell->last_step == t) seen_this_hour[i] = 1;
       }
     }
@@ -279,7 +282,7 @@ AccuracyExperimentResult runAccuracyExperiment(const ScenarioConfig& scenario, c
   const auto start = std::chrono::steady_clock::now();
   const auto repetitions = static_cast<std::size_t>(config.repetitions);
   std::vector<Repetition> runs(repetitions);
-  runRepetitions(
+  core::runRepetitions(
       repetitions, config.threads,
       [&](std::size_t r) { runs[r] = runRepetition(scenario, config.seed, static_cast<int>(r)); }, progress);
 
@@ -296,5 +299,5 @@ AccuracyExperimentResult runAccuracyExperiment(const ScenarioConfig& scenario, c
   return result;
 }
 
-}  // namespace core
+}  // namespace evaluation
 }  // namespace dynamic_occupancy_grid

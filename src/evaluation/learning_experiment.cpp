@@ -14,14 +14,14 @@
 #include "dynamic_occupancy_grid/evaluation/evaluation.h"
 
 namespace dynamic_occupancy_grid {
-namespace core {
+namespace evaluation {
 namespace {
 
 void require(bool ok, const std::string& message) {
   if (!ok) throw std::invalid_argument("learning experiment: " + message);
 }
 
-constexpr LogOddsClamp kUnclamped{-1e6, 1e6};
+constexpr core::LogOddsClamp kUnclamped{-1e6, 1e6};
 // map_server's trinary thresholds (its defaults): what a planner sees.
 constexpr double kFreeThreshold = 0.196;
 constexpr double kOccupiedThreshold = 0.65;
@@ -38,24 +38,24 @@ enum class Reading { kBelief, kStaticClamped, kStaticUnclamped };
 
 struct MethodMapper {
   std::string name;
-  std::unique_ptr<Mapper> mapper;
+  std::unique_ptr<core::Mapper> mapper;
   Reading reading = Reading::kBelief;
   bool has_transitions = true;
 };
 
-double readCell(const MethodMapper& method, const CellState& cell, std::int64_t now) {
+double readCell(const MethodMapper& method, const core::CellState& cell, std::int64_t now) {
   switch (method.reading) {
     case Reading::kStaticClamped:
     case Reading::kStaticUnclamped:
-      return logOddsToProbability(cell.log_odds);
+      return core::logOddsToProbability(cell.log_odds);
     case Reading::kBelief:
       break;
   }
-  const TransitionParams params{cell.p_occ_given_free, cell.p_free_given_occ};
-  return predictOccupancy(cell.p_occ, params, now - cell.last_step);
+  const core::TransitionParams params{cell.p_occ_given_free, cell.p_free_given_occ};
+  return core::predictOccupancy(cell.p_occ, params, now - cell.last_step);
 }
 
-std::string kindName(const TransitionParams& truth, bool occupied) {
+std::string kindName(const core::TransitionParams& truth, bool occupied) {
   if (truth.isStatic()) return occupied ? "static occupied" : "static free";
   char text[64];
   std::snprintf(text, sizeof(text), "%.3g / %.3g", truth.p_occ_given_free, truth.p_free_given_occ);
@@ -64,10 +64,10 @@ std::string kindName(const TransitionParams& truth, bool occupied) {
 
 // Everything one repetition measures, per method.
 struct KindSamples {
-  TransitionParams truth;
+  core::TransitionParams truth;
   std::vector<double> p_of;
   std::vector<double> p_fo;
-  std::array<double, kKindCount> most_probable_kind{};  // cells per most probable kind
+  std::array<double, core::kKindCount> most_probable_kind{};  // cells per most probable kind
 };
 struct MethodRun {
   double accuracy_all = 0.0;
@@ -83,8 +83,8 @@ struct MethodRun {
   double p_hit_given_occ = 0.0;
   double p_hit_given_free = 0.0;
   bool learns_kinds = false;
-  std::array<TransitionParams, kKindCount> kind_transitions{};
-  std::array<double, kKindCount> kind_weights{};
+  std::array<core::TransitionParams, core::kKindCount> kind_transitions{};
+  std::array<double, core::kKindCount> kind_weights{};
 };
 struct RepetitionRun {
   std::vector<MethodRun> methods;
@@ -94,13 +94,13 @@ struct RepetitionRun {
 
 RepetitionRun runRepetition(const ScenarioConfig& scenario, const LearningExperimentConfig& config, int repetition) {
   const std::uint64_t world_seed = mixSeed(config.seed * 1000003ULL + static_cast<std::uint64_t>(repetition) + 0x5041ULL);
-  MapperConfig base = evaluationMapperConfig(scenario);
+  core::MapperConfig base = evaluationMapperConfig(scenario);
   base.learn_sensor_model = config.learn_sensor_model;
 
   ScenarioConfig training_scenario = scenario;
   training_scenario.redraw_at_step = -1;
   Simulation training(training_scenario, world_seed, mixSeed(world_seed ^ 0x7261696eULL));
-  OfflineEmConfig offline_config = evaluationOfflineEmConfig(base);
+  core::OfflineEmConfig offline_config = evaluationOfflineEmConfig(base);
   offline_config.learn_sensor_model = config.learn_sensor_model;
   const OfflineTraining offline = trainOffline(training, base, scenario.steps, offline_config);
 
@@ -108,45 +108,45 @@ RepetitionRun runRepetition(const ScenarioConfig& scenario, const LearningExperi
   const World& world = simulation.world();
 
   std::vector<MethodMapper> methods;
-  const auto add = [&](const std::string& name, MapperConfig mapper_config, Reading reading, bool transitions) {
-    methods.push_back(MethodMapper{name, std::make_unique<Mapper>(mapper_config), reading, transitions});
+  const auto add = [&](const std::string& name, core::MapperConfig mapper_config, Reading reading, bool transitions) {
+    methods.push_back(MethodMapper{name, std::make_unique<core::Mapper>(mapper_config), reading, transitions});
   };
-  MapperConfig fixed = base;
+  core::MapperConfig fixed = base;
   fixed.learn_transitions = false;
   add("static", fixed, Reading::kStaticClamped, false);
   if (config.node_defaults) {
     // What a user gets who sets nothing about the sensor: the package's start (0.7 / 0.2),
     // learned by the default learner, against the static_map that start gives.
-    MapperConfig node = base;
-    node.p_hit_given_occ = MapperConfig{}.p_hit_given_occ;
-    node.p_hit_given_free = MapperConfig{}.p_hit_given_free;
+    core::MapperConfig node = base;
+    node.p_hit_given_occ = core::MapperConfig{}.p_hit_given_occ;
+    node.p_hit_given_free = core::MapperConfig{}.p_hit_given_free;
     node.learn_sensor_model = true;
-    MapperConfig node_static = node;
+    core::MapperConfig node_static = node;
     node_static.learn_transitions = false;
     add("node_static", node_static, Reading::kStaticClamped, false);
     add("node_default", node, Reading::kBelief, true);
   }
-  MapperConfig unclamped = fixed;
+  core::MapperConfig unclamped = fixed;
   unclamped.static_clamp = kUnclamped;
   add("textbook", unclamped, Reading::kStaticUnclamped, false);
   add("learning_off", fixed, Reading::kBelief, true);
   for (const LearnerVariant& variant : config.variants) {
-    MapperConfig learner = base;
+    core::MapperConfig learner = base;
     learner.learn_transitions = true;
     if (variant.configure) variant.configure(learner);
     add(variant.name, learner, Reading::kBelief, true);
   }
   // Offline EM's own sensor model, learned with its transitions (or the configured one).
-  MapperConfig offline_fixed = fixed;
+  core::MapperConfig offline_fixed = fixed;
   offline_fixed.learn_sensor_model = false;
   offline_fixed.p_hit_given_occ = offline.result.p_hit_given_occ;
   offline_fixed.p_hit_given_free = offline.result.p_hit_given_free;
   add("offline", offline_fixed, Reading::kBelief, true);
   add("oracle", fixed, Reading::kBelief, true);
-  Mapper& offline_mapper = *methods[methods.size() - 2].mapper;
-  Mapper& oracle_mapper = *methods.back().mapper;
+  core::Mapper& offline_mapper = *methods[methods.size() - 2].mapper;
+  core::Mapper& oracle_mapper = *methods.back().mapper;
   for (std::size_t i = 0; i < offline.sequences.cellCount(); ++i) {
-    const CellXY c = offline.sequences.cell(i);
+    const core::CellXY c = offline.sequences.cell(i);
     offline_mapper.setCellTransitions(c.x, c.y, offline.result.params[i]);
   }
   for (std::int32_t y = 0; y < world.height(); ++y) {
@@ -164,7 +164,7 @@ RepetitionRun runRepetition(const ScenarioConfig& scenario, const LearningExperi
   }();
   // The laser's hit rates per true state: each observed cell step of a recorder against the
   // state the cell had in that step (static cells keep theirs; dynamic ones are logged).
-  SequenceBuilder recorder;
+  core::SequenceBuilder recorder;
   methods[0].mapper->recordObservations(&recorder);
   std::vector<std::vector<std::uint8_t>> dynamic_history;
   dynamic_history.reserve(static_cast<std::size_t>(scenario.steps));
@@ -175,7 +175,7 @@ RepetitionRun runRepetition(const ScenarioConfig& scenario, const LearningExperi
   std::vector<std::map<std::string, Accuracy>> by_kind(methods.size());
   std::vector<std::string> kind_of(world.occupancy().size());
   for (std::size_t i = 0; i < kind_of.size(); ++i) {
-    const CellXY c = world.cellOf(i);
+    const core::CellXY c = world.cellOf(i);
     kind_of[i] = kindName(world.truth(c.x, c.y), world.occupancy()[i] != 0);
   }
   std::vector<std::uint8_t> is_dynamic(world.occupancy().size(), 0);
@@ -187,19 +187,20 @@ RepetitionRun runRepetition(const ScenarioConfig& scenario, const LearningExperi
     for (const std::size_t i : dynamic) states.push_back(world.occupancy()[i]);
     dynamic_history.push_back(std::move(states));
     for (int k = 0; k < scenario.scans_per_step; ++k) {
-      const Scan scan = simulation.scan(k);
+      const core::Scan scan = simulation.scan(k);
       for (MethodMapper& method : methods) {
-        const ScanResult result = method.mapper->integrate(scan);
-        if (result.status != ScanStatus::kIntegrated) throw std::runtime_error("learning experiment: scan rejected: " + result.error);
+        const core::ScanResult result = method.mapper->integrate(scan);
+        if (result.status != core::ScanStatus::kIntegrated)
+          throw std::runtime_error("learning experiment: scan rejected: " + result.error);
       }
     }
     for (MethodMapper& method : methods) method.mapper->finishStep();
     if (t >= window_start) {
       for (std::size_t m = 0; m < methods.size(); ++m) {
-        const CellGrid& grid = methods[m].mapper->grid();
+        const core::CellGrid& grid = methods[m].mapper->grid();
         for (std::size_t i = 0; i < world.occupancy().size(); ++i) {
-          const CellXY c = world.cellOf(i);
-          const std::optional<CellState> cell = grid.cell(c.x, c.y);
+          const core::CellXY c = world.cellOf(i);
+          const std::optional<core::CellState> cell = grid.cell(c.x, c.y);
           if (!cell) continue;
           const double p = readCell(methods[m], *cell, t);
           if (p == 0.5) continue;
@@ -222,13 +223,13 @@ RepetitionRun runRepetition(const ScenarioConfig& scenario, const LearningExperi
 
   RepetitionRun run;
   {
-    const ObservationSequences sequences = recorder.build();
+    const core::ObservationSequences sequences = recorder.build();
     std::vector<std::int64_t> dynamic_slot(world.occupancy().size(), -1);
     for (std::size_t d = 0; d < dynamic.size(); ++d) dynamic_slot[dynamic[d]] = static_cast<std::int64_t>(d);
     for (std::size_t c = 0; c < sequences.cellCount(); ++c) {
-      const CellXY xy = sequences.cell(c);
+      const core::CellXY xy = sequences.cell(c);
       const std::size_t i = world.index(xy.x, xy.y);
-      for (const StepObservation* o = sequences.begin(c); o != sequences.end(c); ++o) {
+      for (const core::StepObservation* o = sequences.begin(c); o != sequences.end(c); ++o) {
         const bool occupied = dynamic_slot[i] >= 0
                                   ? dynamic_history[static_cast<std::size_t>(o->step)][static_cast<std::size_t>(dynamic_slot[i])] != 0
                                   : world.occupancy()[i] != 0;
@@ -240,7 +241,7 @@ RepetitionRun runRepetition(const ScenarioConfig& scenario, const LearningExperi
   }
 
   const std::int64_t end = scenario.steps - 1;
-  const Mapper& static_mapper = *methods[0].mapper;
+  const core::Mapper& static_mapper = *methods[0].mapper;
   for (std::size_t m = 0; m < methods.size(); ++m) {
     MethodRun result;
     result.accuracy_all = all[m].value();
@@ -248,10 +249,10 @@ RepetitionRun runRepetition(const ScenarioConfig& scenario, const LearningExperi
     result.accuracy_by_kind = by_kind[m];
     result.p_hit_given_occ = methods[m].mapper->sensor().pHitGivenOcc();
     result.p_hit_given_free = methods[m].mapper->sensor().pHitGivenFree();
-    const MapperConfig& mapper_config = methods[m].mapper->config();
-    result.learns_kinds = mapper_config.learn_transitions && mapper_config.learner == TransitionLearner::kKinds;
+    const core::MapperConfig& mapper_config = methods[m].mapper->config();
+    result.learns_kinds = mapper_config.learn_transitions && mapper_config.learner == core::TransitionLearner::kKinds;
     if (result.learns_kinds) {
-      for (int k = 0; k < kKindCount; ++k) {
+      for (int k = 0; k < core::kKindCount; ++k) {
         result.kind_transitions[k] = methods[m].mapper->kinds().transitions(k);
         result.kind_weights[k] = methods[m].mapper->kinds().weight(k);
       }
@@ -261,19 +262,19 @@ RepetitionRun runRepetition(const ScenarioConfig& scenario, const LearningExperi
     double dynamic_error = 0.0;
     double dynamic_cells = 0.0;
     for (std::size_t i = 0; i < world.occupancy().size(); ++i) {
-      const CellXY c = world.cellOf(i);
-      const std::optional<CellState> cell = methods[m].mapper->grid().cell(c.x, c.y);
+      const core::CellXY c = world.cellOf(i);
+      const std::optional<core::CellState> cell = methods[m].mapper->grid().cell(c.x, c.y);
       if (!cell) continue;
       if (cell->last_step < end - config.left_for_steps) {
-        const std::optional<CellState> reference = static_mapper.grid().cell(c.x, c.y);
-        const int expected = trinary(logOddsToProbability(reference->log_odds));
+        const std::optional<core::CellState> reference = static_mapper.grid().cell(c.x, c.y);
+        const int expected = trinary(core::logOddsToProbability(reference->log_odds));
         if (expected >= 0) {
           classified += 1.0;
           kept += trinary(readCell(methods[m], *cell, end)) == expected ? 1.0 : 0.0;
         }
       }
       if (!methods[m].has_transitions) continue;
-      const TransitionParams truth = world.truth(c.x, c.y);
+      const core::TransitionParams truth = world.truth(c.x, c.y);
       const bool occupied = world.occupancy()[i] != 0;
       KindSamples& kind = result.kinds[kindName(truth, occupied)];
       kind.truth = truth;
@@ -281,7 +282,7 @@ RepetitionRun runRepetition(const ScenarioConfig& scenario, const LearningExperi
       kind.p_fo.push_back(cell->p_free_given_occ);
       if (result.learns_kinds) {
         int most_probable = 0;
-        for (int k = 1; k < kKindCount; ++k) {
+        for (int k = 1; k < core::kKindCount; ++k) {
           const double p_k = cell->em_stats[2 * k] + cell->em_stats[2 * k + 1];
           const double p_best = cell->em_stats[2 * most_probable] + cell->em_stats[2 * most_probable + 1];
           if (p_k > p_best) most_probable = k;
@@ -315,7 +316,7 @@ double median(std::vector<double> values) {
 }  // namespace
 
 std::vector<LearnerVariant> defaultLearnerVariants() {
-  const auto cell_em = [](MapperConfig& c) { c.learner = TransitionLearner::kCellEm; };
+  const auto cell_em = [](core::MapperConfig& c) { c.learner = core::TransitionLearner::kCellEm; };
   return {
       {"default", {}},
       {"cell_em", cell_em},
@@ -341,7 +342,7 @@ LearningExperimentResult runLearningExperiment(const ScenarioConfig& scenario, c
   const auto start = std::chrono::steady_clock::now();
   const auto repetitions = static_cast<std::size_t>(config.repetitions);
   std::vector<RepetitionRun> runs(repetitions);
-  runRepetitions(
+  core::runRepetitions(
       repetitions, config.threads, [&](std::size_t r) { runs[r] = runRepetition(scenario, config, static_cast<int>(r)); },
       progress);
 
@@ -398,7 +399,7 @@ LearningExperimentResult runLearningExperiment(const ScenarioConfig& scenario, c
         into.truth = samples.truth;
         into.p_of.insert(into.p_of.end(), samples.p_of.begin(), samples.p_of.end());
         into.p_fo.insert(into.p_fo.end(), samples.p_fo.begin(), samples.p_fo.end());
-        for (int k = 0; k < kKindCount; ++k) into.most_probable_kind[k] += samples.most_probable_kind[k];
+        for (int k = 0; k < core::kKindCount; ++k) into.most_probable_kind[k] += samples.most_probable_kind[k];
       }
     }
     for (const auto& [kind, accuracy] : pooled_accuracy) score.accuracy_by_kind[kind] = accuracy.value();
@@ -417,7 +418,7 @@ LearningExperimentResult runLearningExperiment(const ScenarioConfig& scenario, c
       }
       k.median_p_occ_given_free = median(samples.p_of);
       k.median_p_free_given_occ = median(samples.p_fo);
-      for (int kind = 0; kind < kKindCount; ++kind) {
+      for (int kind = 0; kind < core::kKindCount; ++kind) {
         k.most_probable_kind[kind] =
             samples.p_of.empty() ? 0.0 : samples.most_probable_kind[kind] / static_cast<double>(samples.p_of.size());
       }
@@ -429,5 +430,5 @@ LearningExperimentResult runLearningExperiment(const ScenarioConfig& scenario, c
   return result;
 }
 
-}  // namespace core
+}  // namespace evaluation
 }  // namespace dynamic_occupancy_grid

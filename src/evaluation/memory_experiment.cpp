@@ -17,7 +17,7 @@
 #include "dynamic_occupancy_grid/core/grid/scan_beams.h"
 
 namespace dynamic_occupancy_grid {
-namespace core {
+namespace evaluation {
 namespace {
 
 void require(bool ok, const std::string& message) {
@@ -29,9 +29,9 @@ void require(bool ok, const std::string& message) {
 constexpr double kMinFactor = 1e-6;
 constexpr double kMaxFactor = 1e6;
 
-
-
-bool contains(const std::vector<CellXY>& cells, CellXY c) { return std::find(cells.begin(), cells.end(), c) != cells.end(); }
+bool contains(const std::vector<core::CellXY>& cells, core::CellXY c) {
+  return std::find(cells.begin(), cells.end(), c) != cells.end();
+}
 
 bool wallCell(const DividersLayout& layout, const World& world, std::int32_t x, std::int32_t y) {
   if (x <= 0 || y <= 0 || x >= world.width() - 1 || y >= world.height() - 1) return true;
@@ -45,14 +45,14 @@ class MigrationJudge {
       : width_(world.width()), person_seen_(static_cast<std::size_t>(world.width()) * world.height(), 0) {}
 
   // People's cells at a scan of the current view.
-  void sawPeople(const std::vector<CellXY>& people) {
-    for (const CellXY& p : people) person_seen_[index(p)] = 1;
+  void sawPeople(const std::vector<core::CellXY>& people) {
+    for (const core::CellXY& p : people) person_seen_[index(p)] = 1;
   }
 
-  void judge(const MemoryUpdate& update, const DividersLayout& layout, const World& world, MemoryRepetition* out,
+  void judge(const core::MemoryUpdate& update, const DividersLayout& layout, const World& world, MemoryRepetition* out,
              bool base) {
     bool divider_configuration = false;
-    for (const CellXY& c : update.migrated) {
+    for (const core::CellXY& c : update.migrated) {
       const int divider = layout.dividerAt(c.x, c.y);
       const bool structure = wallCell(layout, world, c.x, c.y) ||
                              (divider >= 0 && layout.closed[static_cast<std::size_t>(divider)] != 0);
@@ -75,7 +75,7 @@ class MigrationJudge {
   }
 
  private:
-  std::size_t index(const CellXY& c) const {
+  std::size_t index(const core::CellXY& c) const {
     return static_cast<std::size_t>(c.y) * static_cast<std::size_t>(width_) + static_cast<std::size_t>(c.x);
   }
   std::int32_t width_;
@@ -84,27 +84,27 @@ class MigrationJudge {
 
 // What the mapping phase recorded at each scan: the scan, and the truth the judge needs.
 struct MappingRecord {
-  Scan scan;
-  std::vector<CellXY> people;
+  core::Scan scan;
+  std::vector<core::CellXY> people;
   std::vector<std::uint8_t> closed;
 };
 
-MapperConfig staticConfig(const ScenarioConfig& scenario) {
-  MapperConfig config = evaluationMapperConfig(scenario);
+core::MapperConfig staticConfig(const ScenarioConfig& scenario) {
+  core::MapperConfig config = evaluationMapperConfig(scenario);
   config.learn_transitions = false;
-  config.static_clamp = LogOddsClamp{-1e6, 1e6};  // the textbook grid (Method::kStaticUnclamped)
+  config.static_clamp = core::LogOddsClamp{-1e6, 1e6};  // the textbook grid (Method::kStaticUnclamped)
   return config;
 }
 
 struct Robot {
   NavigationMethod method;
   std::optional<Simulation> simulation;
-  std::unique_ptr<Mapper> mapper;       // static, hmm
-  std::unique_ptr<MemoryModel> memory;  // memory
+  std::unique_ptr<core::Mapper> mapper;       // static, hmm
+  std::unique_ptr<core::MemoryModel> memory;  // memory
   std::unique_ptr<MigrationJudge> judge;
   std::unique_ptr<HypothesisSelector> selector;
   AStarPlanner planner;
-  CellXY cell;
+  core::CellXY cell;
   double yaw_rad = 0.0;
 };
 
@@ -123,15 +123,15 @@ class RepetitionRunner {
 
     // 1. Initial mapping by an oracle driver; the scans are replayed into every method's map.
     std::vector<MappingRecord> records;
-    CellXY cell = layout_.a;
+    core::CellXY cell = layout_.a;
     double yaw = 0.0;
     for (int e = 0; e < config_.mapping_episodes; ++e) {
-      const CellXY goal = e % 2 == 0 ? layout_.b : layout_.a;
+      const core::CellXY goal = e % 2 == 0 ? layout_.b : layout_.a;
       for (std::int64_t k = 0; k < period_; ++k) {
         if (!(cell == goal)) {
           records.push_back(MappingRecord{simulation.scanFrom(pose(cell, yaw)), simulation.dividersLayout().people,
                                           simulation.dividersLayout().closed});
-          const std::vector<CellXY> path = planner_.plan(structureGrid(simulation), cell, goal);
+          const std::vector<core::CellXY> path = planner_.plan(structureGrid(simulation), cell, goal);
           if (path.size() >= 2 && !simulation.world().occupied(path[1].x, path[1].y)) move(cell, yaw, path[1]);
         }
         simulation.advance();
@@ -139,13 +139,13 @@ class RepetitionRunner {
       cell = goal;
     }
     // The memory model's base map: every update of the mapping phase (counted on a copy).
-    MemoryModelConfig memory_config = config_.memory;
+    core::MemoryModelConfig memory_config = config_.memory;
     memory_config.resolution_m = scenario_.resolution_m;
     memory_config.origin_x_m = 0.0;
     memory_config.origin_y_m = 0.0;
     memory_config.initial_mapping_updates = 0;
     {
-      MemoryModel counter(memory_config);
+      core::MemoryModel counter(memory_config);
       for (const MappingRecord& record : records) counter.integrate(record.scan);
       memory_config.initial_mapping_updates = static_cast<int>(counter.updates()) + 1;
     }
@@ -157,18 +157,18 @@ class RepetitionRunner {
       robot->simulation.emplace(simulation);
       robot->cell = cell;
       if (method == NavigationMethod::kMemory) {
-        robot->memory = std::make_unique<MemoryModel>(memory_config);
+        robot->memory = std::make_unique<core::MemoryModel>(memory_config);
         robot->judge = std::make_unique<MigrationJudge>(simulation.world());
         robot->selector = std::make_unique<HypothesisSelector>(config_.penalty, config_.reward);
         for (const MappingRecord& record : records) {
           robot->judge->sawPeople(record.people);
-          const MemoryScanResult result = robot->memory->integrate(record.scan);
+          const core::MemoryScanResult result = robot->memory->integrate(record.scan);
           if (result.update) judgeUpdate(*robot, *result.update, record.closed, &out);
         }
         judgeUpdate(*robot, robot->memory->update(), records.empty() ? layout_.closed : records.back().closed, &out);
         refreshHypotheses(*robot);
       } else {
-        robot->mapper = std::make_unique<Mapper>(method == NavigationMethod::kHmm
+        robot->mapper = std::make_unique<core::Mapper>(method == NavigationMethod::kHmm
                                                      ? evaluationMapperConfig(scenario_)
                                                      : staticConfig(scenario_));
         for (const MappingRecord& record : records) {
@@ -183,7 +183,7 @@ class RepetitionRunner {
     std::vector<std::uint8_t> closed_before = simulation.dividersLayout().closed;
     for (int e = 0; e < config_.episodes; ++e) {
       const bool forward = (config_.mapping_episodes + e) % 2 == 0;
-      const CellXY goal = forward ? layout_.b : layout_.a;
+      const core::CellXY goal = forward ? layout_.b : layout_.a;
       const std::vector<std::uint8_t>& closed = robots.front()->simulation->dividersLayout().closed;
       for (std::size_t p = 0; p < closed.size(); ++p) out.divider_moves += closed[p] != closed_before[p] ? 1 : 0;
       closed_before = closed;
@@ -194,12 +194,12 @@ class RepetitionRunner {
   }
 
  private:
-  Pose2D pose(CellXY cell, double yaw) const {
+  core::Pose2D pose(core::CellXY cell, double yaw) const {
     const double r = scenario_.resolution_m;
-    return Pose2D{(cell.x + 0.5) * r, (cell.y + 0.5) * r, yaw};
+    return core::Pose2D{(cell.x + 0.5) * r, (cell.y + 0.5) * r, yaw};
   }
 
-  static void move(CellXY& cell, double& yaw, CellXY next) {
+  static void move(core::CellXY& cell, double& yaw, core::CellXY next) {
     yaw = std::atan2(static_cast<double>(next.y - cell.y), static_cast<double>(next.x - cell.x));
     cell = next;
   }
@@ -214,7 +214,7 @@ class RepetitionRunner {
     return *structure_;
   }
 
-  void judgeUpdate(Robot& robot, const MemoryUpdate& update, const std::vector<std::uint8_t>& closed,
+  void judgeUpdate(Robot& robot, const core::MemoryUpdate& update, const std::vector<std::uint8_t>& closed,
                    MemoryRepetition* out) const {
     DividersLayout at_update = layout_;
     at_update.closed = closed;
@@ -224,17 +224,17 @@ class RepetitionRunner {
 
   void refreshHypotheses(Robot& robot) const {
     const World& world = robot.simulation->world();
-    CellBox box;
+    core::CellBox box;
     box.include(0, 0);
     box.include(world.width() - 1, world.height() - 1);
-    std::vector<MapHypothesis> hypotheses = robot.memory->hypotheses();
+    std::vector<core::MapHypothesis> hypotheses = robot.memory->hypotheses();
     std::vector<BlockedGrid> grids;
-    for (const MapHypothesis& hypothesis : hypotheses) {
+    for (const core::MapHypothesis& hypothesis : hypotheses) {
       const std::vector<std::int8_t> values = robot.memory->hypothesisGrid(hypothesis, box);
       BlockedGrid grid(world.width(), world.height());
       for (std::int32_t y = 0; y < world.height(); ++y) {
         for (std::int32_t x = 0; x < world.width(); ++x) {
-          grid.setBlocked(x, y, values[grid.index(x, y)] == kGridOccupied);
+          grid.setBlocked(x, y, values[grid.index(x, y)] == core::kGridOccupied);
         }
       }
       grids.push_back(std::move(grid));
@@ -244,18 +244,19 @@ class RepetitionRunner {
 
   // The static / hmm planning grid: the map's p(occ) > 0.5 overlaid with the live layer.
   void mapGrid(const Robot& robot, const LiveLayer& live, BlockedGrid* grid) const {
-    const Mapper& mapper = *robot.mapper;
+    const core::Mapper& mapper = *robot.mapper;
     const std::int64_t now = mapper.lastAppliedStep().value_or(0);
     for (std::int32_t y = 0; y < grid->height(); ++y) {
       for (std::int32_t x = 0; x < grid->width(); ++x) {
-        const std::optional<CellState> cell = mapper.grid().cell(x, y);
+        const std::optional<core::CellState> cell = mapper.grid().cell(x, y);
         double p = 0.0;  // never observed: free
         if (cell) {
           if (robot.method == NavigationMethod::kStatic) {
-            p = logOddsToProbability(cell->log_odds);
+            p = core::logOddsToProbability(cell->log_odds);
           } else {
-            p = predictOccupancy(cell->p_occ, TransitionParams{cell->p_occ_given_free, cell->p_free_given_occ},
-                                 now - cell->last_step);
+            p = core::predictOccupancy(cell->p_occ,
+                                       core::TransitionParams{cell->p_occ_given_free, cell->p_free_given_occ},
+                                       now - cell->last_step);
           }
         }
         grid->setBlocked(x, y, p > 0.5);
@@ -264,22 +265,22 @@ class RepetitionRunner {
     live.applyTo(*grid);
   }
 
-  EpisodeRecord runEpisode(Robot& robot, CellXY goal, MemoryRepetition* out) {
+  EpisodeRecord runEpisode(Robot& robot, core::CellXY goal, MemoryRepetition* out) {
     Simulation& simulation = *robot.simulation;
     const World& world = simulation.world();
     EpisodeRecord record;
-    const std::vector<CellXY> optimal = planner_.plan(structureGrid(simulation), robot.cell, goal);
+    const std::vector<core::CellXY> optimal = planner_.plan(structureGrid(simulation), robot.cell, goal);
     record.optimal = optimal.empty() ? 0 : static_cast<std::int64_t>(optimal.size()) - 1;
     BlockedGrid grid(world.width(), world.height());
-    std::vector<CellXY> plan;  // the plan being followed, from the robot's cell
+    std::vector<core::CellXY> plan;  // the plan being followed, from the robot's cell
     bool select = true;        // the memory robot re-selects its hypothesis (departure, new maps)
     for (std::int64_t k = 0; k < period_; ++k) {
       if (!(robot.cell == goal)) {
-        const Scan scan = simulation.scanFrom(pose(robot.cell, robot.yaw_rad));
+        const core::Scan scan = simulation.scanFrom(pose(robot.cell, robot.yaw_rad));
         const LiveLayer live = LiveLayer::fromScan(scan, world.resolution(), world.width(), world.height());
         if (robot.method == NavigationMethod::kMemory) {
           robot.judge->sawPeople(simulation.dividersLayout().people);
-          const MemoryScanResult result = robot.memory->integrate(scan);
+          const core::MemoryScanResult result = robot.memory->integrate(scan);
           if (result.update) {
             judgeUpdate(robot, *result.update, simulation.dividersLayout().closed, out);
             refreshHypotheses(robot);
@@ -296,10 +297,10 @@ class RepetitionRunner {
             ++record.replans;
             // Unexpected obstacles: cells ahead the scan sees occupied that the actioned
             // hypothesis holds free (Algorithm 1).
-            std::vector<CellXY> obstacles;
+            std::vector<core::CellXY> obstacles;
             const BlockedGrid& actioned = selector.grid(selector.actioned());
             for (std::size_t i = 1; i < plan.size(); ++i) {
-              const CellXY c = plan[i];
+              const core::CellXY c = plan[i];
               if (!actioned.blocked(c.x, c.y) && contains(live.occupied, c)) {
                 obstacles.push_back(c);
               }
@@ -333,7 +334,7 @@ class RepetitionRunner {
   }
 
   // Whether a cell of `plan` after the robot's (plan[0]) is blocked in `grid`.
-  static bool blockedAhead(const std::vector<CellXY>& plan, const BlockedGrid& grid) {
+  static bool blockedAhead(const std::vector<core::CellXY>& plan, const BlockedGrid& grid) {
     for (std::size_t i = 1; i < plan.size(); ++i) {
       if (grid.blocked(plan[i].x, plan[i].y)) return true;
     }
@@ -372,29 +373,29 @@ std::string navigationMethodName(NavigationMethod method) {
 
 // ---------------------------------------------------------------- LiveLayer
 
-LiveLayer LiveLayer::fromScan(const Scan& scan, double resolution_m, std::int32_t width, std::int32_t height) {
+LiveLayer LiveLayer::fromScan(const core::Scan& scan, double resolution_m, std::int32_t width, std::int32_t height) {
   LiveLayer layer;
   BlockedGrid seen(width, height);  // cells already listed
   const auto inside = [&](std::int32_t x, std::int32_t y) { return x >= 0 && y >= 0 && x < width && y < height; };
   const double u0 = scan.laser_pose.x_m / resolution_m;
   const double v0 = scan.laser_pose.y_m / resolution_m;
   // The reading rules of every map (scan_beams.h); a beam without return clears up to range_max.
-  BeamRules rules;
+  core::BeamRules rules;
   rules.cells_per_m = 1.0 / resolution_m;
   rules.max_free_range_m = scan.range_max_m;
   rules.max_beam_m = std::numeric_limits<double>::infinity();
-  std::vector<BeamEnd> beams;
-  BeamCounts counts;
-  CellBox box;
-  if (beamEnds(scan, u0, v0, rules, beams, counts, box)) {
+  std::vector<core::BeamEnd> beams;
+  core::BeamCounts counts;
+  core::CellBox box;
+  if (core::beamEnds(scan, u0, v0, rules, beams, counts, box)) {
     throw std::invalid_argument("LiveLayer: a beam ends too far from the origin");
   }
-  std::vector<CellXY> ends;
-  for (const BeamEnd& beam : beams) {
-    const CellXY end = traverseSegment(u0, v0, beam.u1, beam.v1, [&](std::int32_t x, std::int32_t y) {
+  std::vector<core::CellXY> ends;
+  for (const core::BeamEnd& beam : beams) {
+    const core::CellXY end = core::traverseSegment(u0, v0, beam.u1, beam.v1, [&](std::int32_t x, std::int32_t y) {
       if (!inside(x, y) || seen.blocked(x, y)) return;
       seen.setBlocked(x, y, true);
-      layer.free.push_back(CellXY{x, y});
+      layer.free.push_back(core::CellXY{x, y});
     });
     if (beam.hit && inside(end.x, end.y) && !contains(ends, end)) ends.push_back(end);
   }
@@ -403,10 +404,10 @@ LiveLayer LiveLayer::fromScan(const Scan& scan, double resolution_m, std::int32_
 }
 
 void LiveLayer::applyTo(BlockedGrid& grid) const {
-  for (const CellXY& c : free) {
+  for (const core::CellXY& c : free) {
     if (grid.inside(c.x, c.y)) grid.setBlocked(c.x, c.y, false);
   }
-  for (const CellXY& c : occupied) {
+  for (const core::CellXY& c : occupied) {
     if (grid.inside(c.x, c.y)) grid.setBlocked(c.x, c.y, true);
   }
 }
@@ -418,7 +419,7 @@ HypothesisSelector::HypothesisSelector(double penalty, double reward) : penalty_
   require(reward >= 1.0 && std::isfinite(reward), "HypothesisSelector: reward must be >= 1");
 }
 
-void HypothesisSelector::setHypotheses(std::vector<MapHypothesis> hypotheses, std::vector<BlockedGrid> grids) {
+void HypothesisSelector::setHypotheses(std::vector<core::MapHypothesis> hypotheses, std::vector<BlockedGrid> grids) {
   require(hypotheses.size() == grids.size(), "HypothesisSelector: one grid per hypothesis");
   hypotheses_ = std::move(hypotheses);
   grids_ = std::move(grids);
@@ -434,31 +435,31 @@ double HypothesisSelector::score(std::size_t h) const {
   return hypotheses_[h].weight * (it == factors_.end() ? 1.0 : it->second);
 }
 
-std::vector<CellXY> HypothesisSelector::select(CellXY start, CellXY goal, const LiveLayer& live) {
+std::vector<core::CellXY> HypothesisSelector::select(core::CellXY start, core::CellXY goal, const LiveLayer& live) {
   if (hypotheses_.empty()) throw std::logic_error("HypothesisSelector::select: no hypotheses");
   std::vector<std::size_t> order(hypotheses_.size());
   std::iota(order.begin(), order.end(), std::size_t{0});
   std::stable_sort(order.begin(), order.end(), [this](std::size_t a, std::size_t b) { return score(a) > score(b); });
   for (const std::size_t h : order) {
     actioned_ = h;
-    std::vector<CellXY> path = plan(start, goal, live);
+    std::vector<core::CellXY> path = plan(start, goal, live);
     if (!path.empty()) return path;
   }
   actioned_ = order.front();
   return {};
 }
 
-std::vector<CellXY> HypothesisSelector::plan(CellXY start, CellXY goal, const LiveLayer& live) {
+std::vector<core::CellXY> HypothesisSelector::plan(core::CellXY start, core::CellXY goal, const LiveLayer& live) {
   BlockedGrid grid = grids_.at(actioned_);
   live.applyTo(grid);
   return planner_.plan(grid, start, goal);
 }
 
-bool HypothesisSelector::reportObstacles(const std::vector<CellXY>& obstacles) {
+bool HypothesisSelector::reportObstacles(const std::vector<core::CellXY>& obstacles) {
   std::vector<std::size_t> predicted;
   for (std::size_t h = 0; h < hypotheses_.size(); ++h) {
     if (h == actioned_) continue;
-    for (const CellXY& c : obstacles) {
+    for (const core::CellXY& c : obstacles) {
       if (grids_[h].blocked(c.x, c.y)) {
         predicted.push_back(h);
         break;
@@ -542,7 +543,7 @@ MemoryExperimentResult runMemoryExperiment(const ScenarioConfig& dividers, const
   const auto start = std::chrono::steady_clock::now();
   MemoryExperimentResult result;
   result.repetitions.resize(static_cast<std::size_t>(config.repetitions));
-  runRepetitions(
+  core::runRepetitions(
       result.repetitions.size(), config.threads,
       [&](std::size_t r) { result.repetitions[r] = RepetitionRunner(dividers, config, r).run(); }, progress);
   result.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
@@ -571,5 +572,5 @@ std::string formatMemoryTable(const MemoryExperimentResult& result) {
   return out;
 }
 
-}  // namespace core
+}  // namespace evaluation
 }  // namespace dynamic_occupancy_grid

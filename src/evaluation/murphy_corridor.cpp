@@ -12,7 +12,7 @@
 #include "dynamic_occupancy_grid/core/pose/resampling.h"
 
 namespace dynamic_occupancy_grid {
-namespace core {
+namespace evaluation {
 namespace {
 
 std::uint8_t labelOf(std::uint32_t map, int cell) { return static_cast<std::uint8_t>((map >> cell) & 1U); }
@@ -439,8 +439,8 @@ CorridorRbpfResult corridorRbpf(const CorridorModel& model, const CorridorEpisod
   config.validate();
   const int n = model.cells;
   const auto count = static_cast<std::size_t>(config.particles);
-  const TransitionParams cell_transitions = model.cellTransitions();
-  const ObservationModel sensor = model.observationModel();
+  const core::TransitionParams cell_transitions = model.cellTransitions();
+  const core::ObservationModel sensor = model.observationModel();
   // log p(z | 1) / p(z | 0) of z = 1 (a hit) and z = 0 (a miss), the core's sensor model.
   const std::array<double, 2> log_likelihood_ratio{sensor.logLikelihoodRatio(0, 1), sensor.logLikelihoodRatio(1, 0)};
   Rng rng(config.seed);
@@ -453,7 +453,7 @@ CorridorRbpfResult corridorRbpf(const CorridorModel& model, const CorridorEpisod
   // Particle j's p(M_t(i) = 1): the cell HMM predicted in closed form from its last update.
   const auto predicted = [&](std::size_t j, int i, std::int64_t t) {
     const std::size_t c = j * n + static_cast<std::size_t>(i);
-    return predictOccupancy(particles.p_one[c], cell_transitions, t - particles.updated[c]);
+    return core::predictOccupancy(particles.p_one[c], cell_transitions, t - particles.updated[c]);
   };
 
   CorridorRbpfResult out;
@@ -484,7 +484,7 @@ CorridorRbpfResult corridorRbpf(const CorridorModel& model, const CorridorEpisod
       }
       // The particle's map given its trajectory: only the cell it stands on sees z_t.
       const std::size_t c = j * n + static_cast<std::size_t>(position);
-      particles.p_one[c] = bayesUpdate(predicted(j, position, step), log_likelihood_ratio[z]);
+      particles.p_one[c] = core::bayesUpdate(predicted(j, position, step), log_likelihood_ratio[z]);
       particles.updated[c] = step;
       weights[j] *= incremental;
     }
@@ -718,7 +718,7 @@ MurphyExperimentResult runMurphyExperiment(const MurphyExperimentConfig& config,
   result.paper_exact = exactCorridorPosterior(paper_model, result.paper_episode);
 
   std::vector<Run> runs(static_cast<std::size_t>(config.repetitions));
-  runRepetitions(
+  core::runRepetitions(
       runs.size(), config.threads,
       [&](std::size_t r) {
         Run& run = runs[r];
@@ -777,5 +777,5 @@ MurphyExperimentResult runMurphyExperiment(const MurphyExperimentConfig& config,
   return result;
 }
 
-}  // namespace core
+}  // namespace evaluation
 }  // namespace dynamic_occupancy_grid

@@ -13,7 +13,7 @@
 #include "dynamic_occupancy_grid/evaluation/path_planning.h"  // MeanStd
 
 namespace dynamic_occupancy_grid {
-namespace core {
+namespace evaluation {
 namespace {
 
 std::string fixed(double value, int digits) {
@@ -270,5 +270,5 @@ std::string formatMurphySummary(const MurphyExperimentConfig& config, const Murp
   return text.str();
 }
 
-}  // namespace core
+}  // namespace evaluation
 }  // namespace dynamic_occupancy_grid

@@ -14,7 +14,7 @@
 #include "dynamic_occupancy_grid/evaluation/simulator.h"
 
 namespace dynamic_occupancy_grid {
-namespace core {
+namespace evaluation {
 
 namespace {
 
@@ -308,9 +308,9 @@ class DoorsRunner {
   }
 
   void resampleIfNeeded(const std::vector<double>& weights) {
-    if (effectiveSampleSize(weights) >= config_.resample_below * static_cast<double>(particles_.size())) return;
+    if (core::effectiveSampleSize(weights) >= config_.resample_below * static_cast<double>(particles_.size())) return;
     const std::vector<std::size_t> copies =
-        residualResample(weights, particles_.size(), [this] { return robot_rng_.uniform(); });
+        core::residualResample(weights, particles_.size(), [this] { return robot_rng_.uniform(); });
     std::vector<DoorsParticle> next;
     next.reserve(particles_.size());
     for (std::size_t j = 0; j < particles_.size(); ++j) {
@@ -414,7 +414,7 @@ DoorsExperimentResult runDoorsExperiment(const DoorsExperimentConfig& config) {
   result.layout = murphyDoorsLayout();
   result.entropy.resize(static_cast<std::size_t>(config.runs));
   result.random.resize(static_cast<std::size_t>(config.runs));
-  runRepetitions(
+  core::runRepetitions(
       2 * static_cast<std::size_t>(config.runs), config.threads,
       [&](std::size_t job) {
         DoorsWorldConfig world = config.world;
@@ -501,5 +501,5 @@ std::string formatDoorsSummary(const DoorsExperimentConfig& config, const DoorsE
   return text.str();
 }
 
-}  // namespace core
+}  // namespace evaluation
 }  // namespace dynamic_occupancy_grid

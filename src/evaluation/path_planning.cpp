@@ -14,7 +14,7 @@
 #include "dynamic_occupancy_grid/evaluation/planner.h"
 
 namespace dynamic_occupancy_grid {
-namespace core {
+namespace evaluation {
 namespace {
 
 void require(bool ok, const std::string& message) {
@@ -64,7 +64,7 @@ std::int32_t doorVisibleCells(const ScenarioConfig& door) {
 
 // One policy's robot: its own simulation (a copy of the explored one), maps and planner.
 struct Robot {
-  Robot(Policy policy_in, const MapperConfig& mapper_config, const World& world, std::uint64_t coin_seed)
+  Robot(Policy policy_in, const core::MapperConfig& mapper_config, const World& world, std::uint64_t coin_seed)
       : policy(policy_in), mappers(mapper_config, world), coin(coin_seed), blocked(world.width(), world.height()) {}
 
   Policy policy;
@@ -73,7 +73,7 @@ struct Robot {
   std::optional<Simulation> simulation;  // set when exploration is over
   AStarPlanner planner;
   BlockedGrid blocked;
-  CellXY cell;
+  core::CellXY cell;
   double yaw_rad = 0.0;
   std::vector<std::uint8_t> door_open;  // by step, from step 0
   std::vector<RunRecord> runs;
@@ -105,14 +105,14 @@ class RepetitionRunner {
     recordDoor(exploration, &door_open);
     for (std::int64_t t = 0; t < config_.exploration_steps; ++t) {
       for (int k = 0; k < scenario_.scans_per_step; ++k) {
-        const Scan scan = exploration.scan(k);
+        const core::Scan scan = exploration.scan(k);
         for (auto& robot : robots) robot->mappers.integrate(scan);
       }
       for (auto& robot : robots) robot->mappers.finishStep();
       exploration.advance();
       recordDoor(exploration, &door_open);
     }
-    OfflineEmConfig em_config = evaluationOfflineEmConfig(mapper_config_);
+    core::OfflineEmConfig em_config = evaluationOfflineEmConfig(mapper_config_);
     em_config.max_iterations = kOfflineEmIterations;
     const OfflineTraining offline = trainOffline(training, mapper_config_, config_.exploration_steps, em_config);
 
@@ -166,7 +166,7 @@ class RepetitionRunner {
   }
 
   // Cells along the short path from the start, for cells of the corridor; -1 elsewhere.
-  std::int32_t progress(CellXY cell, bool from_a) const {
+  std::int32_t progress(core::CellXY cell, bool from_a) const {
     if (cell.y != layout_.a.y || cell.x < layout_.a.x || cell.x > layout_.b.x) return -1;
     return from_a ? cell.x - layout_.a.x : layout_.b.x - cell.x;
   }
@@ -176,9 +176,9 @@ class RepetitionRunner {
     recordDoor(*robot.simulation, &robot.door_open);
   }
 
-  Pose2D pose(const Robot& robot) const {
+  core::Pose2D pose(const Robot& robot) const {
     const double r = scenario_.resolution_m;
-    return Pose2D{(robot.cell.x + 0.5) * r, (robot.cell.y + 0.5) * r, robot.yaw_rad};
+    return core::Pose2D{(robot.cell.x + 0.5) * r, (robot.cell.y + 0.5) * r, robot.yaw_rad};
   }
 
   // p(occ) > 0.5 of the policy's map; never-observed cells (NaN) are free.
@@ -196,9 +196,9 @@ class RepetitionRunner {
   bool optimalTakesShort(const Robot& robot, const RunGeometry& g) const {
     const double belief = robot.mappers.belief(Method::kOracle, layout_.door.x, layout_.door.y);
     const double p_occ_now = std::isnan(belief) ? mapper_config_.initial_p_occ : belief;
-    const TransitionParams truth = robot.simulation->world().truth(layout_.door.x, layout_.door.y);
+    const core::TransitionParams truth = robot.simulation->world().truth(layout_.door.x, layout_.door.y);
     // The move into the door is decided door_progress - 1 steps after departure.
-    const double p_closed = predictOccupancy(p_occ_now, truth, g.door_progress - 1);
+    const double p_closed = core::predictOccupancy(p_occ_now, truth, g.door_progress - 1);
     const std::int32_t sighting = std::max(0, g.door_progress - doorVisibleCells(scenario_));
     const double expected_short =
         (1.0 - p_closed) * g.short_path_cells + p_closed * (2.0 * sighting + g.long_path_cells);
@@ -216,7 +216,7 @@ class RepetitionRunner {
     Simulation& simulation = *robot.simulation;
     for (std::int64_t t = 0; t < config_.idle_steps; ++t) advance(robot);
 
-    const CellXY goal = from_a ? layout_.b : layout_.a;
+    const core::CellXY goal = from_a ? layout_.b : layout_.a;
     robot.cell = from_a ? layout_.a : layout_.b;
     RunRecord record;
     record.from_a = from_a;
@@ -246,7 +246,7 @@ class RepetitionRunner {
 
   // One step of a run after the scan: the next cell by A* on the policy's map, and the
   // move, unless that cell is occupied in truth.
-  void moveOnce(Robot& robot, CellXY goal, bool from_a, Commitment* commitment, RunTrace* trace) const {
+  void moveOnce(Robot& robot, core::CellXY goal, bool from_a, Commitment* commitment, RunTrace* trace) const {
     const Simulation& simulation = *robot.simulation;
     fillBlocked(robot);
     if (committingPolicy(robot.policy)) {
@@ -258,9 +258,9 @@ class RepetitionRunner {
       if (commitment->door_free && doorFoundClosed(robot, trace->departure_step)) commitment->door_free = false;
       robot.blocked.setBlocked(layout_.door.x, layout_.door.y, !commitment->door_free);
     }
-    const std::vector<CellXY> path = robot.planner.plan(robot.blocked, robot.cell, goal);
+    const std::vector<core::CellXY> path = robot.planner.plan(robot.blocked, robot.cell, goal);
     // No path in the map: stay, the map may change (a timeout if it does not).
-    const CellXY next = path.size() >= 2 ? path[1] : robot.cell;
+    const core::CellXY next = path.size() >= 2 ? path[1] : robot.cell;
     if (next == robot.cell || simulation.world().occupied(next.x, next.y)) return;
     const std::int32_t from = progress(robot.cell, from_a);
     const std::int32_t to = progress(next, from_a);
@@ -273,7 +273,7 @@ class RepetitionRunner {
   // Observed during this run (last update at or after departure) and classified occupied.
   // Mapper steps are simulation steps: the first scan of all was at step 0.
   bool doorFoundClosed(const Robot& robot, std::int64_t departure_step) const {
-    const std::optional<CellState> cell =
+    const std::optional<core::CellState> cell =
         robot.mappers.mapper(Method::kOracle).grid().cell(layout_.door.x, layout_.door.y);
     return cell && cell->last_step >= departure_step &&
            robot.mappers.belief(Method::kOracle, layout_.door.x, layout_.door.y) > 0.5;
@@ -282,7 +282,7 @@ class RepetitionRunner {
   const ScenarioConfig& scenario_;
   const PathPlanningConfig& config_;
   int repetition_;
-  MapperConfig mapper_config_;
+  core::MapperConfig mapper_config_;
   DoorLayout layout_;
 };
 
@@ -412,7 +412,7 @@ PathPlanningResult runPathPlanningExperiment(const ScenarioConfig& door, const P
   const auto repetitions = static_cast<std::size_t>(config.repetitions);
   std::vector<std::vector<std::vector<RunRecord>>> by_repetition(repetitions);
   std::vector<ExplorationSummary> exploration(repetitions);
-  runRepetitions(
+  core::runRepetitions(
       repetitions, config.threads,
       [&](std::size_t r) {
         RepetitionRunner(door, config, static_cast<int>(r)).run(&by_repetition[r], &exploration[r]);
@@ -486,5 +486,5 @@ std::string formatPathPlanningTable(const PathPlanningResult& result) {
   return out;
 }
 
-}  // namespace core
+}  // namespace evaluation
 }  // namespace dynamic_occupancy_grid

@@ -7,7 +7,7 @@
 #include <string>
 
 namespace dynamic_occupancy_grid {
-namespace core {
+namespace evaluation {
 
 BlockedGrid::BlockedGrid(std::int32_t width, std::int32_t height) : width_(width), height_(height) {
   if (width <= 0 || height <= 0) throw std::invalid_argument("BlockedGrid: width and height must be positive");
@@ -39,7 +39,7 @@ void AStarPlanner::prepare(std::size_t cells) {
   open_.clear();
 }
 
-std::vector<CellXY> AStarPlanner::plan(const BlockedGrid& grid, CellXY start, CellXY goal) {
+std::vector<core::CellXY> AStarPlanner::plan(const BlockedGrid& grid, core::CellXY start, core::CellXY goal) {
   if (!grid.inside(start.x, start.y) || !grid.inside(goal.x, goal.y)) {
     throw std::out_of_range("AStarPlanner::plan: start or goal is outside the grid");
   }
@@ -99,14 +99,14 @@ std::vector<CellXY> AStarPlanner::plan(const BlockedGrid& grid, CellXY start, Ce
   }
   if (!found) return {};
 
-  std::vector<CellXY> path(static_cast<std::size_t>(cost_[goal_index]) + 1);
+  std::vector<core::CellXY> path(static_cast<std::size_t>(cost_[goal_index]) + 1);
   std::int32_t index = goal_index;
   for (auto it = path.rbegin(); it != path.rend(); ++it) {
-    *it = CellXY{index % width, index / width};
+    *it = core::CellXY{index % width, index / width};
     index = parent_[index];
   }
   return path;
 }
 
-}  // namespace core
+}  // namespace evaluation
 }  // namespace dynamic_occupancy_grid

@@ -13,16 +13,16 @@
 #include "dynamic_occupancy_grid/evaluation/evaluation.h"
 
 namespace dynamic_occupancy_grid {
-namespace core {
+namespace evaluation {
 
 namespace {
 
 /// The world's true transitions (static outside it): what a perfect learner would give.
-class WorldTransitions final : public TransitionSource {
+class WorldTransitions final : public core::TransitionSource {
  public:
   explicit WorldTransitions(const World& world) : world_(world) {}
-  TransitionParams at(std::int32_t x, std::int32_t y) const override {
-    return world_.inside(x, y) ? world_.truth(x, y) : TransitionParams{0.0, 0.0};
+  core::TransitionParams at(std::int32_t x, std::int32_t y) const override {
+    return world_.inside(x, y) ? world_.truth(x, y) : core::TransitionParams{0.0, 0.0};
   }
 
  private:
@@ -37,8 +37,9 @@ struct CellAccuracy {
 
 /// `learner`'s transitions, as `transitions` reads them, against the world's on the cells
 /// `observed` (the known-pose map's), one row per kind of cell.
-std::vector<LearnedTransitionError> learnedTransitionErrors(const std::string& learner, const TransitionSource& transitions,
-                                                           const World& world, const Mapper& observed) {
+std::vector<LearnedTransitionError> learnedTransitionErrors(const std::string& learner,
+                                                            const core::TransitionSource& transitions,
+                                                            const World& world, const core::Mapper& observed) {
   std::vector<LearnedTransitionError> rows(3);
   rows[0].kind = "static_occupied";
   rows[1].kind = "static_free";
@@ -46,11 +47,11 @@ std::vector<LearnedTransitionError> learnedTransitionErrors(const std::string& l
   std::vector<std::size_t> changing(3, 0);
   for (std::int32_t y = 0; y < world.height(); ++y) {
     for (std::int32_t x = 0; x < world.width(); ++x) {
-      const std::optional<CellState> seen = observed.grid().cell(x, y);
-      if (!seen || seen->last_step == kNeverObserved) continue;
-      const TransitionParams truth = world.truth(x, y);
+      const std::optional<core::CellState> seen = observed.grid().cell(x, y);
+      if (!seen || seen->last_step == core::kNeverObserved) continue;
+      const core::TransitionParams truth = world.truth(x, y);
       const std::size_t kind = !truth.isStatic() ? 2 : world.occupied(x, y) ? 0 : 1;
-      const TransitionParams learned = transitions.at(x, y);
+      const core::TransitionParams learned = transitions.at(x, y);
       LearnedTransitionError& row = rows[kind];
       ++row.cells;
       row.mae_p_occ_given_free += std::abs(learned.p_occ_given_free - truth.p_occ_given_free);
@@ -79,7 +80,7 @@ struct TrajectoryErrors {
   double final_error = 0.0;
 };
 
-TrajectoryErrors trajectoryErrors(const std::vector<Pose2D>& estimate, const std::vector<Pose2D>& truth,
+TrajectoryErrors trajectoryErrors(const std::vector<core::Pose2D>& estimate, const std::vector<core::Pose2D>& truth,
                                   std::size_t span) {
   TrajectoryErrors errors;
   double squares = 0.0;
@@ -95,9 +96,9 @@ TrajectoryErrors trajectoryErrors(const std::vector<Pose2D>& estimate, const std
   double rot = 0.0;
   std::size_t pairs = 0;
   for (std::size_t i = 0; i + span < truth.size(); ++i) {
-    const Pose2D true_motion = relativePose(truth[i], truth[i + span]);
-    const Pose2D estimated_motion = relativePose(estimate[i], estimate[i + span]);
-    const Pose2D error = relativePose(true_motion, estimated_motion);
+    const core::Pose2D true_motion = core::relativePose(truth[i], truth[i + span]);
+    const core::Pose2D estimated_motion = core::relativePose(estimate[i], estimate[i + span]);
+    const core::Pose2D error = core::relativePose(true_motion, estimated_motion);
     trans += error.x_m * error.x_m + error.y_m * error.y_m;
     rot += error.yaw_rad * error.yaw_rad;
     ++pairs;
@@ -112,8 +113,8 @@ TrajectoryErrors trajectoryErrors(const std::vector<Pose2D>& estimate, const std
 /// A pose filter with its run's bookkeeping.
 struct FilterRun {
   std::string name;
-  std::unique_ptr<PoseFilter> filter;
-  std::vector<Pose2D> estimate;  ///< per scan
+  std::unique_ptr<core::PoseFilter> filter;
+  std::vector<core::Pose2D> estimate;  ///< per scan
   double update_ms = 0.0;
   CellAccuracy changing;
   CellAccuracy still;
@@ -136,12 +137,12 @@ PoseCorrectionResult runPoseCorrection(const PoseCorrectionConfig& config) {
   const World& world = simulation.world();
   DriftingOdometry odometry(config.odometry_noise, mixSeed(config.run_seed ^ 0x6f646f6dULL));
 
-  const MapperConfig mapper_config = evaluationMapperConfig(scenario);
-  Mapper known(mapper_config);
-  Mapper dead_reckoning(mapper_config);
-  Mapper learner(mapper_config);  // the package's learner on the scans at rbpf_hmm's poses
+  const core::MapperConfig mapper_config = evaluationMapperConfig(scenario);
+  core::Mapper known(mapper_config);
+  core::Mapper dead_reckoning(mapper_config);
+  core::Mapper learner(mapper_config);  // the package's learner on the scans at rbpf_hmm's poses
 
-  PoseFilterConfig filter_config = config.filter;
+  core::PoseFilterConfig filter_config = config.filter;
   filter_config.resolution_m = scenario.resolution_m;
   filter_config.time_step_s = scenario.time_step_s;
   filter_config.p_hit_given_occ = scenario.p_hit_given_occ;
@@ -149,22 +150,24 @@ PoseCorrectionResult runPoseCorrection(const PoseCorrectionConfig& config) {
   filter_config.max_free_range_m = mapper_config.max_free_range_m;
   std::vector<FilterRun> filters(3);
   filters[0].name = "rbpf_static";
-  filters[0].filter = std::make_unique<PoseFilter>(filter_config, std::make_shared<UniformTransitions>(TransitionParams{0.0, 0.0}));
+  filters[0].filter = std::make_unique<core::PoseFilter>(
+      filter_config, std::make_shared<core::UniformTransitions>(core::TransitionParams{0.0, 0.0}));
   filters[1].name = "rbpf_hmm";
-  filters[1].filter = std::make_unique<PoseFilter>(filter_config, std::make_shared<MapperTransitions>(learner, scenario.resolution_m,
-                                                                                      config.learned_min_observed_steps));
+  filters[1].filter = std::make_unique<core::PoseFilter>(
+      filter_config,
+      std::make_shared<core::MapperTransitions>(learner, scenario.resolution_m, config.learned_min_observed_steps));
   filters[2].name = "rbpf_oracle";
-  filters[2].filter = std::make_unique<PoseFilter>(filter_config, std::make_shared<WorldTransitions>(world));
+  filters[2].filter = std::make_unique<core::PoseFilter>(filter_config, std::make_shared<WorldTransitions>(world));
 
-  std::vector<Pose2D> truth;
-  std::vector<Pose2D> odometry_track;
+  std::vector<core::Pose2D> truth;
+  std::vector<core::Pose2D> odometry_track;
   std::vector<double> stamps;
   CellAccuracy known_changing, known_still, odometry_changing, odometry_still;
   const std::int64_t score_from = config.steps / 2;
-  const auto score_mapper = [&world](const Mapper& mapper, std::int32_t x, std::int32_t y, std::int64_t step,
+  const auto score_mapper = [&world](const core::Mapper& mapper, std::int32_t x, std::int32_t y, std::int64_t step,
                                      CellAccuracy& accuracy) {
-    const std::optional<CellState> cell = mapper.grid().cell(x, y);
-    const bool known_cell = cell && cell->last_step != kNeverObserved;
+    const std::optional<core::CellState> cell = mapper.grid().cell(x, y);
+    const bool known_cell = cell && cell->last_step != core::kNeverObserved;
     const double p = known_cell ? mapper.beliefAt(x, y, step) : 0.5;
     ++accuracy.total;
     accuracy.right += known_cell && p != 0.5 && (p > 0.5) == world.occupied(x, y) ? 1 : 0;
@@ -172,43 +175,44 @@ PoseCorrectionResult runPoseCorrection(const PoseCorrectionConfig& config) {
 
   for (std::int64_t t = 0; t < config.steps; ++t) {
     for (int k = 0; k < scenario.scans_per_step; ++k) {
-      const Scan scan = simulation.scan(k);
-      const Pose2D robot_odometry = odometry.update(simulation.robotPose(k));
-      const Pose2D laser_odometry = composePose(robot_odometry, scenario.laser_mount);
-      Scan odometry_scan = scan;
+      const core::Scan scan = simulation.scan(k);
+      const core::Pose2D robot_odometry = odometry.update(simulation.robotPose(k));
+      const core::Pose2D laser_odometry = core::composePose(robot_odometry, scenario.laser_mount);
+      core::Scan odometry_scan = scan;
       odometry_scan.laser_pose = laser_odometry;
-      for (Mapper* mapper : {&known, &dead_reckoning}) {
-        const ScanResult result = mapper->integrate(mapper == &known ? scan : odometry_scan);
-        if (result.status != ScanStatus::kIntegrated) throw std::runtime_error("pose correction: scan rejected: " + result.error);
+      for (core::Mapper* mapper : {&known, &dead_reckoning}) {
+        const core::ScanResult result = mapper->integrate(mapper == &known ? scan : odometry_scan);
+        if (result.status != core::ScanStatus::kIntegrated)
+          throw std::runtime_error("pose correction: scan rejected: " + result.error);
       }
       for (FilterRun& run : filters) {
         const auto start = std::chrono::steady_clock::now();
-        const PoseUpdate update = run.filter->integrate(odometry_scan);
+        const core::PoseUpdate update = run.filter->integrate(odometry_scan);
         if (update.updated) {
           run.update_ms += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
         }
-        run.estimate.push_back(composePose(run.filter->mapToOdometry(), laser_odometry));
+        run.estimate.push_back(core::composePose(run.filter->mapToOdometry(), laser_odometry));
       }
-      Scan corrected = scan;
+      core::Scan corrected = scan;
       corrected.laser_pose = filters[1].estimate.back();
       learner.integrate(corrected);
       truth.push_back(scan.laser_pose);
       odometry_track.push_back(laser_odometry);
       stamps.push_back(scan.stamp_s);
     }
-    for (Mapper* mapper : {&known, &dead_reckoning}) mapper->finishStep();
+    for (core::Mapper* mapper : {&known, &dead_reckoning}) mapper->finishStep();
     learner.finishStep();
     if (t >= score_from) {
       for (std::int32_t y = 0; y < world.height(); ++y) {
         for (std::int32_t x = 0; x < world.width(); ++x) {
-          const std::optional<CellState> seen = known.grid().cell(x, y);
-          if (!seen || seen->last_step == kNeverObserved) continue;  // the cells the bound maps
+          const std::optional<core::CellState> seen = known.grid().cell(x, y);
+          if (!seen || seen->last_step == core::kNeverObserved) continue;  // the cells the bound maps
           const bool changing = !world.truth(x, y).isStatic();
           score_mapper(known, x, y, t, changing ? known_changing : known_still);
           score_mapper(dead_reckoning, x, y, t, changing ? odometry_changing : odometry_still);
           for (FilterRun& run : filters) {
-            const Particle& best = run.filter->best();
-            const bool observed = best.map.lastStep(x, y) != kNeverObserved;
+            const core::Particle& best = run.filter->best();
+            const bool observed = best.map.lastStep(x, y) != core::kNeverObserved;
             const double p = best.map.predicted(x, y, t, run.filter->transitions(), filter_config.unknown_p_occ);
             CellAccuracy& accuracy = changing ? run.changing : run.still;
             ++accuracy.total;
@@ -222,13 +226,14 @@ PoseCorrectionResult runPoseCorrection(const PoseCorrectionConfig& config) {
 
   PoseCorrectionResult result;
   result.scans = truth.size();
-  for (const auto& [name, mapper] : {std::pair<const char*, const Mapper*>{"known_pose", &known}, {"rbpf_hmm", &learner}}) {
-    const MapperTransitions transitions(*mapper, scenario.resolution_m, config.learned_min_observed_steps);
+  for (const auto& [name, mapper] :
+       {std::pair<const char*, const core::Mapper*>{"known_pose", &known}, {"rbpf_hmm", &learner}}) {
+    const core::MapperTransitions transitions(*mapper, scenario.resolution_m, config.learned_min_observed_steps);
     for (LearnedTransitionError& row : learnedTransitionErrors(name, transitions, world, known)) {
       result.learned.push_back(std::move(row));
     }
   }
-  const auto add = [&](const std::string& name, const std::vector<Pose2D>& track, const CellAccuracy& changing,
+  const auto add = [&](const std::string& name, const std::vector<core::Pose2D>& track, const CellAccuracy& changing,
                        const CellAccuracy& still) -> PoseEstimatorResult& {
     PoseEstimatorResult estimator;
     estimator.name = name;
@@ -371,5 +376,5 @@ std::string formatPoseCorrectionSummary(const PoseCorrectionConfig& config, cons
   return out.str();
 }
 
-}  // namespace core
+}  // namespace evaluation
 }  // namespace dynamic_occupancy_grid

@@ -10,7 +10,7 @@
 #include "dynamic_occupancy_grid/core/cell/offline_em.h"
 
 namespace dynamic_occupancy_grid {
-namespace core {
+namespace evaluation {
 namespace {
 
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
@@ -40,9 +40,9 @@ struct ReplayTally {
   std::optional<std::int64_t> last_applied_step;
   std::string last_rejection;
 
-  void add(const ScanResult& result) {
+  void add(const core::ScanResult& result) {
     ++scans;
-    if (result.status != ScanStatus::kIntegrated) {
+    if (result.status != core::ScanStatus::kIntegrated) {
       ++rejected;
       last_rejection = result.error;
       return;
@@ -79,16 +79,16 @@ void addPrediction(PredictionScore& score, double p_occ, bool occupied) {
 }
 
 // `mapper` holds the map after the label's origin step.
-void scoreLabel(const Mapper& mapper, const Label& label, HorizonScore& horizon) {
+void scoreLabel(const core::Mapper& mapper, const Label& label, HorizonScore& horizon) {
   ++horizon.labels;
-  const std::optional<CellState> cell = mapper.grid().cell(label.x, label.y);
+  const std::optional<core::CellState> cell = mapper.grid().cell(label.x, label.y);
   if (!cell) {
     ++horizon.unseen;
     return;
   }
   if (label.occupied) ++horizon.occupied_labels;
   addPrediction(horizon.dynamic_model, mapper.beliefAt(label.x, label.y, label.step), label.occupied);
-  addPrediction(horizon.static_model, logOddsToProbability(cell->log_odds), label.occupied);
+  addPrediction(horizon.static_model, core::logOddsToProbability(cell->log_odds), label.occupied);
 }
 
 }  // namespace
@@ -113,7 +113,7 @@ double PredictionScore::brier() const {
   return scored() == 0 ? kNaN : brier_sum / static_cast<double>(scored());
 }
 
-PredictionCheckResult checkPredictions(const MapperConfig& config, const ScanReplay& replay,
+PredictionCheckResult checkPredictions(const core::MapperConfig& config, const ScanReplay& replay,
                                        const std::vector<std::int64_t>& horizons_steps) {
   config.validate();
   if (!replay) throw std::invalid_argument("checkPredictions: no scan replay given");
@@ -126,13 +126,13 @@ PredictionCheckResult checkPredictions(const MapperConfig& config, const ScanRep
 
   // Pass 1: the labels. Which cells a scan hits or misses does not depend on the
   // transitions, so this mapper skips learning, which would only cost time.
-  MapperConfig labelling_config = config;
+  core::MapperConfig labelling_config = config;
   labelling_config.learn_transitions = false;
-  Mapper labelling(labelling_config);
-  SequenceBuilder recorder;
+  core::Mapper labelling(labelling_config);
+  core::SequenceBuilder recorder;
   labelling.recordObservations(&recorder);
   ReplayTally first;
-  replay([&](const Scan& scan) { first.add(labelling.integrate(scan)); });
+  replay([&](const core::Scan& scan) { first.add(labelling.integrate(scan)); });
   labelling.finishStep();
   labelling.recordObservations(nullptr);
   first.last_applied_step = labelling.lastAppliedStep();
@@ -148,14 +148,14 @@ PredictionCheckResult checkPredictions(const MapperConfig& config, const ScanRep
   result.scans_integrated = first.integrated;
   result.scans_rejected = first.rejected;
   result.last_rejection = first.last_rejection;
-  const ObservationSequences sequences = recorder.build();
+  const core::ObservationSequences sequences = recorder.build();
   result.observed_cells = sequences.cellCount();
   result.observed_cell_steps = sequences.observationCount();
   std::vector<Label> labels;
   labels.reserve(sequences.observationCount());
   for (std::size_t c = 0; c < sequences.cellCount(); ++c) {
-    const CellXY xy = sequences.cell(c);
-    for (const StepObservation* o = sequences.begin(c); o != sequences.end(c); ++o) {
+    const core::CellXY xy = sequences.cell(c);
+    for (const core::StepObservation* o = sequences.begin(c); o != sequences.end(c); ++o) {
       if (o->hits == o->misses) {
         ++result.tied_cell_steps;
         continue;
@@ -178,7 +178,7 @@ PredictionCheckResult checkPredictions(const MapperConfig& config, const ScanRep
                          [](const Label& label, std::int64_t step) { return label.step < step; }) -
         labels.begin());
   }
-  Mapper mapper(config);
+  core::Mapper mapper(config);
   // Scores, with the map as it is now, every label not scored yet whose origin step s - h
   // is before `end_origin` (all of them without one). The caller guarantees that the map is
   // the map after each of those origins.
@@ -193,7 +193,7 @@ PredictionCheckResult checkPredictions(const MapperConfig& config, const ScanRep
     }
   };
   ReplayTally second;
-  replay([&](const Scan& scan) {
+  replay([&](const core::Scan& scan) {
     // The map changes only when the step being gathered is applied, i.e. within this
     // integrate() if the scan belongs to a later step. Until then the map is the map after
     // every step before the gathering one (the steps since the last applied step had no
@@ -215,5 +215,5 @@ PredictionCheckResult checkPredictions(const MapperConfig& config, const ScanRep
   return result;
 }
 
-}  // namespace core
+}  // namespace evaluation
 }  // namespace dynamic_occupancy_grid

@@ -8,7 +8,7 @@
 #include <utility>
 
 namespace dynamic_occupancy_grid {
-namespace core {
+namespace evaluation {
 namespace {
 
 constexpr double kPi = 3.14159265358979323846;
@@ -121,7 +121,7 @@ World::World(std::int32_t width, std::int32_t height, double resolution_m)
   const auto cells = static_cast<std::size_t>(width) * static_cast<std::size_t>(height);
   occupancy_.assign(cells, 0);
   random_.assign(cells, 0);
-  truth_.assign(cells, TransitionParams{0.0, 0.0});
+  truth_.assign(cells, core::TransitionParams{0.0, 0.0});
 }
 
 void World::check(std::int32_t x, std::int32_t y) const {
@@ -135,10 +135,10 @@ void World::setStatic(std::int32_t x, std::int32_t y, bool occupied) {
   const std::size_t i = index(x, y);
   occupancy_[i] = occupied ? 1 : 0;
   random_[i] = 0;
-  truth_[i] = TransitionParams{0.0, 0.0};
+  truth_[i] = core::TransitionParams{0.0, 0.0};
 }
 
-void World::setDynamic(std::int32_t x, std::int32_t y, const TransitionParams& truth, bool occupied) {
+void World::setDynamic(std::int32_t x, std::int32_t y, const core::TransitionParams& truth, bool occupied) {
   check(x, y);
   require(truth.isValid(), "World::setDynamic: transition probabilities must be in [0, 1]");
   const std::size_t i = index(x, y);
@@ -147,7 +147,7 @@ void World::setDynamic(std::int32_t x, std::int32_t y, const TransitionParams& t
   truth_[i] = truth;
 }
 
-void World::setScheduled(std::int32_t x, std::int32_t y, const TransitionParams& truth, bool occupied) {
+void World::setScheduled(std::int32_t x, std::int32_t y, const core::TransitionParams& truth, bool occupied) {
   check(x, y);
   require(truth.isValid(), "World::setScheduled: transition probabilities must be in [0, 1]");
   const std::size_t i = index(x, y);
@@ -240,8 +240,9 @@ void LaserConfig::validate() const {
   }
 }
 
-Scan simulateScan(const World& world, const Pose2D& laser_pose, const LaserConfig& laser, double stamp_s, Rng& rng) {
-  Scan scan;
+core::Scan simulateScan(const World& world, const core::Pose2D& laser_pose, const LaserConfig& laser, double stamp_s,
+                        Rng& rng) {
+  core::Scan scan;
   scan.stamp_s = stamp_s;
   scan.laser_pose = laser_pose;
   scan.angle_min_rad = laser.angle_min_rad;
@@ -280,19 +281,19 @@ Scan simulateScan(const World& world, const Pose2D& laser_pose, const LaserConfi
 
 // ---------------------------------------------------------------- DriftingOdometry
 
-DriftingOdometry::DriftingOdometry(const OdometryNoise& noise, std::uint64_t seed) : noise_(noise), rng_(seed) {
+DriftingOdometry::DriftingOdometry(const core::OdometryNoise& noise, std::uint64_t seed) : noise_(noise), rng_(seed) {
   noise_.validate();
 }
 
-Pose2D DriftingOdometry::update(const Pose2D& truth) {
+core::Pose2D DriftingOdometry::update(const core::Pose2D& truth) {
   if (!last_truth_) {
     last_truth_ = truth;
     odometry_ = truth;
     return odometry_;
   }
-  const OdometryMotion read = perturbMotion(odometryMotion(*last_truth_, truth), noise_,
+  const core::OdometryMotion read = core::perturbMotion(core::odometryMotion(*last_truth_, truth), noise_,
                                             {rng_.normal(), rng_.normal(), rng_.normal()});
-  odometry_ = applyMotion(odometry_, read);
+  odometry_ = core::applyMotion(odometry_, read);
   last_truth_ = truth;
   return odometry_;
 }
@@ -312,7 +313,7 @@ LoopPath::LoopPath(std::vector<std::array<double, 2>> waypoints_m, double speed_
   require(cumulative_.back() > 0.0, "LoopPath: the waypoints must not all be the same point");
 }
 
-Pose2D LoopPath::poseAt(double steps) const {
+core::Pose2D LoopPath::poseAt(double steps) const {
   const double length = cumulative_.back();
   double s = std::fmod(steps * speed_, length);
   if (s < 0.0) s += length;
@@ -324,7 +325,7 @@ Pose2D LoopPath::poseAt(double steps) const {
   const auto& b = waypoints_[(segment + 1) % waypoints_.size()];
   const double segment_length = cumulative_[segment + 1] - cumulative_[segment];
   const double f = segment_length > 0.0 ? (s - cumulative_[segment]) / segment_length : 0.0;
-  return Pose2D{a[0] + f * (b[0] - a[0]), a[1] + f * (b[1] - a[1]), std::atan2(b[1] - a[1], b[0] - a[0])};
+  return core::Pose2D{a[0] + f * (b[0] - a[0]), a[1] + f * (b[1] - a[1]), std::atan2(b[1] - a[1], b[0] - a[0])};
 }
 
 // ---------------------------------------------------------------- scenarios
@@ -433,7 +434,7 @@ ScenarioConfig scenarioConfig(const std::string& name) {
     config.laser.angle_increment_rad = 2.0 * kPi / 72.0;
     config.laser.range_max_m = 3.0;
     config.laser.noise_sigma_m = 0.02;
-    config.laser_mount = Pose2D{0.0, 0.0, 0.0};
+    config.laser_mount = core::Pose2D{0.0, 0.0, 0.0};
     config.robot_speed_m_per_step = 0.5;
     // Beams from the corridor's centre line graze the walls beside it: noisier per beam.
     config.p_hit_given_occ = 0.8;
@@ -473,7 +474,7 @@ ScenarioConfig scenarioConfig(const std::string& name) {
     // in ten end in the cell before or behind the one it hit. It always returns a reading.
     config.laser.noise_sigma_m = 0.3 * config.resolution_m;
     config.laser.dropout_probability = 0.0;
-    config.laser_mount = Pose2D{0.0, 0.0, 0.0};
+    config.laser_mount = core::Pose2D{0.0, 0.0, 0.0};
     config.robot_speed_m_per_step = kMrfSpeedCells * config.resolution_m;
     // "Runs near the dashed line randomly": half a cell and 3 degrees per step move the beams'
     // cells from loop to loop, and 5 sigma still keep the robot a cell clear of every object.
@@ -503,7 +504,7 @@ ScenarioConfig scenarioConfig(const std::string& name) {
     config.laser.beams = 360;
     config.laser.range_max_m = 4.0;
     config.laser.noise_sigma_m = 0.01;
-    config.laser_mount = Pose2D{0.0, 0.0, 0.0};
+    config.laser_mount = core::Pose2D{0.0, 0.0, 0.0};
     config.robot_speed_m_per_step = config.resolution_m;
     config.divider_period_steps = 150;
     config.divider_toggle_probability = 0.2;
@@ -525,7 +526,7 @@ ScenarioConfig scenarioConfig(const std::string& name) {
     config.laser.range_max_m = 3.0;
     config.laser.noise_sigma_m = 0.01;
     config.laser.dropout_probability = 0.01;
-    config.laser_mount = Pose2D{0.0, 0.0, 0.0};
+    config.laser_mount = core::Pose2D{0.0, 0.0, 0.0};
     config.robot_speed_m_per_step = 0.5;
     config.description = "a robot patrolling a 56 m loop around two rooms (112 steps a loop, 3 m laser): doors "
                          "(0.025 / 0.05 per step), carts (0.004 / 0.012), people (0.12 / 0.25)";
@@ -545,11 +546,11 @@ ScenarioConfig scenarioConfig(const std::string& name) {
     config.laser.range_max_m = 4.0;
     config.laser.noise_sigma_m = 0.01;
     config.laser.dropout_probability = 0.01;
-    config.laser_mount = Pose2D{0.0, 0.0, 0.0};
+    config.laser_mount = core::Pose2D{0.0, 0.0, 0.0};
     config.robot_speed_m_per_step = 0.5;
-    config.patrol_door = TransitionParams{0.02, 0.04};
-    config.patrol_cart = TransitionParams{0.01, 0.02};
-    config.patrol_person = TransitionParams{0.1, 0.2};
+    config.patrol_door = core::TransitionParams{0.02, 0.04};
+    config.patrol_cart = core::TransitionParams{0.01, 0.02};
+    config.patrol_person = core::TransitionParams{0.1, 0.2};
     config.description = "a robot patrolling a 50 m loop around three offices (100 steps a loop, 4 m laser): doors "
                          "(0.02 / 0.04 per step), carts (0.01 / 0.02), people (0.1 / 0.2)";
     return config;
@@ -571,11 +572,11 @@ ScenarioConfig scenarioConfig(const std::string& name) {
     config.laser.range_max_m = 5.6;
     config.laser.noise_sigma_m = 0.01;
     config.laser.dropout_probability = 0.03;
-    config.laser_mount = Pose2D{0.0, 0.0, 0.0};
+    config.laser_mount = core::Pose2D{0.0, 0.0, 0.0};
     config.robot_speed_m_per_step = 0.5;
-    config.patrol_door = TransitionParams{0.03, 0.03};
-    config.patrol_cart = TransitionParams{0.01, 0.02};
-    config.patrol_person = TransitionParams{0.15, 0.30};
+    config.patrol_door = core::TransitionParams{0.03, 0.03};
+    config.patrol_cart = core::TransitionParams{0.01, 0.02};
+    config.patrol_person = core::TransitionParams{0.15, 0.30};
     config.description = "a robot patrolling a 60 m loop through a 16 m x 12 m office at 0.05 m (120 steps a loop, "
                          "5.6 m laser), each moving part in a niche seen a few steps a loop: 3 doors (0.03 / 0.03 "
                          "per step), 4 parking bays (0.01 / 0.02), 6 busy spots (0.15 / 0.3)";
@@ -669,18 +670,18 @@ void Simulation::drawDynamicCells(Rng& layout_rng) {
   // them becomes dynamic, starting from the stationary distribution (p = 0.5 for the
   // papers' symmetric cells).
   for (const std::size_t i : free_candidates_) {
-    const CellXY c = world_.cellOf(i);
+    const core::CellXY c = world_.cellOf(i);
     world_.setStatic(c.x, c.y, world_.occupied(c.x, c.y));
   }
   const auto count = static_cast<std::size_t>(std::llround(config_.dynamic_fraction * free_candidates_.size()));
   std::vector<std::size_t> pool = free_candidates_;
   const double p = config_.change_probability;
-  const TransitionParams truth{p, p};
+  const core::TransitionParams truth{p, p};
   for (std::size_t k = 0; k < count; ++k) {
     // Partial Fisher–Yates: pool[k] becomes a uniform pick from the rest.
     const std::size_t pick = k + static_cast<std::size_t>(layout_rng.below(pool.size() - k));
     std::swap(pool[k], pool[pick]);
-    const CellXY c = world_.cellOf(pool[k]);
+    const core::CellXY c = world_.cellOf(pool[k]);
     world_.setDynamic(c.x, c.y, truth, layout_rng.bernoulli(0.5));
   }
 }
@@ -693,7 +694,7 @@ void Simulation::buildParkingLot() {
   const std::int32_t bay_d = 20;
   const std::int32_t rows[2] = {1, world_.height() - 1 - bay_d};
   const double hours = static_cast<double>(config_.steps_per_hour);
-  const TransitionParams truth{config_.p_arrive_per_hour / hours, config_.p_leave_per_hour / hours};
+  const core::TransitionParams truth{config_.p_arrive_per_hour / hours, config_.p_leave_per_hour / hours};
   const double p_parked = config_.p_arrive_per_hour + config_.p_leave_per_hour > 0.0
                               ? config_.p_arrive_per_hour / (config_.p_arrive_per_hour + config_.p_leave_per_hour)
                               : 0.0;
@@ -705,7 +706,7 @@ void Simulation::buildParkingLot() {
       }
       const bool parked = dynamics_rng_.bernoulli(p_parked);
       for (const std::size_t i : car) {
-        const CellXY c = world_.cellOf(i);
+        const core::CellXY c = world_.cellOf(i);
         world_.setScheduled(c.x, c.y, truth, parked);
       }
       bays_.push_back(std::move(car));
@@ -725,7 +726,7 @@ void Simulation::parkingHour() {
     if (!change) continue;
     bay_occupied_[b] = parked ? 0 : 1;
     for (const std::size_t i : bays_[b]) {
-      const CellXY c = world_.cellOf(i);
+      const core::CellXY c = world_.cellOf(i);
       world_.setState(c.x, c.y, !parked);
     }
   }
@@ -740,13 +741,13 @@ void Simulation::buildDoor() {
     for (std::int32_t x = 2; x <= w - 3; ++x) world_.setStatic(x, y, true);
   }
   const std::int32_t corridor = h - 2;
-  door_.a = CellXY{1, corridor};
-  door_.b = CellXY{w - 2, corridor};
-  door_.door = CellXY{w / 2 - 1, corridor};
+  door_.a = core::CellXY{1, corridor};
+  door_.b = core::CellXY{w - 2, corridor};
+  door_.door = core::CellXY{w / 2 - 1, corridor};
   door_.short_path_cells = door_.b.x - door_.a.x;
   door_.long_path_cells = 2 * (corridor - 1) + (door_.b.x - door_.a.x);
   const double p = config_.door_change_probability;
-  world_.setDynamic(door_.door.x, door_.door.y, TransitionParams{p, p}, dynamics_rng_.bernoulli(0.5));
+  world_.setDynamic(door_.door.x, door_.door.y, core::TransitionParams{p, p}, dynamics_rng_.bernoulli(0.5));
   // Exploration: look at the door from both sides without passing it, and drive the
   // detour both ways.
   const double r = world_.resolution();
@@ -769,7 +770,7 @@ void Simulation::buildMrfSquares() {
   squares_.loop_steps = mrfLoopSteps();
   squares_.delta_t_steps = kMrfDeltaTSteps;
   for (std::size_t k = 0; k < kMrfSquares.size(); ++k) {
-    squares_.square_corner[k] = CellXY{kMrfSquares[k][0], kMrfSquares[k][1]};
+    squares_.square_corner[k] = core::CellXY{kMrfSquares[k][0], kMrfSquares[k][1]};
     const std::int64_t hold = config_.square_hold_steps[k];
     // A fixed hold is no Markov chain; its truth is the Markov rate of the same changes, one
     // per `hold` steps in either state (as the parking lot's hourly rates spread over the hour).
@@ -779,7 +780,7 @@ void Simulation::buildMrfSquares() {
     square_next_toggle_[k] = 1 + static_cast<std::int64_t>(dynamics_rng_.below(static_cast<std::uint64_t>(hold)));
     for (std::int32_t y = kMrfSquares[k][1]; y < kMrfSquares[k][1] + kMrfSquareSide; ++y) {
       for (std::int32_t x = kMrfSquares[k][0]; x < kMrfSquares[k][0] + kMrfSquareSide; ++x) {
-        world_.setScheduled(x, y, TransitionParams{rate, rate}, occupied);
+        world_.setScheduled(x, y, core::TransitionParams{rate, rate}, occupied);
       }
     }
   }
@@ -791,7 +792,7 @@ void Simulation::toggleSquares() {
   for (std::size_t k = 0; k < square_next_toggle_.size(); ++k) {
     if (step_ != square_next_toggle_[k]) continue;
     square_next_toggle_[k] += config_.square_hold_steps[k];
-    const CellXY corner = squares_.square_corner[k];
+    const core::CellXY corner = squares_.square_corner[k];
     const bool occupied = !world_.occupied(corner.x, corner.y);
     for (std::int32_t y = corner.y; y < corner.y + squares_.square_side_cells; ++y) {
       for (std::int32_t x = corner.x; x < corner.x + squares_.square_side_cells; ++x) world_.setState(x, y, occupied);
@@ -807,23 +808,24 @@ void Simulation::drawPathNoise() {
   path_noise_.yaw_rad = config_.path_noise_sigma_rad * path_rng_.normal();
 }
 
-Pose2D Simulation::robotPose(int scan_index) const {
-  Pose2D pose = path_->poseAt(static_cast<double>(step_) + static_cast<double>(scan_index) / config_.scans_per_step);
+core::Pose2D Simulation::robotPose(int scan_index) const {
+  core::Pose2D pose =
+      path_->poseAt(static_cast<double>(step_) + static_cast<double>(scan_index) / config_.scans_per_step);
   pose.x_m += path_noise_.x_m;
   pose.y_m += path_noise_.y_m;
   pose.yaw_rad += path_noise_.yaw_rad;
   return pose;
 }
 
-Scan Simulation::scan(int scan_index) { return scanFrom(robotPose(scan_index), scan_index); }
+core::Scan Simulation::scan(int scan_index) { return scanFrom(robotPose(scan_index), scan_index); }
 
-Scan Simulation::scanFrom(const Pose2D& robot_pose, int scan_index) {
+core::Scan Simulation::scanFrom(const core::Pose2D& robot_pose, int scan_index) {
   if (scan_index < 0 || scan_index >= config_.scans_per_step) {
     throw std::invalid_argument("Simulation::scan: scan_index must be in [0, scans_per_step)");
   }
   const double stamp =
       (static_cast<double>(step_) + (scan_index + 0.5) / config_.scans_per_step) * config_.time_step_s;
-  const Pose2D laser = composePose(robot_pose, config_.laser_mount);
+  const core::Pose2D laser = core::composePose(robot_pose, config_.laser_mount);
   if (config_.kind == ScenarioKind::kDividers) {
     // A person passing through the laser's own cell is too close to be seen (DividersLayout):
     // hide it for this scan.
@@ -831,7 +833,7 @@ Scan Simulation::scanFrom(const Pose2D& robot_pose, int scan_index) {
     const auto y = static_cast<std::int32_t>(std::floor(laser.y_m / world_.resolution()));
     if (isPerson(x, y)) {
       world_.setState(x, y, false);
-      Scan scan = simulateScan(world_, laser, config_.laser, stamp, sensor_rng_);
+      core::Scan scan = simulateScan(world_, laser, config_.laser, stamp, sensor_rng_);
       world_.setState(x, y, true);
       return scan;
     }
@@ -857,11 +859,11 @@ void Simulation::buildPatrol() {
   addBorderWalls();
   const double r = world_.resolution();
   const auto cell = [r](double m) { return static_cast<std::int32_t>(std::floor(m / r + 1e-9)); };
-  const auto add_part = [&](const std::string& kind, const TransitionParams& truth, std::int32_t x0, std::int32_t y0,
-                            std::int32_t w, std::int32_t h) {
+  const auto add_part = [&](const std::string& kind, const core::TransitionParams& truth, std::int32_t x0,
+                            std::int32_t y0, std::int32_t w, std::int32_t h) {
     PatrolLayout::Part part{kind, {}, truth};
     for (std::int32_t y = y0; y < y0 + h; ++y) {
-      for (std::int32_t x = x0; x < x0 + w; ++x) part.cells.push_back(CellXY{x, y});
+      for (std::int32_t x = x0; x < x0 + w; ++x) part.cells.push_back(core::CellXY{x, y});
     }
     patrol_.parts.push_back(std::move(part));
   };
@@ -876,13 +878,13 @@ void Simulation::buildPatrol() {
     // A part is the outline of its rectangle, one cell thick: what a laser in the plane can
     // see of it. The inside, never seen while the part is there, is floor (docs: "The
     // sparse office").
-    const auto place = [&](const std::string& kind, const TransitionParams& truth, double x0, double y0, double x1,
-                           double y1) {
+    const auto place = [&](const std::string& kind, const core::TransitionParams& truth, double x0, double y0,
+                           double x1, double y1) {
       PatrolLayout::Part part{kind, {}, truth};
       for (std::int32_t y = cell(y0); y < cell(y1); ++y) {
         for (std::int32_t x = cell(x0); x < cell(x1); ++x) {
           const bool edge = x == cell(x0) || x == cell(x1) - 1 || y == cell(y0) || y == cell(y1) - 1;
-          if (edge) part.cells.push_back(CellXY{x, y});
+          if (edge) part.cells.push_back(core::CellXY{x, y});
         }
       }
       patrol_.parts.push_back(std::move(part));
@@ -994,10 +996,10 @@ void Simulation::buildPatrol() {
 void Simulation::startPatrolParts() {
   // Each part starts in its stationary distribution.
   for (const PatrolLayout::Part& part : patrol_.parts) {
-    const std::optional<double> pi = stationaryOccupancy(part.truth);
+    const std::optional<double> pi = core::stationaryOccupancy(part.truth);
     const bool occupied = dynamics_rng_.bernoulli(pi.value_or(0.0));
     part_occupied_.push_back(occupied ? 1 : 0);
-    for (const CellXY& c : part.cells) world_.setScheduled(c.x, c.y, part.truth, occupied);
+    for (const core::CellXY& c : part.cells) world_.setScheduled(c.x, c.y, part.truth, occupied);
   }
 }
 
@@ -1008,7 +1010,7 @@ void Simulation::stepPatrolParts() {
     const double p_change = occupied ? part.truth.p_free_given_occ : part.truth.p_occ_given_free;
     if (!dynamics_rng_.bernoulli(p_change)) continue;
     part_occupied_[k] = occupied ? 0 : 1;
-    for (const CellXY& c : part.cells) world_.setState(c.x, c.y, !occupied);
+    for (const core::CellXY& c : part.cells) world_.setState(c.x, c.y, !occupied);
   }
 }
 
@@ -1034,7 +1036,7 @@ const DividersLayout& Simulation::dividersLayout() const {
 
 bool Simulation::isPerson(std::int32_t x, std::int32_t y) const {
   if (config_.kind != ScenarioKind::kDividers) return false;
-  for (const CellXY& person : dividers_.people) {
+  for (const core::CellXY& person : dividers_.people) {
     if (person.x == x && person.y == y) return true;
   }
   return false;
@@ -1057,13 +1059,13 @@ void Simulation::buildDividers() {
   dividers_.passage_height = kDividersPassageHeight;
   dividers_.passage_min_y.assign(kDividersPassages.begin(), kDividersPassages.end());
   const std::int32_t middle = kDividersPassages[1] + kDividersPassageHeight / 2;
-  dividers_.a = CellXY{4, middle};
-  dividers_.b = CellXY{world_.width() - 5, middle};
+  dividers_.a = core::CellXY{4, middle};
+  dividers_.b = core::CellXY{world_.width() - 5, middle};
   // A divider's truth is the Markov rate of its moves (as the parking lot's hourly rates).
   const double rate = config_.divider_toggle_probability / static_cast<double>(config_.divider_period_steps);
   for (std::int32_t y = 1; y < world_.height() - 1; ++y) {
     if (dividers_.dividerAt(kDividersWallX, y) >= 0) {
-      world_.setScheduled(kDividersWallX, y, TransitionParams{rate, rate}, false);
+      world_.setScheduled(kDividersWallX, y, core::TransitionParams{rate, rate}, false);
     } else {
       world_.setStatic(kDividersWallX, y, true);
     }
@@ -1071,7 +1073,7 @@ void Simulation::buildDividers() {
   dividers_.closed.assign(dividers_.passage_min_y.size(), 0);
   moveDividers(true);
   for (int i = 0; i < config_.people; ++i) {
-    const CellXY cell = randomFreeCell(dynamics_rng_);
+    const core::CellXY cell = randomFreeCell(dynamics_rng_);
     world_.setState(cell.x, cell.y, true);
     dividers_.people.push_back(cell);
     waypoints_.push_back(randomFreeCell(dynamics_rng_));
@@ -1105,17 +1107,17 @@ void Simulation::moveDividers(bool initial) {
         if (!isPerson(dividers_.wall_x, y)) world_.setState(dividers_.wall_x, y, false);
         continue;
       }
-      for (CellXY& person : dividers_.people) {
+      for (core::CellXY& person : dividers_.people) {
         if (person.x != dividers_.wall_x || person.y != y) continue;
         // Pushed out to the nearest free cell (rows of the wall column excluded).
         world_.setState(person.x, person.y, false);
-        CellXY best = person;
+        core::CellXY best = person;
         std::int32_t best_distance = std::numeric_limits<std::int32_t>::max();
         for (std::int32_t cy = 1; cy < world_.height() - 1; ++cy) {
           for (std::int32_t cx = 1; cx < world_.width() - 1; ++cx) {
             const std::int32_t d = std::abs(cx - person.x) + std::abs(cy - person.y);
             if (cx == dividers_.wall_x || d >= best_distance || world_.occupied(cx, cy)) continue;
-            best = CellXY{cx, cy};
+            best = core::CellXY{cx, cy};
             best_distance = d;
           }
         }
@@ -1132,25 +1134,25 @@ bool Simulation::freeForPerson(std::int32_t x, std::int32_t y) const {
   return world_.inside(x, y) && !world_.occupied(x, y);
 }
 
-CellXY Simulation::randomFreeCell(Rng& rng) const {
+core::CellXY Simulation::randomFreeCell(Rng& rng) const {
   while (true) {
     const auto x = static_cast<std::int32_t>(rng.below(static_cast<std::uint64_t>(world_.width())));
     const auto y = static_cast<std::int32_t>(rng.below(static_cast<std::uint64_t>(world_.height())));
-    if (x != dividers_.wall_x && freeForPerson(x, y)) return CellXY{x, y};
+    if (x != dividers_.wall_x && freeForPerson(x, y)) return core::CellXY{x, y};
   }
 }
 
 void Simulation::movePeople() {
   constexpr std::array<std::array<std::int32_t, 2>, 4> kMoves{{{1, 0}, {-1, 0}, {0, 1}, {0, -1}}};
   for (std::size_t i = 0; i < dividers_.people.size(); ++i) {
-    CellXY& person = dividers_.people[i];
+    core::CellXY& person = dividers_.people[i];
     const auto distance = [&](std::int32_t x, std::int32_t y) {
       return std::abs(x - waypoints_[i].x) + std::abs(y - waypoints_[i].y);
     };
-    std::array<CellXY, 4> options{};
+    std::array<core::CellXY, 4> options{};
     std::size_t count = 0;
     for (const auto& move : kMoves) {
-      const CellXY next{person.x + move[0], person.y + move[1]};
+      const core::CellXY next{person.x + move[0], person.y + move[1]};
       if (distance(next.x, next.y) < distance(person.x, person.y) && freeForPerson(next.x, next.y)) {
         options[count++] = next;
       }
@@ -1159,17 +1161,17 @@ void Simulation::movePeople() {
       // Arrived or stuck: a new waypoint, and a random free step.
       waypoints_[i] = randomFreeCell(dynamics_rng_);
       for (const auto& move : kMoves) {
-        const CellXY next{person.x + move[0], person.y + move[1]};
+        const core::CellXY next{person.x + move[0], person.y + move[1]};
         if (freeForPerson(next.x, next.y)) options[count++] = next;
       }
       if (count == 0) continue;  // boxed in
     }
-    const CellXY next = options[dynamics_rng_.below(count)];
+    const core::CellXY next = options[dynamics_rng_.below(count)];
     world_.setState(person.x, person.y, false);
     world_.setState(next.x, next.y, true);
     person = next;
   }
 }
 
-}  // namespace core
+}  // namespace evaluation
 }  // namespace dynamic_occupancy_grid

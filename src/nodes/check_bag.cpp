@@ -366,7 +366,7 @@ void printEnd(const EndOfRun& end, const Options& options) {
               kChangingThreshold, end.free_changing, end.static_free);
 }
 
-void printTable(const dog::core::PredictionCheckResult& result, const Options& options) {
+void printTable(const dog::evaluation::PredictionCheckResult& result, const Options& options) {
   std::printf("\nprediction check: the map after each step against the labels of the step h later\n"
               "  label: one cell in one step, occupied if hits > misses, free if misses > hits (tie: none)\n"
               "  unseen: labels on cells the map had not observed yet (not scored); occupied: share of the\n"
@@ -376,9 +376,9 @@ void printTable(const dog::core::PredictionCheckResult& result, const Options& o
   std::printf("%9s %7s %10s %9s %8s | %8s %8s %8s | %8s %8s %8s\n", "horizon", "steps", "labels", "unseen",
               "occupied", "accuracy", "occ.acc", "Brier", "accuracy", "occ.acc", "Brier");
   const double time_step_s = options.shared.mapper.time_step_s;
-  for (const dog::core::HorizonScore& score : result.horizons) {
-    const dog::core::PredictionScore& dynamic = score.dynamic_model;
-    const dog::core::PredictionScore& fixed = score.static_model;
+  for (const dog::evaluation::HorizonScore& score : result.horizons) {
+    const dog::evaluation::PredictionScore& dynamic = score.dynamic_model;
+    const dog::evaluation::PredictionScore& fixed = score.static_model;
     const double occupied = fraction(score.occupied_labels, score.scored());
     const std::string occupied_text = std::isnan(occupied) ? "-" : tableNumber(100.0 * occupied, 1) + "%";
     std::printf("%9s %7lld %10zu %9zu %8s | %8s %8s %8s | %8s %8s %8s\n",
@@ -391,7 +391,7 @@ void printTable(const dog::core::PredictionCheckResult& result, const Options& o
   }
 }
 
-void writeCsv(std::ostream& file, const dog::core::PredictionCheckResult& result, const EndOfRun& end,
+void writeCsv(std::ostream& file, const dog::evaluation::PredictionCheckResult& result, const EndOfRun& end,
               const Options& options) {
   file << "horizon_s,horizon_steps,labels,unseen,occupied_labels";
   for (const char* model : {"dynamic", "static"}) {
@@ -418,10 +418,10 @@ void writeCsv(std::ostream& file, const dog::core::PredictionCheckResult& result
               << csvNumber(static_cast<double>(options.prediction_horizon_steps) * options.shared.mapper.time_step_s)
               << ',' << end.predicted_kept_free << ',' << end.predicted_kept_occupied << ','
               << end.left_occupied_changing;
-  for (const dog::core::HorizonScore& score : result.horizons) {
+  for (const dog::evaluation::HorizonScore& score : result.horizons) {
     file << csvNumber(static_cast<double>(score.horizon_steps) * options.shared.mapper.time_step_s) << ','
          << score.horizon_steps << ',' << score.labels << ',' << score.unseen << ',' << score.occupied_labels;
-    for (const dog::core::PredictionScore* model : {&score.dynamic_model, &score.static_model}) {
+    for (const dog::evaluation::PredictionScore* model : {&score.dynamic_model, &score.static_model}) {
       file << ',' << csvNumber(model->accuracy()) << ',' << csvNumber(model->occupiedAccuracy()) << ','
            << csvNumber(model->freeAccuracy()) << ',' << csvNumber(model->brier()) << ',' << model->unclassified;
     }
@@ -456,14 +456,14 @@ void checkAndReport(dog::ros_layer::BagScanSource& source, const Options& option
   dog::core::Mapper final_map(mapper);
   std::size_t correction_updates = 0;
   std::size_t correction_refused = 0;  // over both passes
-  const dog::core::ScanReplay replay = [&](const dog::core::ScanConsumer& consumer) {
+  const dog::evaluation::ScanReplay replay = [&](const dog::evaluation::ScanConsumer& consumer) {
     ++pass;
     const std::string phase = "pass " + std::to_string(pass);
-    const dog::core::ScanConsumer both = [&consumer, &final_map](const dog::core::Scan& scan) {
+    const dog::evaluation::ScanConsumer both = [&consumer, &final_map](const dog::core::Scan& scan) {
       consumer(scan);
       final_map.integrate(scan);
     };
-    const dog::core::ScanConsumer& use = pass == 2 ? both : consumer;
+    const dog::evaluation::ScanConsumer& use = pass == 2 ? both : consumer;
     // With pose correction, a filter and its learner made afresh for each pass: both passes
     // see the same corrected poses.
     dog::core::Mapper learner(mapper);
@@ -471,7 +471,8 @@ void checkAndReport(dog::ros_layer::BagScanSource& source, const Options& option
     if (options.correction.enabled) {
       correction.emplace(learner, options.correction.filter, options.correction.learned_min_observed_steps);
     }
-    const dog::core::ScanConsumer corrected = [&use, &correction, &correction_refused](const dog::core::Scan& scan) {
+    const dog::evaluation::ScanConsumer corrected = [&use, &correction,
+                                                     &correction_refused](const dog::core::Scan& scan) {
       dog::core::CorrectedScan result;
       try {
         result = correction->integrate(scan);
@@ -498,7 +499,8 @@ void checkAndReport(dog::ros_layer::BagScanSource& source, const Options& option
     }
   };
   const auto start = std::chrono::steady_clock::now();
-  const dog::core::PredictionCheckResult result = dog::core::checkPredictions(mapper, replay, options.horizons_steps);
+  const dog::evaluation::PredictionCheckResult result =
+      dog::evaluation::checkPredictions(mapper, replay, options.horizons_steps);
   final_map.finishStep();
   const EndOfRun end = summarizeEnd(final_map, options.retention_after_steps, options.prediction_horizon_steps);
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();

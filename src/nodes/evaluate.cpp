@@ -36,6 +36,7 @@
 #include "dynamic_occupancy_grid/evaluation/path_planning.h"
 
 namespace core = dynamic_occupancy_grid::core;
+namespace evaluation = dynamic_occupancy_grid::evaluation;
 
 namespace {
 
@@ -68,7 +69,7 @@ std::vector<std::string> splitScenarios(const std::string& text) {
   if (text == "none") return scenarios;
   boost::split(scenarios, text, boost::is_any_of(","));
   for (auto name = scenarios.begin(); name != scenarios.end(); ++name) {
-    core::scenarioConfig(*name);  // throws for an unknown name, listing the known ones
+    evaluation::scenarioConfig(*name);  // throws for an unknown name, listing the known ones
     if (std::find(scenarios.begin(), name, *name) != name) throw std::invalid_argument("scenario " + *name + " is listed twice");
   }
   return scenarios;
@@ -136,7 +137,7 @@ Options parseOptions(int argc, char** argv) {
       ("pose-correction-particles", cl::number(&options.pose_correction_particles, cl::between(1, 10000))->value_name("N"),
        "particles of each filter in the pose filter's comparison (default 30)")
       ("pose-correction-scenario",
-       cl::converted([](const std::string& name) { core::scenarioConfig(name); return name; },
+       cl::converted([](const std::string& name) { evaluation::scenarioConfig(name); return name; },
                      [&options](const std::string& name) { options.pose_correction_scenario = name; })
            ->value_name("NAME"),
        "the world of the pose filter's comparison (default patrol_office; any of the simulator's scenarios)")
@@ -161,8 +162,8 @@ Options parseOptions(int argc, char** argv) {
   return options;
 }
 
-using core::MeanStd;
-using core::meanStd;
+using evaluation::MeanStd;
+using evaluation::meanStd;
 
 /// Per repetition, the mean accuracy (percent) of steps [from, to).
 std::vector<double> windowMeans(const std::vector<std::vector<double>>& repetitions, std::size_t from, std::size_t to) {
@@ -188,17 +189,17 @@ std::string significant(double value) {
   return text.str();
 }
 
-std::string accuracyCsv(const core::AccuracyExperimentResult& result) {
+std::string accuracyCsv(const evaluation::AccuracyExperimentResult& result) {
   std::ostringstream csv;
   csv << "step";
-  for (const core::Method method : core::kAllMethods) {
-    csv << ',' << core::methodName(method) << "_mean," << core::methodName(method) << "_std";
+  for (const evaluation::Method method : evaluation::kAllMethods) {
+    csv << ',' << evaluation::methodName(method) << "_mean," << evaluation::methodName(method) << "_std";
   }
   csv << '\n';
   const std::size_t steps = result.accuracy[0][0].size();
   for (std::size_t t = 0; t < steps; ++t) {
     csv << t;
-    for (std::size_t m = 0; m < core::kAllMethods.size(); ++m) {
+    for (std::size_t m = 0; m < evaluation::kAllMethods.size(); ++m) {
       std::vector<double> values;
       for (const std::vector<double>& series : result.accuracy[m]) values.push_back(100.0 * series[t]);
       const MeanStd stats = meanStd(values);
@@ -209,22 +210,22 @@ std::string accuracyCsv(const core::AccuracyExperimentResult& result) {
   return csv.str();
 }
 
-std::string pathPlanningCsv(const core::PathPlanningResult& result) {
+std::string pathPlanningCsv(const evaluation::PathPlanningResult& result) {
   // The plot script's format: one row per class plus effectiveness; our mean and std per
   // policy, then the paper's means (empty where the paper has none).
   std::ostringstream csv;
   csv << "class";
-  for (const core::Policy policy : core::kAllPolicies) {
-    csv << ',' << core::policyName(policy) << "_mean," << core::policyName(policy) << "_std";
+  for (const evaluation::Policy policy : evaluation::kAllPolicies) {
+    csv << ',' << evaluation::policyName(policy) << "_mean," << evaluation::policyName(policy) << "_std";
   }
-  for (const core::Policy policy : core::kAllPolicies) csv << ",paper_" << core::policyName(policy);
+  for (const evaluation::Policy policy : evaluation::kAllPolicies) csv << ",paper_" << evaluation::policyName(policy);
   csv << '\n';
-  const auto ran = [&result](core::Policy policy) {
+  const auto ran = [&result](evaluation::Policy policy) {
     return std::find(result.policies.begin(), result.policies.end(), policy) != result.policies.end();
   };
   const auto row = [&](const std::string& name, const auto& ours, const auto& paper) {
     csv << name;
-    for (const core::Policy policy : core::kAllPolicies) {
+    for (const evaluation::Policy policy : evaluation::kAllPolicies) {
       if (ran(policy)) {
         const MeanStd v = ours(policy);
         csv << ',' << fixed(v.mean, 3) << ',' << fixed(v.std, 3);
@@ -232,20 +233,20 @@ std::string pathPlanningCsv(const core::PathPlanningResult& result) {
         csv << ",,";
       }
     }
-    for (const core::Policy policy : core::kAllPolicies) {
+    for (const evaluation::Policy policy : evaluation::kAllPolicies) {
       const std::optional<MeanStd> v = paper(policy);
       csv << ',' << (v ? fixed(v->mean, 2) : "");
     }
     csv << '\n';
   };
-  for (const core::RunClass run_class : core::kAllRunClasses) {
-    std::string name = core::runClassName(run_class);
+  for (const evaluation::RunClass run_class : evaluation::kAllRunClasses) {
+    std::string name = evaluation::runClassName(run_class);
     std::replace(name.begin(), name.end(), ' ', '_');
-    row(name, [&](core::Policy policy) { return result.classPercent(policy, run_class); },
-        [&](core::Policy policy) { return core::paperTable1(policy, run_class); });
+    row(name, [&](evaluation::Policy policy) { return result.classPercent(policy, run_class); },
+        [&](evaluation::Policy policy) { return evaluation::paperTable1(policy, run_class); });
   }
-  row("effectiveness", [&](core::Policy policy) { return result.effectiveness(policy); },
-      [](core::Policy policy) { return std::optional<MeanStd>(core::paperEffectiveness(policy)); });
+  row("effectiveness", [&](evaluation::Policy policy) { return result.effectiveness(policy); },
+      [](evaluation::Policy policy) { return std::optional<MeanStd>(evaluation::paperEffectiveness(policy)); });
   return csv.str();
 }
 
@@ -257,29 +258,30 @@ struct Check {
 
 // The memory experiment per method: mean and std over the seeds of each metric; the
 // memory's LTM counts on its row (empty for the maps without one).
-std::string memoryCsv(const core::MemoryExperimentResult& result) {
+std::string memoryCsv(const evaluation::MemoryExperimentResult& result) {
   std::ostringstream csv;
   csv << "method,goal_reached_percent_mean,goal_reached_percent_std,path_ratio_mean,path_ratio_std,"
          "replans_per_episode_mean,replans_per_episode_std,people_in_ltm_mean,people_in_ltm_std,"
          "other_non_structure_in_ltm_mean,divider_cells_in_ltm_mean,divider_cells_in_ltm_std,"
          "divider_configurations_mean,repetitions,episodes,seconds\n";
-  const auto count = [&](std::size_t core::MemoryRepetition::*field) {
-    return result.perRepetition([field](const core::MemoryRepetition& r) { return static_cast<double>(r.*field); });
+  const auto count = [&](std::size_t evaluation::MemoryRepetition::*field) {
+    return result.perRepetition(
+        [field](const evaluation::MemoryRepetition& r) { return static_cast<double>(r.*field); });
   };
-  for (const core::NavigationMethod method : core::kAllNavigationMethods) {
+  for (const evaluation::NavigationMethod method : evaluation::kAllNavigationMethods) {
     const MeanStd reached = result.goalReachedPercent(method);
     const MeanStd ratio = result.pathRatio(method);
     const MeanStd replans = result.replansPerEpisode(method);
-    csv << core::navigationMethodName(method) << ',' << fixed(reached.mean, 4) << ',' << fixed(reached.std, 4) << ','
-        << fixed(ratio.mean, 6) << ',' << fixed(ratio.std, 6) << ',' << fixed(replans.mean, 4) << ','
+    csv << evaluation::navigationMethodName(method) << ',' << fixed(reached.mean, 4) << ',' << fixed(reached.std, 4)
+        << ',' << fixed(ratio.mean, 6) << ',' << fixed(ratio.std, 6) << ',' << fixed(replans.mean, 4) << ','
         << fixed(replans.std, 4) << ',';
-    if (method == core::NavigationMethod::kMemory) {
-      const MeanStd people = count(&core::MemoryRepetition::people_in_ltm);
-      const MeanStd dividers = count(&core::MemoryRepetition::divider_cells_in_ltm);
+    if (method == evaluation::NavigationMethod::kMemory) {
+      const MeanStd people = count(&evaluation::MemoryRepetition::people_in_ltm);
+      const MeanStd dividers = count(&evaluation::MemoryRepetition::divider_cells_in_ltm);
       csv << fixed(people.mean, 4) << ',' << fixed(people.std, 4) << ','
-          << fixed(count(&core::MemoryRepetition::other_non_structure_in_ltm).mean, 4) << ','
+          << fixed(count(&evaluation::MemoryRepetition::other_non_structure_in_ltm).mean, 4) << ','
           << fixed(dividers.mean, 4) << ',' << fixed(dividers.std, 4) << ','
-          << fixed(count(&core::MemoryRepetition::divider_configurations).mean, 4) << ',';
+          << fixed(count(&evaluation::MemoryRepetition::divider_configurations).mean, 4) << ',';
     } else {
       csv << ",,,,,,";
     }
@@ -301,34 +303,35 @@ std::string signedPercent(double before, double after) {
 }
 
 // The four learners of the MRF experiment: offline EM plain and with the MRF, each cell's
-// online EM, and kinds of cells (core::MrfRepetition).
+// online EM, and kinds of cells (evaluation::MrfRepetition).
 struct MrfMethod {
   const char* name;   ///< in the CSV files
   const char* label;  ///< in the summary
-  const std::array<core::SplitRmse, core::kCellKinds>& (*by_kind)(const core::MrfRepetition&);
-  const std::array<core::SplitRmse, 2>& (*changing_by_data)(const core::MrfRepetition&);
+  const std::array<evaluation::SplitRmse, evaluation::kCellKinds>& (*by_kind)(const evaluation::MrfRepetition&);
+  const std::array<evaluation::SplitRmse, 2>& (*changing_by_data)(const evaluation::MrfRepetition&);
 };
-template <typename Outcome, Outcome core::MrfRepetition::*member>
+template <typename Outcome, Outcome evaluation::MrfRepetition::*member>
 constexpr MrfMethod mrfMethod(const char* name, const char* label) {
-  return MrfMethod{name, label,
-                   [](const core::MrfRepetition& r) -> const std::array<core::SplitRmse, core::kCellKinds>& {
-                     return (r.*member).rmse_by_kind;
-                   },
-                   [](const core::MrfRepetition& r) -> const std::array<core::SplitRmse, 2>& {
-                     return (r.*member).rmse_changing_by_data;
-                   }};
+  return MrfMethod{
+      name, label,
+      [](const evaluation::MrfRepetition& r) -> const std::array<evaluation::SplitRmse, evaluation::kCellKinds>& {
+        return (r.*member).rmse_by_kind;
+      },
+      [](const evaluation::MrfRepetition& r) -> const std::array<evaluation::SplitRmse, 2>& {
+        return (r.*member).rmse_changing_by_data;
+      }};
 }
 constexpr std::size_t kMrfMethodCount = 4;
 const std::array<MrfMethod, kMrfMethodCount> kMrfMethods{{
-    mrfMethod<core::MrfEmOutcome, &core::MrfRepetition::plain>("plain", "plain EM"),
-    mrfMethod<core::MrfEmOutcome, &core::MrfRepetition::mrf>("mrf", "MRF EM"),
-    mrfMethod<core::MrfOnlineOutcome, &core::MrfRepetition::online>("online", "online"),
-    mrfMethod<core::MrfOnlineOutcome, &core::MrfRepetition::online_kinds>("online_kinds", "online kinds"),
+    mrfMethod<evaluation::MrfEmOutcome, &evaluation::MrfRepetition::plain>("plain", "plain EM"),
+    mrfMethod<evaluation::MrfEmOutcome, &evaluation::MrfRepetition::mrf>("mrf", "MRF EM"),
+    mrfMethod<evaluation::MrfOnlineOutcome, &evaluation::MrfRepetition::online>("online", "online"),
+    mrfMethod<evaluation::MrfOnlineOutcome, &evaluation::MrfRepetition::online_kinds>("online_kinds", "online kinds"),
 }};
 
 // Offline EM's RMSE over all cells, sparse and well observed, both parameters (the RMSE of
 // parameters no data determine included), per seed; the squares' cells seen in both states.
-std::string mrfRmseCsv(const core::MrfExperimentResult& result) {
+std::string mrfRmseCsv(const evaluation::MrfExperimentResult& result) {
   std::ostringstream csv;
   csv << "repetition,world_seed,run_seed,method,sparse_cells,sparse_p_occ_given_free_rmse,"
          "sparse_p_free_given_occ_rmse,well_observed_cells,well_observed_p_occ_given_free_rmse,"
@@ -336,11 +339,11 @@ std::string mrfRmseCsv(const core::MrfExperimentResult& result) {
   for (int k = 0; k < 4; ++k) csv << ",square_" << k << "_cells_both_states";
   csv << '\n';
   for (std::size_t r = 0; r < result.repetitions.size(); ++r) {
-    const core::MrfRepetition& run = result.repetitions[r];
+    const evaluation::MrfRepetition& run = result.repetitions[r];
     for (const auto& [method, outcome] : {std::make_pair("plain", &run.plain), std::make_pair("mrf", &run.mrf)}) {
       int newton = 0;
       for (const std::array<int, 2>& step : outcome->newton_iterations) newton += step[0] + step[1];
-      const core::SplitRmse& e = outcome->rmse;
+      const evaluation::SplitRmse& e = outcome->rmse;
       csv << r << ',' << run.world_seed << ',' << run.run_seed << ',' << method << ',' << e.sparse.cells << ','
           << probability(e.sparse.p_occ_given_free) << ',' << probability(e.sparse.p_free_given_occ) << ','
           << e.well_observed.cells << ',' << probability(e.well_observed.p_occ_given_free) << ','
@@ -353,19 +356,19 @@ std::string mrfRmseCsv(const core::MrfExperimentResult& result) {
   return csv.str();
 }
 
-// The RMSE per kind of cell (core::CellKind) on the parameters its data carry (the other
+// The RMSE per kind of cell (evaluation::CellKind) on the parameters its data carry (the other
 // one empty), one row per seed, method (kMrfMethods), kind and observation class.
-std::string mrfRmseByKindCsv(const core::MrfExperimentResult& result) {
+std::string mrfRmseByKindCsv(const evaluation::MrfExperimentResult& result) {
   std::ostringstream csv;
   csv << "repetition,method,kind,observed,cells,p_occ_given_free_rmse,p_free_given_occ_rmse\n";
   for (std::size_t r = 0; r < result.repetitions.size(); ++r) {
-    const core::MrfRepetition& run = result.repetitions[r];
+    const evaluation::MrfRepetition& run = result.repetitions[r];
     for (const MrfMethod& method : kMrfMethods) {
-      for (std::size_t k = 0; k < core::kCellKinds; ++k) {
-        const core::SplitRmse& split = method.by_kind(run)[k];
+      for (std::size_t k = 0; k < evaluation::kCellKinds; ++k) {
+        const evaluation::SplitRmse& split = method.by_kind(run)[k];
         for (const auto& [observed, e] : {std::make_pair("sparse", &split.sparse),
                                           std::make_pair("well_observed", &split.well_observed)}) {
-          csv << r << ',' << method.name << ',' << core::cellKindName(static_cast<core::CellKind>(k)) << ','
+          csv << r << ',' << method.name << ',' << evaluation::cellKindName(static_cast<evaluation::CellKind>(k)) << ','
               << observed << ',' << e->cells << ',' << probability(e->p_occ_given_free) << ','
               << probability(e->p_free_given_occ) << '\n';
         }
@@ -375,16 +378,16 @@ std::string mrfRmseByKindCsv(const core::MrfExperimentResult& result) {
   return csv.str();
 }
 
-// The changing cells by what their data show (core::changingRmseBySeenStates): seen in both
+// The changing cells by what their data show (evaluation::changingRmseBySeenStates): seen in both
 // states or in one only, one row per seed, method, class and observation class.
-std::string mrfRmseChangingCsv(const core::MrfExperimentResult& result) {
+std::string mrfRmseChangingCsv(const evaluation::MrfExperimentResult& result) {
   std::ostringstream csv;
   csv << "repetition,method,seen,observed,cells,p_occ_given_free_rmse,p_free_given_occ_rmse\n";
   for (std::size_t r = 0; r < result.repetitions.size(); ++r) {
-    const core::MrfRepetition& run = result.repetitions[r];
+    const evaluation::MrfRepetition& run = result.repetitions[r];
     for (const MrfMethod& method : kMrfMethods) {
       for (std::size_t d = 0; d < 2; ++d) {
-        const core::SplitRmse& split = method.changing_by_data(run)[d];
+        const evaluation::SplitRmse& split = method.changing_by_data(run)[d];
         for (const auto& [observed, e] : {std::make_pair("sparse", &split.sparse),
                                           std::make_pair("well_observed", &split.well_observed)}) {
           csv << r << ',' << method.name << ',' << (d == 0 ? "both_states" : "one_state") << ',' << observed << ','
@@ -399,7 +402,7 @@ std::string mrfRmseChangingCsv(const core::MrfExperimentResult& result) {
 
 // The online learners per seed: the mapping time, and the kinds learner's kinds at the end
 // (transitions and share of the cells per kind; empty for the others).
-std::string mrfOnlineCsv(const core::MrfExperimentResult& result) {
+std::string mrfOnlineCsv(const evaluation::MrfExperimentResult& result) {
   std::ostringstream csv;
   csv << "repetition,world_seed,run_seed,method,mapping_seconds";
   for (int k = 0; k < core::kKindCount; ++k) {
@@ -407,13 +410,13 @@ std::string mrfOnlineCsv(const core::MrfExperimentResult& result) {
   }
   csv << '\n';
   for (std::size_t r = 0; r < result.repetitions.size(); ++r) {
-    const core::MrfRepetition& run = result.repetitions[r];
+    const evaluation::MrfRepetition& run = result.repetitions[r];
     for (const auto& [method, outcome] :
          {std::make_pair("online", &run.online), std::make_pair("online_kinds", &run.online_kinds)}) {
       csv << r << ',' << run.world_seed << ',' << run.run_seed << ',' << method << ',' << fixed(outcome->seconds, 6);
       for (std::size_t k = 0; k < static_cast<std::size_t>(core::kKindCount); ++k) {
         if (k < outcome->kinds.size()) {
-          const core::MrfLearnedKind& kind = outcome->kinds[k];
+          const evaluation::MrfLearnedKind& kind = outcome->kinds[k];
           csv << ',' << probability(kind.transitions.p_occ_given_free) << ','
               << probability(kind.transitions.p_free_given_occ) << ',' << probability(kind.weight);
         } else {
@@ -428,11 +431,11 @@ std::string mrfOnlineCsv(const core::MrfExperimentResult& result) {
 
 // Per EM iteration (0 = the starting point): the objective and, for the MRF, the Newton
 // iterations of each map's M-step.
-std::string mrfIterationsCsv(const core::MrfExperimentResult& result) {
+std::string mrfIterationsCsv(const evaluation::MrfExperimentResult& result) {
   std::ostringstream csv;
   csv << "repetition,method,iteration,objective,newton_p_occ_to_occ,newton_p_free_to_free\n";
   for (std::size_t r = 0; r < result.repetitions.size(); ++r) {
-    const core::MrfRepetition& run = result.repetitions[r];
+    const evaluation::MrfRepetition& run = result.repetitions[r];
     for (const auto& [method, outcome] : {std::make_pair("plain", &run.plain), std::make_pair("mrf", &run.mrf)}) {
       for (std::size_t k = 0; k < outcome->objective.size(); ++k) {
         csv << r << ',' << method << ',' << k << ',' << fixed(outcome->objective[k], 6) << ',';
@@ -448,7 +451,7 @@ std::string mrfIterationsCsv(const core::MrfExperimentResult& result) {
   return csv.str();
 }
 
-std::string mrfMapsCsv(const core::MrfMaps& maps) {
+std::string mrfMapsCsv(const evaluation::MrfMaps& maps) {
   std::ostringstream csv;
   csv << "x,y,observed_steps,truth_p_occ_given_free,truth_p_free_given_occ,plain_p_occ_given_free,"
          "plain_p_free_given_occ,mrf_p_occ_given_free,mrf_p_free_given_occ,online_p_occ_given_free,"
@@ -468,11 +471,11 @@ std::string mrfMapsCsv(const core::MrfMaps& maps) {
 }
 
 // The summary's MRF section, and the MRF issue's targets as checks.
-std::string mrfSummary(const core::ScenarioConfig& scenario, const core::MrfExperimentConfig& config,
-                       const core::MrfExperimentResult& result, std::vector<Check>& checks) {
+std::string mrfSummary(const evaluation::ScenarioConfig& scenario, const evaluation::MrfExperimentConfig& config,
+                       const evaluation::MrfExperimentResult& result, std::vector<Check>& checks) {
   const auto values = [&](const auto& get) {
     std::vector<double> out;
-    for (const core::MrfRepetition& run : result.repetitions) out.push_back(get(run));
+    for (const evaluation::MrfRepetition& run : result.repetitions) out.push_back(get(run));
     return out;
   };
   const auto plus_minus = [](const MeanStd& v, int digits) { return fixed(v.mean, digits) + " ± " + fixed(v.std, digits); };
@@ -512,14 +515,15 @@ std::string mrfSummary(const core::ScenarioConfig& scenario, const core::MrfExpe
     std::vector<double> per_seed;  // NaN for a seed without cells of the row
   };
   const auto row = [&](const std::string& label, bool occ_given_free,
-                       const std::function<const core::TransitionRmse&(const MrfMethod&, const core::MrfRepetition&)>& part) {
+                       const std::function<const evaluation::TransitionRmse&(const MrfMethod&,
+                                                                             const evaluation::MrfRepetition&)>& part) {
     double cells = 0.0;
     std::array<Pooled, kMrfMethodCount> pooled;
     for (std::size_t m = 0; m < kMrfMethods.size(); ++m) {
       double squares = 0.0;
       double method_cells = 0.0;
-      for (const core::MrfRepetition& run : result.repetitions) {
-        const core::TransitionRmse& e = part(kMrfMethods[m], run);
+      for (const evaluation::MrfRepetition& run : result.repetitions) {
+        const evaluation::TransitionRmse& e = part(kMrfMethods[m], run);
         const double rmse = occ_given_free ? e.p_occ_given_free : e.p_free_given_occ;
         squares += static_cast<double>(e.cells) * rmse * rmse;
         method_cells += static_cast<double>(e.cells);
@@ -553,19 +557,20 @@ std::string mrfSummary(const core::ScenarioConfig& scenario, const core::MrfExpe
   };
   std::vector<std::string> well_observed_measured;
   bool well_observed_met = true;
-  for (const core::CellKind kind : {core::CellKind::kChanging, core::CellKind::kStaticFree, core::CellKind::kStaticOccupied}) {
+  for (const evaluation::CellKind kind :
+       {evaluation::CellKind::kChanging, evaluation::CellKind::kStaticFree, evaluation::CellKind::kStaticOccupied}) {
     const auto k = static_cast<std::size_t>(kind);
     for (const bool sparse : {true, false}) {
       for (const bool occ_given_free : {true, false}) {
-        if (!core::isScored(kind, occ_given_free)) continue;
+        if (!evaluation::isScored(kind, occ_given_free)) continue;
         const auto [pooled, cells] = row(
-            std::string(core::cellKindName(kind)) + " | " + (sparse ? "sparse" : "well observed"), occ_given_free,
-            [&](const MrfMethod& method, const core::MrfRepetition& run) -> const core::TransitionRmse& {
-              const core::SplitRmse& split = method.by_kind(run)[k];
+            std::string(evaluation::cellKindName(kind)) + " | " + (sparse ? "sparse" : "well observed"), occ_given_free,
+            [&](const MrfMethod& method, const evaluation::MrfRepetition& run) -> const evaluation::TransitionRmse& {
+              const evaluation::SplitRmse& split = method.by_kind(run)[k];
               return sparse ? split.sparse : split.well_observed;
             });
         if (!sparse && cells > 0.0) {
-          well_observed_measured.push_back(std::string(core::cellKindName(kind)) + " " +
+          well_observed_measured.push_back(std::string(evaluation::cellKindName(kind)) + " " +
                                            (occ_given_free ? "p_occ_given_free " : "p_free_given_occ ") +
                                            fixed(pooled[1].rmse, 4) + " vs " + fixed(pooled[0].rmse, 4));
           well_observed_met = well_observed_met && pooled[1].rmse <= pooled[0].rmse;
@@ -583,8 +588,9 @@ std::string mrfSummary(const core::ScenarioConfig& scenario, const core::MrfExpe
       for (const bool occ_given_free : {true, false}) {
         row(std::string(d == 0 ? "seen in both states" : "seen in one state") + " | " +
                 (sparse ? "sparse" : "well observed"),
-            occ_given_free, [&](const MrfMethod& method, const core::MrfRepetition& run) -> const core::TransitionRmse& {
-              const core::SplitRmse& split = method.changing_by_data(run)[d];
+            occ_given_free,
+            [&](const MrfMethod& method, const evaluation::MrfRepetition& run) -> const evaluation::TransitionRmse& {
+              const evaluation::SplitRmse& split = method.changing_by_data(run)[d];
               return sparse ? split.sparse : split.well_observed;
             });
       }
@@ -594,8 +600,8 @@ std::string mrfSummary(const core::ScenarioConfig& scenario, const core::MrfExpe
   // The squares' cells seen in both states.
   std::array<MeanStd, 4> both{};
   for (std::size_t q = 0; q < both.size(); ++q) {
-    both[q] = meanStd(
-        values([q](const core::MrfRepetition& run) { return static_cast<double>(run.square_cells_both_states[q]); }));
+    both[q] = meanStd(values(
+        [q](const evaluation::MrfRepetition& run) { return static_cast<double>(run.square_cells_both_states[q]); }));
   }
   text << "\nCells of each square (of its 16) observed in both states (a step with more hits than misses and "
        << "one with more misses than hits), per run: " << plus_minus(both[0], 1) << ", " << plus_minus(both[1], 1) << ", "
@@ -607,13 +613,16 @@ std::string mrfSummary(const core::ScenarioConfig& scenario, const core::MrfExpe
        << "mean over the seeds; per seed in mrf_online.csv):";
   for (std::size_t k = 0; k < static_cast<std::size_t>(core::kKindCount); ++k) {
     const auto kind_mean = [&](const auto& get) {
-      return meanStd(values([&](const core::MrfRepetition& run) { return get(run.online_kinds.kinds.at(k)); })).mean;
+      return meanStd(values([&](const evaluation::MrfRepetition& run) { return get(run.online_kinds.kinds.at(k)); }))
+          .mean;
     };
     text << (k == 0 ? " " : "; ")
-         << fixed(kind_mean([](const core::MrfLearnedKind& kind) { return kind.transitions.p_occ_given_free; }), 4)
+         << fixed(kind_mean([](const evaluation::MrfLearnedKind& kind) { return kind.transitions.p_occ_given_free; }),
+                  4)
          << " / "
-         << fixed(kind_mean([](const core::MrfLearnedKind& kind) { return kind.transitions.p_free_given_occ; }), 4)
-         << ", " << fixed(kind_mean([](const core::MrfLearnedKind& kind) { return kind.weight; }), 3);
+         << fixed(kind_mean([](const evaluation::MrfLearnedKind& kind) { return kind.transitions.p_free_given_occ; }),
+                  4)
+         << ", " << fixed(kind_mean([](const evaluation::MrfLearnedKind& kind) { return kind.weight; }), 3);
   }
   text << ".\n";
 
@@ -624,13 +633,13 @@ std::string mrfSummary(const core::ScenarioConfig& scenario, const core::MrfExpe
        << "| cells | parameter | cells per run | plain EM | MRF EM | change |\n|---|---|---|---|---|---|\n";
   for (const bool sparse : {true, false}) {
     for (const bool occ_given_free : {true, false}) {
-      const auto rmse_of = [sparse, occ_given_free](const core::MrfEmOutcome& outcome) {
-        const core::TransitionRmse& e = sparse ? outcome.rmse.sparse : outcome.rmse.well_observed;
+      const auto rmse_of = [sparse, occ_given_free](const evaluation::MrfEmOutcome& outcome) {
+        const evaluation::TransitionRmse& e = sparse ? outcome.rmse.sparse : outcome.rmse.well_observed;
         return occ_given_free ? e.p_occ_given_free : e.p_free_given_occ;
       };
-      const MeanStd plain = meanStd(values([&](const core::MrfRepetition& run) { return rmse_of(run.plain); }));
-      const MeanStd mrf = meanStd(values([&](const core::MrfRepetition& run) { return rmse_of(run.mrf); }));
-      const MeanStd cells = meanStd(values([&](const core::MrfRepetition& run) {
+      const MeanStd plain = meanStd(values([&](const evaluation::MrfRepetition& run) { return rmse_of(run.plain); }));
+      const MeanStd mrf = meanStd(values([&](const evaluation::MrfRepetition& run) { return rmse_of(run.mrf); }));
+      const MeanStd cells = meanStd(values([&](const evaluation::MrfRepetition& run) {
         return static_cast<double>(sparse ? run.mrf.rmse.sparse.cells : run.mrf.rmse.well_observed.cells);
       }));
       text << "| " << (sparse ? "sparse" : "well observed") << " | "
@@ -640,21 +649,23 @@ std::string mrfSummary(const core::ScenarioConfig& scenario, const core::MrfExpe
     }
   }
 
-  const MeanStd plain_seconds = meanStd(values([](const core::MrfRepetition& run) { return run.plain.em_seconds; }));
-  const MeanStd mrf_seconds = meanStd(values([](const core::MrfRepetition& run) { return run.mrf.em_seconds; }));
+  const MeanStd plain_seconds =
+      meanStd(values([](const evaluation::MrfRepetition& run) { return run.plain.em_seconds; }));
+  const MeanStd mrf_seconds = meanStd(values([](const evaluation::MrfRepetition& run) { return run.mrf.em_seconds; }));
   const MeanStd ratio =
-      meanStd(values([](const core::MrfRepetition& run) { return run.mrf.em_seconds / run.plain.em_seconds; }));
-  const MeanStd plain_iterations =
-      meanStd(values([](const core::MrfRepetition& run) { return static_cast<double>(run.plain.em_iterations); }));
+      meanStd(values([](const evaluation::MrfRepetition& run) { return run.mrf.em_seconds / run.plain.em_seconds; }));
+  const MeanStd plain_iterations = meanStd(
+      values([](const evaluation::MrfRepetition& run) { return static_cast<double>(run.plain.em_iterations); }));
   const MeanStd mrf_iterations =
-      meanStd(values([](const core::MrfRepetition& run) { return static_cast<double>(run.mrf.em_iterations); }));
-  const MeanStd online_seconds = meanStd(values([](const core::MrfRepetition& run) { return run.online.seconds; }));
+      meanStd(values([](const evaluation::MrfRepetition& run) { return static_cast<double>(run.mrf.em_iterations); }));
+  const MeanStd online_seconds =
+      meanStd(values([](const evaluation::MrfRepetition& run) { return run.online.seconds; }));
   const MeanStd kinds_seconds =
-      meanStd(values([](const core::MrfRepetition& run) { return run.online_kinds.seconds; }));
+      meanStd(values([](const evaluation::MrfRepetition& run) { return run.online_kinds.seconds; }));
   // Newton iterations per M-step and map (p(occ -> occ), p(free -> free)).
   std::array<MeanStd, 2> newton{};
   for (std::size_t map = 0; map < 2; ++map) {
-    newton[map] = meanStd(values([map](const core::MrfRepetition& run) {
+    newton[map] = meanStd(values([map](const evaluation::MrfRepetition& run) {
       double sum = 0.0;
       for (const std::array<int, 2>& step : run.mrf.newton_iterations) sum += step[map];
       return run.mrf.newton_iterations.empty() ? 0.0 : sum / static_cast<double>(run.mrf.newton_iterations.size());
@@ -681,11 +692,11 @@ std::string mrfSummary(const core::ScenarioConfig& scenario, const core::MrfExpe
 }  // namespace
 
 /// The learning experiment per repetition and method: one row each.
-std::string learningCsv(const core::LearningExperimentResult& result) {
+std::string learningCsv(const evaluation::LearningExperimentResult& result) {
   std::ostringstream csv;
   csv << "method,repetition,accuracy_all,accuracy_changing,dynamic_mae,retention\n";
   csv << std::setprecision(6);
-  for (const core::MethodScore& m : result.methods) {
+  for (const evaluation::MethodScore& m : result.methods) {
     for (std::size_t r = 0; r < m.accuracy_all.size(); ++r) {
       csv << m.method << ',' << r << ',' << m.accuracy_all[r] << ',' << m.accuracy_changing[r] << ','
           << m.dynamic_mae[r] << ',' << m.retention[r] << '\n';
@@ -695,11 +706,11 @@ std::string learningCsv(const core::LearningExperimentResult& result) {
 }
 
 /// The learners of kinds: each kind's transitions and share at the end, per repetition.
-std::string learningKindsCsv(const core::LearningExperimentResult& result) {
+std::string learningKindsCsv(const evaluation::LearningExperimentResult& result) {
   std::ostringstream csv;
   csv << "method,repetition,kind,p_occ_given_free,p_free_given_occ,weight\n";
   csv << std::setprecision(6);
-  for (const core::MethodScore& m : result.methods) {
+  for (const evaluation::MethodScore& m : result.methods) {
     for (std::size_t r = 0; r < m.kind_transitions.size(); ++r) {
       for (int k = 0; k < core::kKindCount; ++k) {
         csv << m.method << ',' << r << ',' << k << ',' << m.kind_transitions[r][k].p_occ_given_free << ','
@@ -712,8 +723,9 @@ std::string learningKindsCsv(const core::LearningExperimentResult& result) {
 
 double percentMean(const std::vector<double>& values) { return 100.0 * meanStd(values).mean; }
 
-std::string learningSummary(const core::ScenarioConfig& scenario, const core::LearningExperimentConfig& config,
-                            const core::LearningExperimentResult& result) {
+std::string learningSummary(const evaluation::ScenarioConfig& scenario,
+                            const evaluation::LearningExperimentConfig& config,
+                            const evaluation::LearningExperimentResult& result) {
   std::ostringstream text;
   text << "\n## Learning that pays off: " << scenario.name << "\n\n"
        << scenario.description << "; " << scenario.steps << " steps, " << config.repetitions
@@ -728,7 +740,7 @@ std::string learningSummary(const core::ScenarioConfig& scenario, const core::Le
        << " on free cells.\n\n"
        << "| method | accuracy, all cells % | changing cells % | parameter MAE, changing | retention % | walls "
           "changing | free changing | sensor model p(hit \\| occ) / p(hit \\| free) |\n|---|---|---|---|---|---|---|---|\n";
-  for (const core::MethodScore& m : result.methods) {
+  for (const evaluation::MethodScore& m : result.methods) {
     const bool transitions = !m.kinds.empty();
     text << "| " << m.method << " | " << fixed(percentMean(m.accuracy_all), 2) << " | "
          << fixed(percentMean(m.accuracy_changing), 2) << " | "
@@ -741,12 +753,12 @@ std::string learningSummary(const core::ScenarioConfig& scenario, const core::Le
          << " | " << fixed(m.p_hit_given_occ, 3) << " / " << fixed(m.p_hit_given_free, 3) << " |\n";
   }
   text << "\nAccuracy per kind of cell in the same window (%):\n\n| method |";
-  const core::MethodScore& first = result.methods.front();
+  const evaluation::MethodScore& first = result.methods.front();
   for (const auto& [kind, accuracy] : first.accuracy_by_kind) text << ' ' << kind << " |";
   text << "\n|---|";
   for (std::size_t k = 0; k < first.accuracy_by_kind.size(); ++k) text << "---|";
   text << '\n';
-  for (const core::MethodScore& m : result.methods) {
+  for (const evaluation::MethodScore& m : result.methods) {
     text << "| " << m.method << " |";
     for (const auto& [kind, accuracy] : first.accuracy_by_kind) {
       const auto found = m.accuracy_by_kind.find(kind);
@@ -756,19 +768,19 @@ std::string learningSummary(const core::ScenarioConfig& scenario, const core::Le
   }
   text << "\nLearned transitions per kind of changing cell (median p_occ_given_free / p_free_given_occ; MAE "
           "of each):\n\n| method |";
-  const core::MethodScore& oracle = result.method("oracle");
-  for (const core::KindScore& k : oracle.kinds) {
+  const evaluation::MethodScore& oracle = result.method("oracle");
+  for (const evaluation::KindScore& k : oracle.kinds) {
     if (!k.truth.isStatic()) text << " truth " << k.kind << " (" << fixed(k.cells, 0) << " cells) |";
   }
   text << "\n|---|";
-  for (const core::KindScore& k : oracle.kinds) {
+  for (const evaluation::KindScore& k : oracle.kinds) {
     if (!k.truth.isStatic()) text << "---|";
   }
   text << '\n';
-  for (const core::MethodScore& m : result.methods) {
+  for (const evaluation::MethodScore& m : result.methods) {
     if (m.kinds.empty() || m.method == "oracle") continue;
     text << "| " << m.method << " |";
-    for (const core::KindScore& k : m.kinds) {
+    for (const evaluation::KindScore& k : m.kinds) {
       if (k.truth.isStatic()) continue;
       text << ' ' << fixed(k.median_p_occ_given_free, 4) << " / " << fixed(k.median_p_free_given_occ, 4) << " (MAE "
            << fixed(k.mae_p_occ_given_free, 4) << " / " << fixed(k.mae_p_free_given_occ, 4) << ") |";
@@ -778,13 +790,13 @@ std::string learningSummary(const core::ScenarioConfig& scenario, const core::Le
   // Where the learners of kinds put each kind of cell (docs/online_learning.md, "Kinds of
   // cells"): the kinds' transitions and shares at the end, and the share of each kind of
   // cell whose most probable kind is k.
-  for (const core::MethodScore& m : result.methods) {
+  for (const evaluation::MethodScore& m : result.methods) {
     if (m.kind_transitions.empty()) continue;
     text << "\nKinds of " << m.method
          << " at the end (p_occ_given_free / p_free_given_occ and share of the cells, per repetition) and "
             "the share of each kind of cell whose most probable kind it is (%):\n\n| kind | transitions, per "
             "repetition | share |";
-    for (const core::KindScore& k : m.kinds) text << ' ' << k.kind << " |";
+    for (const evaluation::KindScore& k : m.kinds) text << ' ' << k.kind << " |";
     text << "\n|---|---|---|";
     for (std::size_t k = 0; k < m.kinds.size(); ++k) text << "---|";
     text << '\n';
@@ -797,7 +809,8 @@ std::string learningSummary(const core::ScenarioConfig& scenario, const core::Le
         shares += (r == 0 ? "" : "; ") + fixed(m.kind_weights[r][kind], 3);
       }
       text << "| " << kind << " | " << transitions << " | " << shares << " |";
-      for (const core::KindScore& k : m.kinds) text << ' ' << fixed(100.0 * k.most_probable_kind[kind], 1) << " |";
+      for (const evaluation::KindScore& k : m.kinds)
+        text << ' ' << fixed(100.0 * k.most_probable_kind[kind], 1) << " |";
       text << '\n';
     }
   }
@@ -805,10 +818,10 @@ std::string learningSummary(const core::ScenarioConfig& scenario, const core::Le
 }
 
 /// The learning issue's targets, measured.
-void learningChecks(const core::ScenarioConfig& scenario, const core::LearningExperimentResult& result,
+void learningChecks(const evaluation::ScenarioConfig& scenario, const evaluation::LearningExperimentResult& result,
                     std::vector<Check>& checks) {
-  const core::MethodScore& online = result.method("default");
-  const core::MethodScore& off = result.method("learning_off");
+  const evaluation::MethodScore& online = result.method("default");
+  const evaluation::MethodScore& off = result.method("learning_off");
   std::size_t worse = 0;
   for (std::size_t r = 0; r < online.accuracy_changing.size(); ++r) {
     if (online.accuracy_changing[r] < off.accuracy_changing[r]) ++worse;
@@ -819,7 +832,7 @@ void learningChecks(const core::ScenarioConfig& scenario, const core::LearningEx
                         fixed(percentMean(online.accuracy_changing), 2) + " vs " +
                         fixed(percentMean(off.accuracy_changing), 2) + " %)",
                     worse == 0});
-  if (scenario.kind == core::ScenarioKind::kPatrol) {
+  if (scenario.kind == evaluation::ScenarioKind::kPatrol) {
     const double oracle = percentMean(result.method("oracle").accuracy_changing);
     const double offline = percentMean(result.method("offline").accuracy_changing);
     const double on = percentMean(online.accuracy_changing);
@@ -875,9 +888,10 @@ int main(int argc, char** argv) {
             << "Accuracy (THEORY.md §9) in percent, mean ± std over " << options.repetitions
             << " repetitions (seed " << options.seed << "): the whole run, and converged (the last 20 % of the steps).\n\n"
             << "| scenario | window |";
-    for (const core::Method method : core::kAllMethods) summary << ' ' << core::methodName(method) << " |";
+    for (const evaluation::Method method : evaluation::kAllMethods)
+      summary << ' ' << evaluation::methodName(method) << " |";
     summary << "\n|---|---|";
-    for (std::size_t m = 0; m < core::kAllMethods.size(); ++m) summary << "---|";
+    for (std::size_t m = 0; m < evaluation::kAllMethods.size(); ++m) summary << "---|";
     summary << '\n';
 
     std::ostringstream errors_csv;
@@ -885,22 +899,22 @@ int main(int argc, char** argv) {
                   "static_cells,static_p_occ_given_free_mae,static_p_free_given_occ_mae,repetition\n";
     std::ostringstream recovery;
     for (const std::string& name : options.scenarios) {
-      const core::ScenarioConfig scenario = core::scenarioConfig(name);
-      core::AccuracyExperimentConfig config;
+      const evaluation::ScenarioConfig scenario = evaluation::scenarioConfig(name);
+      evaluation::AccuracyExperimentConfig config;
       config.repetitions = options.repetitions;
       config.seed = options.seed;
       config.threads = options.threads;
       std::cerr << "evaluate: " << name << " (" << scenario.description << "), " << options.repetitions
                 << " repetitions ..." << std::flush;
-      const core::AccuracyExperimentResult result = core::runAccuracyExperiment(scenario, config);
+      const evaluation::AccuracyExperimentResult result = evaluation::runAccuracyExperiment(scenario, config);
       std::cerr << " " << fixed(result.seconds, 1) << " s\n";
       core::writeFileAtomically(options.out + "/accuracy_" + name + ".csv", accuracyCsv(result));
 
       const std::size_t steps = result.accuracy[0][0].size();
       const std::size_t converged_from = steps - steps / 5;
-      std::array<MeanStd, core::kAllMethods.size()> whole{};
-      std::array<MeanStd, core::kAllMethods.size()> converged{};
-      for (std::size_t m = 0; m < core::kAllMethods.size(); ++m) {
+      std::array<MeanStd, evaluation::kAllMethods.size()> whole{};
+      std::array<MeanStd, evaluation::kAllMethods.size()> converged{};
+      for (std::size_t m = 0; m < evaluation::kAllMethods.size(); ++m) {
         whole[m] = meanStd(windowMeans(result.accuracy[m], 0, steps));
         converged[m] = meanStd(windowMeans(result.accuracy[m], converged_from, steps));
       }
@@ -909,20 +923,20 @@ int main(int argc, char** argv) {
         for (const MeanStd& v : *values) summary << ' ' << fixed(v.mean, 2) << " ± " << fixed(v.std, 2) << " |";
         summary << '\n';
       }
-      const auto index = [](core::Method method) {
-        for (std::size_t m = 0; m < core::kAllMethods.size(); ++m) {
-          if (core::kAllMethods[m] == method) return m;
+      const auto index = [](evaluation::Method method) {
+        for (std::size_t m = 0; m < evaluation::kAllMethods.size(); ++m) {
+          if (evaluation::kAllMethods[m] == method) return m;
         }
         return std::size_t{0};
       };
-      const double online = converged[index(core::Method::kOnline)].mean;
-      const double stat = converged[index(core::Method::kStatic)].mean;
-      const double unclamped = converged[index(core::Method::kStaticUnclamped)].mean;
+      const double online = converged[index(evaluation::Method::kOnline)].mean;
+      const double stat = converged[index(evaluation::Method::kStatic)].mean;
+      const double unclamped = converged[index(evaluation::Method::kStaticUnclamped)].mean;
       checks.push_back({name + ": online ≥ static (converged)",
                         fixed(online, 2) + " vs " + fixed(stat, 2) + " (unclamped static " + fixed(unclamped, 2) + ")",
                         online >= stat});
       if (name == "dynamic_5_5") {
-        const double oracle = converged[index(core::Method::kOracle)].mean;
+        const double oracle = converged[index(evaluation::Method::kOracle)].mean;
         checks.push_back({"dynamic_5_5: online within 2 points of the oracle (converged)",
                           fixed(oracle - online, 2) + " points (" + fixed(online, 2) + " vs " + fixed(oracle, 2) + ")",
                           oracle - online <= 2.0});
@@ -936,8 +950,9 @@ int main(int argc, char** argv) {
         recovery << "| " << name;
         std::array<double, 3> gap_before{};
         std::array<double, 3> gap_after{};
-        const std::array<core::Method, 3> shown{core::Method::kOnline, core::Method::kOffline, core::Method::kOracle};
-        const std::size_t oracle_index = index(core::Method::kOracle);
+        const std::array<evaluation::Method, 3> shown{evaluation::Method::kOnline, evaluation::Method::kOffline,
+                                                      evaluation::Method::kOracle};
+        const std::size_t oracle_index = index(evaluation::Method::kOracle);
         const double oracle_before = meanStd(windowMeans(result.accuracy[oracle_index], before_from, before_to)).mean;
         const double oracle_after = converged[oracle_index].mean;
         for (std::size_t k = 0; k < shown.size(); ++k) {
@@ -961,7 +976,7 @@ int main(int argc, char** argv) {
       for (const auto& [method, errors] :
            {std::make_pair("online", &result.online_error), std::make_pair("offline", &result.offline_error)}) {
         for (std::size_t r = 0; r < errors->size(); ++r) {
-          const core::ParameterError& e = (*errors)[r];
+          const evaluation::ParameterError& e = (*errors)[r];
           errors_csv << name << ',' << method << ',' << e.dynamic_cells << ',' << fixed(e.dynamic_p_occ_given_free, 6)
                      << ',' << fixed(e.dynamic_p_free_given_occ, 6) << ',' << e.static_cells << ','
                      << fixed(e.static_p_occ_given_free, 6) << ',' << fixed(e.static_p_free_given_occ, 6) << ','
@@ -979,38 +994,39 @@ int main(int argc, char** argv) {
     }
 
     if (options.path_repetitions > 0) {
-      core::PathPlanningConfig config;
+      evaluation::PathPlanningConfig config;
       config.repetitions = options.path_repetitions;
       config.runs = options.path_runs;
       config.seed = options.seed;
       config.threads = options.threads;
       std::cerr << "evaluate: path planning (door), " << config.repetitions << " repetitions x " << config.runs
                 << " runs ..." << std::flush;
-      const core::PathPlanningResult result = core::runPathPlanningExperiment(core::scenarioConfig("door"), config);
+      const evaluation::PathPlanningResult result =
+          evaluation::runPathPlanningExperiment(evaluation::scenarioConfig("door"), config);
       std::cerr << " " << fixed(result.seconds, 1) << " s\n";
       core::writeFileAtomically(options.out + "/path_planning.csv", pathPlanningCsv(result));
       summary << "\n## Path planning (Table 1 of the AAAI paper)\n\n"
               << "Percent of runs, mean ± std over " << config.repetitions << " repetitions of " << config.runs
               << " runs; the paper's values in parentheses.\n\n"
-              << core::formatPathPlanningTable(result);
-      const MeanStd offline = result.effectiveness(core::Policy::kOffline);
-      const MeanStd stat = result.effectiveness(core::Policy::kStatic);
-      const double paper = core::paperEffectiveness(core::Policy::kOffline).mean;
+              << evaluation::formatPathPlanningTable(result);
+      const MeanStd offline = result.effectiveness(evaluation::Policy::kOffline);
+      const MeanStd stat = result.effectiveness(evaluation::Policy::kStatic);
+      const double paper = evaluation::paperEffectiveness(evaluation::Policy::kOffline).mean;
       checks.push_back({"path planning: offline effectiveness ≥ the paper's " + fixed(paper, 2) + " % and ≥ static + 5",
                         fixed(offline.mean, 2) + " % vs static " + fixed(stat.mean, 2) + " %",
                         offline.mean >= paper && offline.mean >= stat.mean + 5.0});
     }
 
     if (options.mrf_repetitions > 0) {
-      const core::ScenarioConfig scenario = core::scenarioConfig("mrf_squares");
-      core::MrfExperimentConfig config;
+      const evaluation::ScenarioConfig scenario = evaluation::scenarioConfig("mrf_squares");
+      evaluation::MrfExperimentConfig config;
       config.repetitions = options.mrf_repetitions;
       config.temperature = options.mrf_temperature;
       config.seed = options.seed;
       config.threads = options.threads;
       std::cerr << "evaluate: MRF experiment (" << scenario.name << "), " << config.repetitions << " seeds ..."
                 << std::flush;
-      const core::MrfExperimentResult result = core::runMrfExperiment(scenario, config);
+      const evaluation::MrfExperimentResult result = evaluation::runMrfExperiment(scenario, config);
       std::cerr << " " << fixed(result.seconds, 1) << " s\n";
       core::writeFileAtomically(options.out + "/mrf_rmse.csv", mrfRmseCsv(result));
       core::writeFileAtomically(options.out + "/mrf_rmse_by_kind.csv", mrfRmseByKindCsv(result));
@@ -1022,14 +1038,14 @@ int main(int argc, char** argv) {
     }
 
     if (options.memory_repetitions > 0) {
-      const core::ScenarioConfig scenario = core::scenarioConfig("dividers");
-      core::MemoryExperimentConfig config;
+      const evaluation::ScenarioConfig scenario = evaluation::scenarioConfig("dividers");
+      evaluation::MemoryExperimentConfig config;
       config.repetitions = options.memory_repetitions;
       config.seed = options.seed;
       config.threads = options.threads;
       std::cerr << "evaluate: memory navigation (" << scenario.name << "), " << config.repetitions << " seeds x "
                 << config.episodes << " episodes ..." << std::flush;
-      const core::MemoryExperimentResult result = core::runMemoryExperiment(scenario, config);
+      const evaluation::MemoryExperimentResult result = evaluation::runMemoryExperiment(scenario, config);
       std::cerr << " " << fixed(result.seconds, 1) << " s\n";
       core::writeFileAtomically(options.out + "/memory_navigation.csv", memoryCsv(result));
       summary << "\n## Memory navigation (STM/LTM map hypotheses, Morris et al.)\n\n"
@@ -1037,10 +1053,10 @@ int main(int argc, char** argv) {
               << config.episodes << " scored episodes of " << scenario.divider_period_steps
               << " steps between a and b; mean ± std over " << config.repetitions << " seeds (seed " << config.seed
               << "), " << fixed(result.seconds, 1) << " s.\n\n"
-              << core::formatMemoryTable(result);
+              << evaluation::formatMemoryTable(result);
       std::size_t people = 0;
       std::size_t divider_cells = 0;
-      for (const core::MemoryRepetition& r : result.repetitions) {
+      for (const evaluation::MemoryRepetition& r : result.repetitions) {
         people += r.people_in_ltm;
         divider_cells += r.divider_cells_in_ltm;
       }
@@ -1051,15 +1067,15 @@ int main(int argc, char** argv) {
     }
 
     for (const std::string& name : options.learning_scenarios) {
-      core::ScenarioConfig scenario = core::scenarioConfig(name);
+      evaluation::ScenarioConfig scenario = evaluation::scenarioConfig(name);
       if (options.learning_steps > 0) scenario.steps = options.learning_steps;
-      core::LearningExperimentConfig config;
+      evaluation::LearningExperimentConfig config;
       config.repetitions = options.learning_repetitions;
       config.seed = options.seed;
       config.threads = options.threads;
       std::cerr << "evaluate: learning experiment (" << name << "), " << config.repetitions << " repetitions ..."
                 << std::flush;
-      const core::LearningExperimentResult result = core::runLearningExperiment(scenario, config);
+      const evaluation::LearningExperimentResult result = evaluation::runLearningExperiment(scenario, config);
       std::cerr << " " << fixed(result.seconds, 1) << " s\n";
       core::writeFileAtomically(options.out + "/learning_" + name + ".csv", learningCsv(result));
       core::writeFileAtomically(options.out + "/learning_" + name + "_kinds.csv", learningKindsCsv(result));
@@ -1068,52 +1084,57 @@ int main(int argc, char** argv) {
     }
 
     if (options.murphy_repetitions > 0) {
-      core::MurphyExperimentConfig config;
+      evaluation::MurphyExperimentConfig config;
       config.repetitions = options.murphy_repetitions;
       config.seed = options.seed;
       config.threads = options.threads;
       std::cerr << "evaluate: Murphy's 1D corridor, " << config.repetitions << " seeds ..." << std::flush;
-      const core::MurphyExperimentResult result = core::runMurphyExperiment(config);
+      const evaluation::MurphyExperimentResult result = evaluation::runMurphyExperiment(config);
       std::cerr << " " << fixed(result.seconds, 1) << " s\n";
-      for (const auto& [name, csv] : core::murphyCsvTables(result)) core::writeFileAtomically(options.out + "/" + name, csv);
-      std::vector<core::MurphyTarget> targets;
-      summary << core::formatMurphySummary(config, result, &targets);
-      for (const core::MurphyTarget& target : targets) checks.push_back({target.target, target.measured, target.met});
+      for (const auto& [name, csv] : evaluation::murphyCsvTables(result))
+        core::writeFileAtomically(options.out + "/" + name, csv);
+      std::vector<evaluation::MurphyTarget> targets;
+      summary << evaluation::formatMurphySummary(config, result, &targets);
+      for (const evaluation::MurphyTarget& target : targets)
+        checks.push_back({target.target, target.measured, target.met});
     }
 
     if (options.murphy_doors_runs > 0) {
-      core::DoorsExperimentConfig config;
+      evaluation::DoorsExperimentConfig config;
       config.runs = options.murphy_doors_runs;
       config.world.seed = options.seed;
       config.threads = options.threads;
       std::cerr << "evaluate: Murphy's 2D world with doors, " << config.runs << " runs ..." << std::flush;
-      const core::DoorsExperimentResult result = core::runDoorsExperiment(config);
+      const evaluation::DoorsExperimentResult result = evaluation::runDoorsExperiment(config);
       std::cerr << " " << fixed(result.seconds, 1) << " s\n";
-      for (const auto& [name, csv] : core::doorsCsvTables(result)) core::writeFileAtomically(options.out + "/" + name, csv);
-      std::vector<core::MurphyTarget> targets;
-      summary << core::formatDoorsSummary(config, result, &targets);
-      for (const core::MurphyTarget& target : targets) checks.push_back({target.target, target.measured, target.met});
+      for (const auto& [name, csv] : evaluation::doorsCsvTables(result))
+        core::writeFileAtomically(options.out + "/" + name, csv);
+      std::vector<evaluation::MurphyTarget> targets;
+      summary << evaluation::formatDoorsSummary(config, result, &targets);
+      for (const evaluation::MurphyTarget& target : targets)
+        checks.push_back({target.target, target.measured, target.met});
     }
 
     if (options.pose_correction_runs > 0) {
-      core::PoseCorrectionConfig config;
+      evaluation::PoseCorrectionConfig config;
       config.filter.threads = options.threads;
       config.filter.particles = static_cast<std::size_t>(options.pose_correction_particles);
       config.scenario = options.pose_correction_scenario;
       config.steps = options.pose_correction_steps;
-      std::vector<core::PoseCorrectionResult> runs;
+      std::vector<evaluation::PoseCorrectionResult> runs;
       for (int r = 0; r < options.pose_correction_runs; ++r) {
         config.world_seed = options.seed;
         config.run_seed = options.seed + static_cast<std::uint64_t>(r);
         std::cerr << "evaluate: pose correction, run " << r + 1 << " of " << options.pose_correction_runs << " ..."
                   << std::flush;
         const auto start = std::chrono::steady_clock::now();
-        runs.push_back(core::runPoseCorrection(config));
+        runs.push_back(evaluation::runPoseCorrection(config));
         std::cerr << " " << fixed(std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count(), 1)
                   << " s\n";
       }
-      for (const auto& [name, csv] : core::poseCorrectionCsvTables(runs)) core::writeFileAtomically(options.out + "/" + name, csv);
-      summary << core::formatPoseCorrectionSummary(config, runs);
+      for (const auto& [name, csv] : evaluation::poseCorrectionCsvTables(runs))
+        core::writeFileAtomically(options.out + "/" + name, csv);
+      summary << evaluation::formatPoseCorrectionSummary(config, runs);
     }
 
     summary << "\n## Targets\n\n| target | measured | met |\n|---|---|---|\n";

@@ -55,12 +55,12 @@ const std::string kTruthFreeGivenOccTopic = "/ground_truth_p_free_given_occ";
 
 std::string scenarioList() {
   std::string names;
-  for (const std::string& name : dog::core::scenarioNames()) names += (names.empty() ? "" : ", ") + name;
+  for (const std::string& name : dog::evaluation::scenarioNames()) names += (names.empty() ? "" : ", ") + name;
   return names;
 }
 
 struct Options {
-  dog::core::ScenarioConfig scenario = dog::core::scenarioConfig("dynamic_5_5");
+  dog::evaluation::ScenarioConfig scenario = dog::evaluation::scenarioConfig("dynamic_5_5");
   std::uint64_t world_seed = 1;
   std::uint64_t run_seed = 1;
   std::optional<std::int64_t> steps;  ///< none: the scenario's
@@ -91,8 +91,8 @@ Options parseArguments(int argc, char** argv) {
   line.options().add_options()
       ("scenario",
        // scenarioConfig's error lists the scenarios there are.
-       cl::converted(dog::core::scenarioConfig,
-                     [&options](const dog::core::ScenarioConfig& scenario) { options.scenario = scenario; })
+       cl::converted(dog::evaluation::scenarioConfig,
+                     [&options](const dog::evaluation::ScenarioConfig& scenario) { options.scenario = scenario; })
            ->value_name("NAME"),
        ("the scenario (default dynamic_5_5), one of: " + scenarioList()).c_str())
       ("world-seed", cl::number(&options.world_seed, seeds)->value_name("N"),
@@ -146,7 +146,7 @@ geometry_msgs::TransformStamped transform(const std::string& parent, const std::
   return message;
 }
 
-sensor_msgs::LaserScan laserScan(const dog::core::Scan& scan, const dog::core::ScenarioConfig& scenario) {
+sensor_msgs::LaserScan laserScan(const dog::core::Scan& scan, const dog::evaluation::ScenarioConfig& scenario) {
   sensor_msgs::LaserScan message;
   message.header.stamp = rosTime(scan.stamp_s);
   message.header.frame_id = kLaserFrame;
@@ -165,7 +165,7 @@ sensor_msgs::LaserScan laserScan(const dog::core::Scan& scan, const dog::core::S
 
 // An OccupancyGrid over the whole world (origin (0, 0), the world's cells in its row-major
 // order, which is OccupancyGrid's) with one value per cell.
-nav_msgs::OccupancyGrid worldGrid(const dog::core::World& world, std::vector<std::int8_t> values,
+nav_msgs::OccupancyGrid worldGrid(const dog::evaluation::World& world, std::vector<std::int8_t> values,
                                   const ros::Time& stamp) {
   nav_msgs::OccupancyGrid message;
   message.header.stamp = stamp;
@@ -179,7 +179,7 @@ nav_msgs::OccupancyGrid worldGrid(const dog::core::World& world, std::vector<std
   return message;
 }
 
-std::vector<std::int8_t> occupancyValues(const dog::core::World& world) {
+std::vector<std::int8_t> occupancyValues(const dog::evaluation::World& world) {
   std::vector<std::int8_t> values;
   values.reserve(world.occupancy().size());
   for (const std::uint8_t occupied : world.occupancy()) values.push_back(occupied != 0 ? 100 : 0);
@@ -187,7 +187,7 @@ std::vector<std::int8_t> occupancyValues(const dog::core::World& world) {
 }
 
 // Every cell's true transitions, row-major (World::index order).
-std::vector<dog::core::TransitionParams> truthOf(const dog::core::World& world) {
+std::vector<dog::core::TransitionParams> truthOf(const dog::evaluation::World& world) {
   std::vector<dog::core::TransitionParams> truth;
   truth.reserve(world.occupancy().size());
   for (std::int32_t y = 0; y < world.height(); ++y) {
@@ -237,15 +237,16 @@ struct RunSummary {
 
 // Writes the whole run into the open `bag`.
 RunSummary writeRun(const Options& options, std::int64_t steps, rosbag::Bag& bag) {
-  dog::core::Simulation simulation(options.scenario, options.world_seed, options.run_seed);
-  const dog::core::World& world = simulation.world();
+  dog::evaluation::Simulation simulation(options.scenario, options.world_seed, options.run_seed);
+  const dog::evaluation::World& world = simulation.world();
   RunSummary summary;
   summary.steps = steps;
   summary.dynamic_cells_at_start = world.dynamicCells().size();
 
   // Its own stream of the run seed: the run's other draws are the same with or without it.
   const bool drifting = !options.odometry_noise.none();
-  dog::core::DriftingOdometry drift(options.odometry_noise, dog::core::mixSeed(options.run_seed ^ kOdometrySeedSalt));
+  dog::evaluation::DriftingOdometry drift(options.odometry_noise,
+                                          dog::evaluation::mixSeed(options.run_seed ^ kOdometrySeedSalt));
 
   const ros::Time start = rosTime(0.0);
   tf2_msgs::TFMessage mount;

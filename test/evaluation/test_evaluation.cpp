@@ -8,7 +8,7 @@
 #include <stdexcept>
 
 namespace dynamic_occupancy_grid {
-namespace core {
+namespace evaluation {
 namespace {
 
 ScenarioConfig shortScenario(const std::string& name, std::int64_t steps) {
@@ -49,7 +49,7 @@ TEST(MethodMappers, OracleOfAStaticWorldIsTheTextbookGrid) {
   const double textbook = mappers.belief(Method::kStaticUnclamped, 25, 0);
   ASSERT_FALSE(std::isnan(clamped));
   ASSERT_FALSE(std::isnan(textbook));
-  EXPECT_NEAR(clamped, logOddsToProbability(evaluationMapperConfig(config).static_clamp.max_log_odds), 1e-6);
+  EXPECT_NEAR(clamped, core::logOddsToProbability(evaluationMapperConfig(config).static_clamp.max_log_odds), 1e-6);
   EXPECT_GT(textbook, clamped);
 }
 
@@ -59,7 +59,7 @@ TEST(MethodMappers, OracleAndOfflineUseTheTransitionsTheyAreGiven) {
   MethodMappers mappers(evaluationMapperConfig(config), simulation.world());
   mappers.setOracle(simulation.world());
   Simulation training(config, 3, 5);
-  const MapperConfig mapper_config = evaluationMapperConfig(config);
+  const core::MapperConfig mapper_config = evaluationMapperConfig(config);
   const OfflineTraining offline = trainOffline(training, mapper_config, 30, evaluationOfflineEmConfig(mapper_config));
   mappers.setOffline(offline);
   for (int t = 0; t < config.steps; ++t) {
@@ -76,8 +76,8 @@ TEST(MethodMappers, OracleAndOfflineUseTheTransitionsTheyAreGiven) {
   // Offline: the trained cells carry the EM result.
   std::size_t checked = 0;
   for (std::size_t i = 0; i < offline.sequences.cellCount(); ++i) {
-    const CellXY c = offline.sequences.cell(i);
-    const std::optional<TransitionParams> used = mappers.transitions(Method::kOffline, c.x, c.y);
+    const core::CellXY c = offline.sequences.cell(i);
+    const std::optional<core::TransitionParams> used = mappers.transitions(Method::kOffline, c.x, c.y);
     if (!used) continue;  // not observed in the evaluation run
     EXPECT_NEAR(used->p_occ_given_free, offline.result.params[i].p_occ_given_free, 1e-7);
     EXPECT_NEAR(used->p_free_given_occ, offline.result.params[i].p_free_given_occ, 1e-7);
@@ -90,7 +90,7 @@ TEST(MethodMappers, OracleAndOfflineUseTheTransitionsTheyAreGiven) {
 TEST(MethodMappers, RefusesAMapperThatIsNotOnTheWorld) {
   const ScenarioConfig config = scenarioConfig("dynamic_5_5");
   Simulation simulation(config, 1, 1);
-  MapperConfig mapper_config = evaluationMapperConfig(config);
+  core::MapperConfig mapper_config = evaluationMapperConfig(config);
   mapper_config.fixed_bounds = false;
   EXPECT_THROW(MethodMappers(mapper_config, simulation.world()), std::invalid_argument);
 }
@@ -135,7 +135,7 @@ TEST(TrainOffline, LearnsTheTrueTransitionsOfWellObservedCells) {
   ScenarioConfig config = shortScenario("dynamic_5_5", 2000);
   config.change_probability = 0.1;
   Simulation training(config, 9, 10);
-  MapperConfig mapper_config = evaluationMapperConfig(config);
+  core::MapperConfig mapper_config = evaluationMapperConfig(config);
   // The laser's measured per-beam rates (SensorModelIsNoMoreCertainThanTheLaser): with the
   // scenario's deliberately less certain model EM would explain part of the changes as
   // sensor noise and learn rates biased low.
@@ -148,7 +148,7 @@ TEST(TrainOffline, LearnsTheTrueTransitionsOfWellObservedCells) {
   int dynamic = 0;
   int statics = 0;
   for (std::size_t i = 0; i < offline.sequences.cellCount(); ++i) {
-    const CellXY c = offline.sequences.cell(i);
+    const core::CellXY c = offline.sequences.cell(i);
     const auto observed = offline.sequences.end(i) - offline.sequences.begin(i);
     if (observed < 1000) continue;
     if (training.world().isDynamic(c.x, c.y)) {
@@ -240,5 +240,5 @@ TEST(AccuracyExperiment, ParkingLotCountsOnlyCellsSeenThisHour) {
 }
 
 }  // namespace
-}  // namespace core
+}  // namespace evaluation
 }  // namespace dynamic_occupancy_grid

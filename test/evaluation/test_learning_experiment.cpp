@@ -11,13 +11,14 @@
 #include <string>
 
 namespace dog = dynamic_occupancy_grid::core;
+namespace evaluation = dynamic_occupancy_grid::evaluation;
 
 // The layout: 4 doors, 4 carts, 6 people spots, each a group of cells with its kind's truth,
 // changing as one, off the robot's loop.
 TEST(PatrolScenario, PartsChangeAsGroupsWithTheirKindsRates) {
-  dog::ScenarioConfig config = dog::scenarioConfig("patrol");
-  dog::Simulation simulation(config, 11, 12);
-  const dog::PatrolLayout& layout = simulation.patrolLayout();
+  evaluation::ScenarioConfig config = evaluation::scenarioConfig("patrol");
+  evaluation::Simulation simulation(config, 11, 12);
+  const evaluation::PatrolLayout& layout = simulation.patrolLayout();
   std::size_t doors = 0, carts = 0, people = 0;
   for (const auto& part : layout.parts) {
     doors += part.kind == "door";
@@ -51,7 +52,7 @@ TEST(PatrolScenario, PartsChangeAsGroupsWithTheirKindsRates) {
   EXPECT_NEAR(person_occupied / person_steps, 0.12 / 0.37, 0.05);
   // The robot never drives through a part: every pose of a loop is 0.3 m clear of them.
   for (double s = 0.0; s < 112.0; s += 0.25) {
-    const dog::Pose2D pose = dog::LoopPath({{2.5, 2.5}, {21.5, 2.5}, {21.5, 11.5}, {2.5, 11.5}}, 0.5).poseAt(s);
+    const dog::Pose2D pose = evaluation::LoopPath({{2.5, 2.5}, {21.5, 2.5}, {21.5, 11.5}, {2.5, 11.5}}, 0.5).poseAt(s);
     for (const auto& part : layout.parts) {
       for (const dog::CellXY& c : part.cells) {
         const double dx = (c.x + 0.5) * 0.1 - pose.x_m;
@@ -60,19 +61,19 @@ TEST(PatrolScenario, PartsChangeAsGroupsWithTheirKindsRates) {
       }
     }
   }
-  EXPECT_THROW(dog::Simulation(dog::scenarioConfig("door"), 1, 2).patrolLayout(), std::logic_error);
+  EXPECT_THROW(evaluation::Simulation(evaluation::scenarioConfig("door"), 1, 2).patrolLayout(), std::logic_error);
 }
 
 // A short patrol: every method is scored, the oracle's parameters are exact, the static map
 // keeps itself, learning off (symmetric 0.01 prior) forgets the places the robot left while
 // the default learner keeps them, and the measured laser matches the scenario's sensor model.
 TEST(LearningExperiment, ScoresEveryMethodOnAShortPatrol) {
-  dog::ScenarioConfig scenario = dog::scenarioConfig("patrol");
+  evaluation::ScenarioConfig scenario = evaluation::scenarioConfig("patrol");
   scenario.steps = 400;
-  dog::LearningExperimentConfig config;
+  evaluation::LearningExperimentConfig config;
   config.repetitions = 1;
   config.threads = 1;
-  const dog::LearningExperimentResult result = dog::runLearningExperiment(scenario, config);
+  const evaluation::LearningExperimentResult result = evaluation::runLearningExperiment(scenario, config);
   std::vector<std::string> names;
   for (const auto& m : result.methods) names.push_back(m.method);
   EXPECT_EQ(names, (std::vector<std::string>{"static", "node_static", "node_default", "textbook", "learning_off",
@@ -118,7 +119,7 @@ TEST(LearningExperiment, ScoresEveryMethodOnAShortPatrol) {
     // The walls and the floor, most of the cells, are in the kind that barely changes.
     for (const char* kind : {"static free", "static occupied"}) {
       const auto k =
-          std::find_if(m.kinds.begin(), m.kinds.end(), [&](const dog::KindScore& s) { return s.kind == kind; });
+          std::find_if(m.kinds.begin(), m.kinds.end(), [&](const evaluation::KindScore& s) { return s.kind == kind; });
       ASSERT_NE(k, m.kinds.end());
       const auto biggest = std::max_element(k->most_probable_kind.begin(), k->most_probable_kind.end());
       const int index = static_cast<int>(biggest - k->most_probable_kind.begin());
@@ -135,5 +136,5 @@ TEST(LearningExperiment, ScoresEveryMethodOnAShortPatrol) {
   }
   EXPECT_THROW(result.method("nope"), std::invalid_argument);
   config.window_fraction = 0.0;
-  EXPECT_THROW(dog::runLearningExperiment(scenario, config), std::invalid_argument);
+  EXPECT_THROW(evaluation::runLearningExperiment(scenario, config), std::invalid_argument);
 }

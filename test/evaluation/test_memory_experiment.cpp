@@ -7,11 +7,11 @@
 #include <stdexcept>
 
 namespace dynamic_occupancy_grid {
-namespace core {
+namespace evaluation {
 namespace {
 
-MapHypothesis hypothesisOf(std::vector<std::uint32_t> configurations, double weight) {
-  MapHypothesis h;
+core::MapHypothesis hypothesisOf(std::vector<std::uint32_t> configurations, double weight) {
+  core::MapHypothesis h;
   h.configurations = std::move(configurations);
   h.weight = weight;
   return h;
@@ -28,17 +28,17 @@ std::vector<BlockedGrid> twoMaps() {
 TEST(HypothesisSelector, BlockedPlanPrefersTheHypothesisThatPredictedTheObstacle) {
   HypothesisSelector selector(0.1, 10.0);
   selector.setHypotheses({hypothesisOf({}, 0.9), hypothesisOf({1}, 0.1)}, twoMaps());
-  const CellXY start{0, 0};
-  const CellXY goal{9, 0};
-  std::vector<CellXY> plan = selector.select(start, goal, LiveLayer{});
+  const core::CellXY start{0, 0};
+  const core::CellXY goal{9, 0};
+  std::vector<core::CellXY> plan = selector.select(start, goal, LiveLayer{});
   ASSERT_EQ(selector.actioned(), 0U);  // the heavier map, straight along y = 0
   ASSERT_EQ(plan.size(), 10U);
   // The plan runs into the divider: hypothesis 1 predicted it.
-  EXPECT_TRUE(selector.reportObstacles({CellXY{5, 0}}));
+  EXPECT_TRUE(selector.reportObstacles({core::CellXY{5, 0}}));
   EXPECT_NEAR(selector.score(0), 0.09, 1e-12);
   EXPECT_NEAR(selector.score(1), 1.0, 1e-12);
   LiveLayer live;
-  live.occupied = {CellXY{5, 0}};
+  live.occupied = {core::CellXY{5, 0}};
   plan = selector.select(start, goal, live);
   EXPECT_EQ(selector.actioned(), 1U);
   EXPECT_EQ(plan.size(), 10U + 8U);  // up to the gap and back down
@@ -50,14 +50,14 @@ TEST(HypothesisSelector, BlockedPlanPrefersTheHypothesisThatPredictedTheObstacle
 TEST(HypothesisSelector, AnObstacleNoHypothesisPredictedChangesNothing) {
   HypothesisSelector selector(0.1, 10.0);
   selector.setHypotheses({hypothesisOf({}, 0.9), hypothesisOf({1}, 0.1)}, twoMaps());
-  selector.select(CellXY{0, 0}, CellXY{9, 0}, LiveLayer{});
-  EXPECT_FALSE(selector.reportObstacles({CellXY{2, 0}}));  // a person: neither map holds it
+  selector.select(core::CellXY{0, 0}, core::CellXY{9, 0}, LiveLayer{});
+  EXPECT_FALSE(selector.reportObstacles({core::CellXY{2, 0}}));  // a person: neither map holds it
   EXPECT_DOUBLE_EQ(selector.score(0), 0.9);
   EXPECT_DOUBLE_EQ(selector.score(1), 0.1);
   // No hypothesis has a valid plan to a walled-in goal: the best scored is actioned, no plan.
   LiveLayer wall;
-  for (std::int32_t y = 0; y < 5; ++y) wall.occupied.push_back(CellXY{7, y});
-  EXPECT_TRUE(selector.select(CellXY{0, 0}, CellXY{9, 0}, wall).empty());
+  for (std::int32_t y = 0; y < 5; ++y) wall.occupied.push_back(core::CellXY{7, y});
+  EXPECT_TRUE(selector.select(core::CellXY{0, 0}, core::CellXY{9, 0}, wall).empty());
   EXPECT_EQ(selector.actioned(), 0U);
   EXPECT_THROW(HypothesisSelector(0.0, 2.0), std::invalid_argument);
   EXPECT_THROW(HypothesisSelector(0.5, 0.5), std::invalid_argument);
@@ -72,10 +72,10 @@ TEST(LiveLayer, BeamsClearTheCellsTheyCrossAndMarkTheirEnds) {
   laser.noise_sigma_m = 0.0;
   laser.dropout_probability = 0.0;
   Rng rng(1);
-  const Scan scan = simulateScan(world, Pose2D{1.5, 2.5, 0.0}, laser, 0.0, rng);
+  const core::Scan scan = simulateScan(world, core::Pose2D{1.5, 2.5, 0.0}, laser, 0.0, rng);
   const LiveLayer layer = LiveLayer::fromScan(scan, 1.0, 10, 5);
   ASSERT_EQ(layer.occupied.size(), 1U);
-  EXPECT_EQ(layer.occupied[0], (CellXY{7, 2}));
+  EXPECT_EQ(layer.occupied[0], (core::CellXY{7, 2}));
   EXPECT_EQ(layer.free.size(), 6U);  // cells 1..6 of row 2
   BlockedGrid grid(10, 5);
   grid.setBlocked(3, 2, true);  // the map says occupied; the scan saw it free
@@ -169,5 +169,5 @@ TEST(MemoryExperiment, RejectsBadConfigurations) {
 }
 
 }  // namespace
-}  // namespace core
+}  // namespace evaluation
 }  // namespace dynamic_occupancy_grid

@@ -18,15 +18,15 @@
 #include "dynamic_occupancy_grid/evaluation/evaluation.h"
 
 namespace dynamic_occupancy_grid {
-namespace core {
+namespace evaluation {
 namespace {
 
 TEST(TransitionRmse, SplitsBySampleCountAndAveragesSquares) {
   World world(4, 1, 1.0);
-  world.setScheduled(0, 0, TransitionParams{0.1, 0.2}, true);
-  world.setScheduled(1, 0, TransitionParams{0.3, 0.3}, false);
+  world.setScheduled(0, 0, core::TransitionParams{0.1, 0.2}, true);
+  world.setScheduled(1, 0, core::TransitionParams{0.3, 0.3}, false);
   // (2, 0) and (3, 0) static: truth {0, 0}.
-  SequenceBuilder builder;
+  core::SequenceBuilder builder;
   // Cells 0 and 2 observed on 2 steps (sparse below 3), cells 1 and 3 on 3 (well observed);
   // several readings in one step are one observed step.
   for (const std::int32_t step : {0, 5}) {
@@ -38,10 +38,10 @@ TEST(TransitionRmse, SplitsBySampleCountAndAveragesSquares) {
     builder.add(1, 0, step, 0, 1);
     builder.add(3, 0, step, 1, 1);
   }
-  const ObservationSequences sequences = builder.build();
+  const core::ObservationSequences sequences = builder.build();
   ASSERT_EQ(sequences.cellCount(), 4U);
   // In the order of first appearance: (0,0), (2,0), (1,0), (3,0).
-  const std::vector<TransitionParams> learned{{0.1, 0.5}, {0.03, 0.04}, {0.2, 0.3}, {0.0, 0.01}};
+  const std::vector<core::TransitionParams> learned{{0.1, 0.5}, {0.03, 0.04}, {0.2, 0.3}, {0.0, 0.01}};
   const SplitRmse rmse = transitionRmse(sequences, learned, world, 3);
   EXPECT_EQ(rmse.sparse.cells, 2U);
   EXPECT_NEAR(rmse.sparse.p_occ_given_free, std::sqrt((0.0 * 0.0 + 0.03 * 0.03) / 2.0), 1e-15);
@@ -63,8 +63,8 @@ TEST(TransitionRmse, SplitsBySampleCountAndAveragesSquares) {
 
 TEST(TransitionRmse, PerKindOfCell) {
   World world(4, 1, 1.0);
-  world.setScheduled(0, 0, TransitionParams{0.1, 0.2}, true);
-  world.setScheduled(1, 0, TransitionParams{0.3, 0.3}, false);
+  world.setScheduled(0, 0, core::TransitionParams{0.1, 0.2}, true);
+  world.setScheduled(1, 0, core::TransitionParams{0.3, 0.3}, false);
   world.setStatic(2, 0, false);
   world.setStatic(3, 0, true);
   EXPECT_EQ(cellKind(world, 0, 0), CellKind::kChanging);
@@ -78,7 +78,7 @@ TEST(TransitionRmse, PerKindOfCell) {
   EXPECT_THROW(cellKind(world, 4, 0), std::invalid_argument);
   EXPECT_THROW(cellKind(world, 0, -1), std::invalid_argument);
 
-  SequenceBuilder builder;
+  core::SequenceBuilder builder;
   for (const std::int32_t step : {0, 5}) {  // sparse (below 3)
     builder.add(0, 0, step, 1, 0);
     builder.add(2, 0, step, 0, 1);
@@ -87,9 +87,9 @@ TEST(TransitionRmse, PerKindOfCell) {
     builder.add(1, 0, step, 0, 1);
     builder.add(3, 0, step, 1, 0);
   }
-  const ObservationSequences sequences = builder.build();
+  const core::ObservationSequences sequences = builder.build();
   // Order of first appearance: (0,0), (2,0), (1,0), (3,0).
-  const std::vector<TransitionParams> learned{{0.1, 0.5}, {0.03, 0.04}, {0.2, 0.3}, {0.02, 0.01}};
+  const std::vector<core::TransitionParams> learned{{0.1, 0.5}, {0.03, 0.04}, {0.2, 0.3}, {0.02, 0.01}};
   // Scored: a changing cell on both parameters, a static free cell on p_occ_given_free only,
   // a static occupied cell on p_free_given_occ only (the other is NaN).
   EXPECT_TRUE(isScored(CellKind::kChanging, true));
@@ -123,10 +123,10 @@ TEST(TransitionRmse, PerKindOfCell) {
 
 TEST(TransitionRmse, ChangingCellsByWhatTheirDataShow) {
   World world(3, 1, 1.0);
-  world.setScheduled(0, 0, TransitionParams{0.1, 0.2}, true);
-  world.setScheduled(1, 0, TransitionParams{0.3, 0.3}, false);
+  world.setScheduled(0, 0, core::TransitionParams{0.1, 0.2}, true);
+  world.setScheduled(1, 0, core::TransitionParams{0.3, 0.3}, false);
   world.setStatic(2, 0, false);
-  SequenceBuilder builder;
+  core::SequenceBuilder builder;
   builder.add(0, 0, 0, 2, 0);  // (0, 0): a step of more hits, one of more misses: both states
   builder.add(0, 0, 1, 0, 1);
   builder.add(0, 0, 2, 1, 1);
@@ -134,8 +134,8 @@ TEST(TransitionRmse, ChangingCellsByWhatTheirDataShow) {
   builder.add(1, 0, 1, 1, 1);
   builder.add(2, 0, 0, 1, 0);  // static: in neither class
   builder.add(2, 0, 1, 0, 1);
-  const ObservationSequences sequences = builder.build();
-  const std::vector<TransitionParams> learned{{0.15, 0.1}, {0.05, 0.5}, {0.2, 0.2}};
+  const core::ObservationSequences sequences = builder.build();
+  const std::vector<core::TransitionParams> learned{{0.15, 0.1}, {0.05, 0.5}, {0.2, 0.2}};
   const std::array<SplitRmse, 2> by_data = changingRmseBySeenStates(sequences, learned, world, 4);
   EXPECT_EQ(by_data[0].sparse.cells, 1U);  // 3 observed steps, sparse below 4
   EXPECT_EQ(by_data[0].well_observed.cells, 0U);
@@ -155,8 +155,8 @@ TEST(TransitionRmse, ChangingCellsByWhatTheirDataShow) {
 TEST(SquareCells, SeenInBothStatesNeedsAStepOfEach) {
   MrfSquaresLayout layout;
   layout.square_side_cells = 2;
-  layout.square_corner = {CellXY{0, 0}, CellXY{4, 0}, CellXY{8, 0}, CellXY{12, 0}};
-  SequenceBuilder builder;
+  layout.square_corner = {core::CellXY{0, 0}, core::CellXY{4, 0}, core::CellXY{8, 0}, core::CellXY{12, 0}};
+  core::SequenceBuilder builder;
   builder.add(0, 0, 0, 2, 1);  // square 0: more hits, then more misses: both
   builder.add(0, 0, 3, 0, 1);
   builder.add(1, 1, 0, 1, 0);  // square 0: hits only
@@ -182,10 +182,10 @@ TEST(SquareCells, TheScenariosSquaresAreSeenInBothStates) {
   for (std::uint64_t seed = 1; seed <= 3; ++seed) {
     Simulation simulation(scenario, seed, seed + 100);
     const MrfSquaresLayout layout = simulation.mrfSquaresLayout();
-    MapperConfig mapper_config = evaluationMapperConfig(scenario);
+    core::MapperConfig mapper_config = evaluationMapperConfig(scenario);
     mapper_config.learn_transitions = false;
-    Mapper mapper(mapper_config);
-    SequenceBuilder recorder;
+    core::Mapper mapper(mapper_config);
+    core::SequenceBuilder recorder;
     mapper.recordObservations(&recorder);
     std::vector<std::array<bool, 4>> occupied;  // per step, the state its scan sees
     for (std::int64_t t = 0; t < scenario.steps; ++t) {
@@ -194,25 +194,25 @@ TEST(SquareCells, TheScenariosSquaresAreSeenInBothStates) {
         now[k] = simulation.world().occupied(layout.square_corner[k].x, layout.square_corner[k].y);
       }
       occupied.push_back(now);
-      ASSERT_EQ(mapper.integrate(simulation.scan()).status, ScanStatus::kIntegrated);
+      ASSERT_EQ(mapper.integrate(simulation.scan()).status, core::ScanStatus::kIntegrated);
       simulation.advance();
     }
     mapper.finishStep();
     mapper.recordObservations(nullptr);
-    const ObservationSequences sequences = recorder.build();
+    const core::ObservationSequences sequences = recorder.build();
     const std::array<std::size_t, 4> both = squareCellsSeenInBothStates(sequences, layout);
     // Per square, the loops in which one of its cells was observed while it was occupied / free.
     std::array<std::set<std::int64_t>, 4> loops_occupied;
     std::array<std::set<std::int64_t>, 4> loops_free;
     for (std::size_t c = 0; c < sequences.cellCount(); ++c) {
-      const CellXY xy = sequences.cell(c);
+      const core::CellXY xy = sequences.cell(c);
       for (std::size_t k = 0; k < 4; ++k) {
-        const CellXY corner = layout.square_corner[k];
+        const core::CellXY corner = layout.square_corner[k];
         if (xy.x < corner.x || xy.y < corner.y || xy.x >= corner.x + layout.square_side_cells ||
             xy.y >= corner.y + layout.square_side_cells) {
           continue;
         }
-        for (const StepObservation* o = sequences.begin(c); o != sequences.end(c); ++o) {
+        for (const core::StepObservation* o = sequences.begin(c); o != sequences.end(c); ++o) {
           const std::int64_t loop = o->step / layout.loop_steps;
           (occupied[static_cast<std::size_t>(o->step)][k] ? loops_occupied[k] : loops_free[k]).insert(loop);
         }
@@ -277,7 +277,7 @@ void expectSameOutcome(const MrfEmOutcome& a, const MrfEmOutcome& b) {
 }
 
 // Bitwise equal, NaN matching NaN (cells never observed).
-bool sameMap(const std::vector<TransitionParams>& a, const std::vector<TransitionParams>& b) {
+bool sameMap(const std::vector<core::TransitionParams>& a, const std::vector<core::TransitionParams>& b) {
   const auto same = [](double x, double y) { return x == y || (std::isnan(x) && std::isnan(y)); };
   if (a.size() != b.size()) return false;
   for (std::size_t i = 0; i < a.size(); ++i) {
@@ -323,7 +323,7 @@ TEST(MrfExperiment, ReproducibleAndIndependentOfThreads) {
 
 // The sum over 8-neighbour pairs of observed cells of the squared difference of the logits of
 // one parameter: what the MRF prior penalises.
-double roughness(const MrfMaps& maps, const std::vector<TransitionParams>& map, bool occ_given_free) {
+double roughness(const MrfMaps& maps, const std::vector<core::TransitionParams>& map, bool occ_given_free) {
   const auto logit = [&](std::size_t i) {
     const double p = occ_given_free ? map[i].p_occ_given_free : map[i].p_free_given_occ;
     return std::log(p / (1.0 - p));
@@ -365,7 +365,7 @@ TEST(MrfExperiment, MapsAndIterationRecordsOfBothEms) {
     }
     ++observed;
     sparse += maps.observed_steps[i] < config.sparse_below;
-    for (const TransitionParams& p : {maps.plain[i], maps.mrf[i]}) {
+    for (const core::TransitionParams& p : {maps.plain[i], maps.mrf[i]}) {
       // Within the EM's bounds [1e-4, 0.5] (the MRF's through logits: up to rounding).
       EXPECT_GE(p.p_occ_given_free, 1e-4 * (1.0 - 1e-9));
       EXPECT_LE(p.p_free_given_occ, 0.5 * (1.0 + 1e-12));
@@ -411,7 +411,7 @@ TEST(MrfExperiment, OnlineLearnersAreScored) {
   const ScenarioConfig scenario = shortScenario();
   const MrfExperimentResult result = runMrfExperiment(scenario, config);
   const MrfRepetition& run = result.repetitions.front();
-  const MapperConfig defaults = evaluationMapperConfig(scenario);
+  const core::MapperConfig defaults = evaluationMapperConfig(scenario);
   ASSERT_EQ(config.sparse_below, defaults.online_em.min_observed_steps);  // sparse = on the prior (cell EM)
   for (const MrfOnlineOutcome* online : {&run.online, &run.online_kinds}) {
     EXPECT_EQ(online->rmse.sparse.cells, run.plain.rmse.sparse.cells);
@@ -455,8 +455,8 @@ TEST(MrfExperiment, OnlineLearnersAreScored) {
   // rates within the learner's bounds and moved from where they started; the biggest kind is
   // the free floor, so a sparse free cell, which the floor explains, is far closer to its
   // truth than on the fixed prior.
-  ASSERT_EQ(run.online_kinds.kinds.size(), static_cast<std::size_t>(kKindCount));
-  const KindsConfig kinds_config;
+  ASSERT_EQ(run.online_kinds.kinds.size(), static_cast<std::size_t>(core::kKindCount));
+  const core::KindsConfig kinds_config;
   double shares = 0.0;
   std::size_t moved = 0;
   std::size_t biggest = 0;
@@ -487,7 +487,7 @@ TEST(MrfExperiment, OnlineLearnersAreScored) {
   ASSERT_EQ(maps.online_kinds.size(), maps.plain.size());
   std::size_t kinds_differs = 0;
   for (std::size_t i = 0; i < maps.plain.size(); ++i) {
-    for (const TransitionParams& p : {maps.online[i], maps.online_kinds[i]}) {
+    for (const core::TransitionParams& p : {maps.online[i], maps.online_kinds[i]}) {
       EXPECT_EQ(std::isnan(p.p_occ_given_free), maps.observed_steps[i] == 0) << i;
       EXPECT_EQ(std::isnan(p.p_free_given_occ), maps.observed_steps[i] == 0) << i;
       if (maps.observed_steps[i] == 0) continue;
@@ -523,5 +523,5 @@ TEST(MrfExperiment, RejectsBadSettings) {
 }
 
 }  // namespace
-}  // namespace core
+}  // namespace evaluation
 }  // namespace dynamic_occupancy_grid

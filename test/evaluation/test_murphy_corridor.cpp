@@ -18,7 +18,7 @@
 #include <vector>
 
 namespace dynamic_occupancy_grid {
-namespace core {
+namespace evaluation {
 namespace {
 
 double meanOf(const std::vector<double>& values) {
@@ -500,5 +500,5 @@ TEST(MurphyExperiment, ReproducibleOnAnyThreadsAndItsTables) {
 }
 
 }  // namespace
-}  // namespace core
+}  // namespace evaluation
 }  // namespace dynamic_occupancy_grid

@@ -14,6 +14,7 @@
 #include <vector>
 
 namespace dog = dynamic_occupancy_grid::core;
+namespace evaluation = dynamic_occupancy_grid::evaluation;
 
 namespace {
 
@@ -21,7 +22,7 @@ constexpr int kUnreachable = -1;
 
 // Moves from start to goal by BFS, kUnreachable if none. Like the planner, the start cell's
 // own flag does not matter and a blocked goal cannot be entered.
-int bfsDistance(const dog::BlockedGrid& grid, dog::CellXY start, dog::CellXY goal) {
+int bfsDistance(const evaluation::BlockedGrid& grid, dog::CellXY start, dog::CellXY goal) {
   std::vector<int> distance(static_cast<std::size_t>(grid.width() * grid.height()), kUnreachable);
   std::deque<dog::CellXY> queue{start};
   distance[grid.index(start.x, start.y)] = 0;
@@ -44,7 +45,7 @@ int bfsDistance(const dog::BlockedGrid& grid, dog::CellXY start, dog::CellXY goa
 
 // A path is valid when it runs from start to goal through 4-neighbours and enters no
 // blocked cell (the start itself excepted).
-::testing::AssertionResult isValidPath(const dog::BlockedGrid& grid, const std::vector<dog::CellXY>& path,
+::testing::AssertionResult isValidPath(const evaluation::BlockedGrid& grid, const std::vector<dog::CellXY>& path,
                                        dog::CellXY start, dog::CellXY goal) {
   if (path.empty()) return ::testing::AssertionFailure() << "empty path";
   if (path.front() != start) return ::testing::AssertionFailure() << "does not begin at the start";
@@ -60,8 +61,8 @@ int bfsDistance(const dog::BlockedGrid& grid, dog::CellXY start, dog::CellXY goa
   return ::testing::AssertionSuccess();
 }
 
-dog::BlockedGrid randomGrid(std::mt19937& rng, std::int32_t width, std::int32_t height, double density) {
-  dog::BlockedGrid grid(width, height);
+evaluation::BlockedGrid randomGrid(std::mt19937& rng, std::int32_t width, std::int32_t height, double density) {
+  evaluation::BlockedGrid grid(width, height);
   std::bernoulli_distribution blocked(density);
   for (std::int32_t y = 0; y < height; ++y) {
     for (std::int32_t x = 0; x < width; ++x) grid.setBlocked(x, y, blocked(rng));
@@ -73,14 +74,14 @@ dog::BlockedGrid randomGrid(std::mt19937& rng, std::int32_t width, std::int32_t 
 
 TEST(AStarPlanner, MatchesBreadthFirstSearchOnRandomGrids) {
   std::mt19937 rng(12345);
-  dog::AStarPlanner planner;  // one planner for all cases: reused buffers must not leak state
+  evaluation::AStarPlanner planner;  // one planner for all cases: reused buffers must not leak state
   int reachable = 0;
   int unreachable = 0;
   for (const std::int32_t width : {1, 2, 7, 30}) {
     for (const std::int32_t height : {1, 3, 15, 31}) {
       for (const double density : {0.0, 0.2, 0.35, 0.5}) {
         for (int trial = 0; trial < 20; ++trial) {
-          const dog::BlockedGrid grid = randomGrid(rng, width, height, density);
+          const evaluation::BlockedGrid grid = randomGrid(rng, width, height, density);
           std::uniform_int_distribution<std::int32_t> px(0, width - 1);
           std::uniform_int_distribution<std::int32_t> py(0, height - 1);
           const dog::CellXY start{px(rng), py(rng)};
@@ -107,8 +108,8 @@ TEST(AStarPlanner, MatchesBreadthFirstSearchOnRandomGrids) {
 }
 
 TEST(AStarPlanner, StartEqualsGoal) {
-  dog::BlockedGrid grid(4, 3);
-  dog::AStarPlanner planner;
+  evaluation::BlockedGrid grid(4, 3);
+  evaluation::AStarPlanner planner;
   const std::vector<dog::CellXY> path = planner.plan(grid, {2, 1}, {2, 1});
   ASSERT_EQ(path.size(), 1U);
   EXPECT_EQ(path[0], (dog::CellXY{2, 1}));
@@ -118,24 +119,24 @@ TEST(AStarPlanner, StartEqualsGoal) {
 }
 
 TEST(AStarPlanner, BlockedGoalIsUnreachable) {
-  dog::BlockedGrid grid(5, 5);
+  evaluation::BlockedGrid grid(5, 5);
   grid.setBlocked(4, 4, true);
-  dog::AStarPlanner planner;
+  evaluation::AStarPlanner planner;
   EXPECT_TRUE(planner.plan(grid, {0, 0}, {4, 4}).empty());
 }
 
 TEST(AStarPlanner, BlockedStartIsLeft) {
-  dog::BlockedGrid grid(5, 1);
+  evaluation::BlockedGrid grid(5, 1);
   grid.setBlocked(0, 0, true);
-  dog::AStarPlanner planner;
+  evaluation::AStarPlanner planner;
   const std::vector<dog::CellXY> path = planner.plan(grid, {0, 0}, {4, 0});
   EXPECT_EQ(path.size(), 5U);
 }
 
 TEST(AStarPlanner, WallWithoutGapIsUnreachable) {
-  dog::BlockedGrid grid(7, 5);
+  evaluation::BlockedGrid grid(7, 5);
   for (std::int32_t y = 0; y < 5; ++y) grid.setBlocked(3, y, true);
-  dog::AStarPlanner planner;
+  evaluation::AStarPlanner planner;
   EXPECT_TRUE(planner.plan(grid, {0, 2}, {6, 2}).empty());
   // One gap, at the far end: the path must go round through it.
   grid.setBlocked(3, 4, false);
@@ -147,9 +148,9 @@ TEST(AStarPlanner, WallWithoutGapIsUnreachable) {
 TEST(AStarPlanner, TakesTheDetourOnlyWhenTheShortCutIsBlocked) {
   // The door scenario in miniature: a corridor at y = 2 with a door at (3, 2), and a
   // detour along y = 0 joined by the columns x = 0 and x = 6.
-  dog::BlockedGrid grid(7, 3);
+  evaluation::BlockedGrid grid(7, 3);
   for (std::int32_t x = 1; x <= 5; ++x) grid.setBlocked(x, 1, true);
-  dog::AStarPlanner planner;
+  evaluation::AStarPlanner planner;
   EXPECT_EQ(planner.plan(grid, {0, 2}, {6, 2}).size() - 1, 6U);
   grid.setBlocked(3, 2, true);
   EXPECT_EQ(planner.plan(grid, {0, 2}, {6, 2}).size() - 1, 10U);
@@ -158,14 +159,14 @@ TEST(AStarPlanner, TakesTheDetourOnlyWhenTheShortCutIsBlocked) {
 TEST(AStarPlanner, DeterministicWhateverWasPlannedBefore) {
   // An open grid has many shortest paths: the chosen one must not depend on the history
   // of the planner's buffers.
-  const dog::BlockedGrid open(9, 9);
-  dog::AStarPlanner fresh;
+  const evaluation::BlockedGrid open(9, 9);
+  evaluation::AStarPlanner fresh;
   const std::vector<dog::CellXY> first = fresh.plan(open, {0, 0}, {8, 8});
 
   std::mt19937 rng(7);
-  dog::AStarPlanner used;
+  evaluation::AStarPlanner used;
   for (int i = 0; i < 50; ++i) {
-    const dog::BlockedGrid other = randomGrid(rng, 9, 9, 0.3);
+    const evaluation::BlockedGrid other = randomGrid(rng, 9, 9, 0.3);
     used.plan(other, {0, 0}, {8, 8});
   }
   EXPECT_EQ(used.plan(open, {0, 0}, {8, 8}), first);
@@ -173,25 +174,25 @@ TEST(AStarPlanner, DeterministicWhateverWasPlannedBefore) {
 }
 
 TEST(AStarPlanner, GridSizeChangesBetweenCalls) {
-  dog::AStarPlanner planner;
-  EXPECT_EQ(planner.plan(dog::BlockedGrid(30, 15), {1, 13}, {28, 13}).size() - 1, 27U);
-  EXPECT_EQ(planner.plan(dog::BlockedGrid(3, 2), {0, 0}, {2, 1}).size() - 1, 3U);
-  EXPECT_EQ(planner.plan(dog::BlockedGrid(30, 15), {0, 0}, {29, 14}).size() - 1, 43U);
+  evaluation::AStarPlanner planner;
+  EXPECT_EQ(planner.plan(evaluation::BlockedGrid(30, 15), {1, 13}, {28, 13}).size() - 1, 27U);
+  EXPECT_EQ(planner.plan(evaluation::BlockedGrid(3, 2), {0, 0}, {2, 1}).size() - 1, 3U);
+  EXPECT_EQ(planner.plan(evaluation::BlockedGrid(30, 15), {0, 0}, {29, 14}).size() - 1, 43U);
 }
 
 TEST(AStarPlanner, RejectsEndpointsOutsideTheGrid) {
-  const dog::BlockedGrid grid(4, 4);
-  dog::AStarPlanner planner;
+  const evaluation::BlockedGrid grid(4, 4);
+  evaluation::AStarPlanner planner;
   EXPECT_THROW(planner.plan(grid, {-1, 0}, {3, 3}), std::out_of_range);
   EXPECT_THROW(planner.plan(grid, {0, 0}, {4, 3}), std::out_of_range);
 }
 
 TEST(BlockedGrid, OutsideIsBlockedAndSizeIsChecked) {
-  dog::BlockedGrid grid(3, 2);
+  evaluation::BlockedGrid grid(3, 2);
   EXPECT_FALSE(grid.blocked(2, 1));
   EXPECT_TRUE(grid.blocked(3, 1));
   EXPECT_TRUE(grid.blocked(0, -1));
   EXPECT_THROW(grid.setBlocked(3, 0, true), std::out_of_range);
-  EXPECT_THROW(dog::BlockedGrid(0, 5), std::invalid_argument);
-  EXPECT_THROW(dog::BlockedGrid(5, -1), std::invalid_argument);
+  EXPECT_THROW(evaluation::BlockedGrid(0, 5), std::invalid_argument);
+  EXPECT_THROW(evaluation::BlockedGrid(5, -1), std::invalid_argument);
 }

@@ -12,11 +12,11 @@
 #include <sstream>
 #include <string>
 
-namespace dog = dynamic_occupancy_grid::core;
+namespace evaluation = dynamic_occupancy_grid::evaluation;
 
 namespace {
 
-const dog::PoseEstimatorResult& find(const dog::PoseCorrectionResult& result, const std::string& name) {
+const evaluation::PoseEstimatorResult& find(const evaluation::PoseCorrectionResult& result, const std::string& name) {
   for (const auto& e : result.estimators) {
     if (e.name == name) return e;
   }
@@ -24,10 +24,10 @@ const dog::PoseEstimatorResult& find(const dog::PoseCorrectionResult& result, co
 }
 
 TEST(PoseCorrection, FiltersBeatOdometryOnAPatrol) {
-  dog::PoseCorrectionConfig config;
+  evaluation::PoseCorrectionConfig config;
   config.steps = 200;
   config.filter.particles = 10;
-  const dog::PoseCorrectionResult result = dog::runPoseCorrection(config);
+  const evaluation::PoseCorrectionResult result = evaluation::runPoseCorrection(config);
   for (const auto& e : result.estimators) {
     std::cout << e.name << ": ATE " << e.ate_rmse_m << " m, RPE " << e.rpe_trans_rmse_m << " m / " << e.rpe_rot_rmse_rad
               << " rad, final " << e.final_error_m << " m, changing " << e.changing_accuracy << ", static "
@@ -43,9 +43,9 @@ TEST(PoseCorrection, FiltersBeatOdometryOnAPatrol) {
   EXPECT_EQ(find(result, "known_pose").ate_rmse_m, 0.0);
   const double odometry = find(result, "odometry").ate_rmse_m;
   EXPECT_GT(odometry, 0.3);
-  const dog::PoseEstimatorResult& known = find(result, "known_pose");
+  const evaluation::PoseEstimatorResult& known = find(result, "known_pose");
   for (const char* name : {"rbpf_static", "rbpf_hmm", "rbpf_oracle"}) {
-    const dog::PoseEstimatorResult& filter = find(result, name);
+    const evaluation::PoseEstimatorResult& filter = find(result, name);
     // The map with learned transitions is not reliable yet (docs/pose_correction.md: it
     // loses the robot in some runs; here 0.16 m, with 10 steps instead of 30 before a
     // learned cell counts 1.6 m): only the drift halved is asked of it.
@@ -60,8 +60,8 @@ TEST(PoseCorrection, FiltersBeatOdometryOnAPatrol) {
   // that change (the filters' maps are a particle's, re-drawn at every resampling).
   EXPECT_GT(find(result, "rbpf_oracle").changing_accuracy, known.changing_accuracy - 0.05);
   EXPECT_GT(known.static_accuracy, 0.99);
-  const auto tables = dog::poseCorrectionCsvTables({result, result});
-  EXPECT_NE(dog::formatPoseCorrectionSummary(config, {result}).find("| rbpf_hmm |"), std::string::npos);
+  const auto tables = evaluation::poseCorrectionCsvTables({result, result});
+  EXPECT_NE(evaluation::formatPoseCorrectionSummary(config, {result}).find("| rbpf_hmm |"), std::string::npos);
   ASSERT_EQ(tables.count("pose_correction_errors.csv"), 1u);
   std::istringstream trajectory(tables.at("pose_correction_trajectory.csv"));
   std::string line;
@@ -77,8 +77,8 @@ TEST(PoseCorrection, FiltersBeatOdometryOnAPatrol) {
   ASSERT_EQ(result.learned.size(), 6u);
   const char* kinds[3] = {"static_occupied", "static_free", "changing"};
   for (std::size_t k = 0; k < 3; ++k) {
-    const dog::LearnedTransitionError& at_truth = result.learned[k];
-    const dog::LearnedTransitionError& filtered = result.learned[3 + k];
+    const evaluation::LearnedTransitionError& at_truth = result.learned[k];
+    const evaluation::LearnedTransitionError& filtered = result.learned[3 + k];
     EXPECT_EQ(at_truth.learner, "known_pose");
     EXPECT_EQ(filtered.learner, "rbpf_hmm");
     EXPECT_EQ(at_truth.kind, kinds[k]);
@@ -97,7 +97,7 @@ TEST(PoseCorrection, FiltersBeatOdometryOnAPatrol) {
   lines = 0;
   while (std::getline(learned, line)) ++lines;
   EXPECT_EQ(lines, 1 + 2 * 6);
-  EXPECT_NE(dog::formatPoseCorrectionSummary(config, {result}).find("| rbpf_hmm | static_occupied |"),
+  EXPECT_NE(evaluation::formatPoseCorrectionSummary(config, {result}).find("| rbpf_hmm | static_occupied |"),
             std::string::npos);
 }
 

@@ -33,6 +33,7 @@
 #include "dynamic_occupancy_grid/core/grid/mapper.h"
 
 namespace dog = dynamic_occupancy_grid::core;
+namespace evaluation = dynamic_occupancy_grid::evaluation;
 
 namespace {
 
@@ -81,8 +82,8 @@ dog::Scan toScan(const TestScan& test) {
   return scan;
 }
 
-dog::ScanReplay replayOf(const std::vector<TestScan>& scans) {
-  return [&scans](const dog::ScanConsumer& consumer) {
+evaluation::ScanReplay replayOf(const std::vector<TestScan>& scans) {
+  return [&scans](const evaluation::ScanConsumer& consumer) {
     for (const TestScan& scan : scans) consumer(toScan(scan));
   };
 }
@@ -138,7 +139,7 @@ std::unique_ptr<dog::Mapper> mapAfter(const dog::MapperConfig& config, const std
   return mapper;
 }
 
-void addReference(dog::PredictionScore& score, double p, bool occupied) {
+void addReference(evaluation::PredictionScore& score, double p, bool occupied) {
   score.brier_sum += (p - (occupied ? 1.0 : 0.0)) * (p - (occupied ? 1.0 : 0.0));
   if (p == 0.5) {
     ++score.unclassified;
@@ -150,13 +151,13 @@ void addReference(dog::PredictionScore& score, double p, bool occupied) {
 }
 
 // Brute force: every label against a map rebuilt from scratch up to its origin step.
-std::vector<dog::HorizonScore> reference(const dog::MapperConfig& config, const std::vector<TestScan>& scans,
+std::vector<evaluation::HorizonScore> reference(const dog::MapperConfig& config, const std::vector<TestScan>& scans,
                                          const std::vector<std::int64_t>& horizons) {
   const Observations observations = observe(scans);
   std::map<std::int64_t, std::unique_ptr<dog::Mapper>> maps;  // by origin step
-  std::vector<dog::HorizonScore> result;
+  std::vector<evaluation::HorizonScore> result;
   for (const std::int64_t horizon : horizons) {
-    dog::HorizonScore score;
+    evaluation::HorizonScore score;
     score.horizon_steps = horizon;
     for (const auto& [step, cells] : observations) {
       const std::int64_t origin = step - horizon;
@@ -182,7 +183,7 @@ std::vector<dog::HorizonScore> reference(const dog::MapperConfig& config, const 
   return result;
 }
 
-void expectSameScore(const dog::PredictionScore& actual, const dog::PredictionScore& expected,
+void expectSameScore(const evaluation::PredictionScore& actual, const evaluation::PredictionScore& expected,
                      const std::string& what) {
   EXPECT_EQ(actual.occupied_predicted_occupied, expected.occupied_predicted_occupied) << what;
   EXPECT_EQ(actual.occupied_predicted_free, expected.occupied_predicted_free) << what;
@@ -194,12 +195,12 @@ void expectSameScore(const dog::PredictionScore& actual, const dog::PredictionSc
 
 void expectMatchesReference(const dog::MapperConfig& config, const std::vector<TestScan>& scans,
                             const std::vector<std::int64_t>& horizons, const std::string& what) {
-  const dog::PredictionCheckResult result = dog::checkPredictions(config, replayOf(scans), horizons);
-  const std::vector<dog::HorizonScore> expected = reference(config, scans, horizons);
+  const evaluation::PredictionCheckResult result = evaluation::checkPredictions(config, replayOf(scans), horizons);
+  const std::vector<evaluation::HorizonScore> expected = reference(config, scans, horizons);
   ASSERT_EQ(result.horizons.size(), expected.size()) << what;
   for (std::size_t k = 0; k < expected.size(); ++k) {
     const std::string at = what + ", horizon " + std::to_string(horizons[k]);
-    const dog::HorizonScore& actual = result.horizons[k];
+    const evaluation::HorizonScore& actual = result.horizons[k];
     EXPECT_EQ(actual.horizon_steps, horizons[k]) << at;
     EXPECT_EQ(actual.labels, expected[k].labels) << at;
     EXPECT_EQ(actual.unseen, expected[k].unseen) << at;
@@ -282,7 +283,7 @@ TestScan scanAt(int step, int j, std::array<float, 4> ranges) {
 }  // namespace
 
 TEST(PredictionScore, RatiosFromCounts) {
-  dog::PredictionScore score;
+  evaluation::PredictionScore score;
   EXPECT_TRUE(std::isnan(score.accuracy()));
   EXPECT_TRUE(std::isnan(score.brier()));
   EXPECT_TRUE(std::isnan(score.occupiedAccuracy()));
@@ -313,7 +314,7 @@ TEST(PredictionCheck, MatchesBruteForceOnRandomRecordings) {
   }
   // The recordings exercise what they should: gaps, ties, rejections, both kinds of label.
   const std::vector<TestScan> scans = randomRecording(1, 30);
-  const dog::PredictionCheckResult result = dog::checkPredictions(testConfig(true), replayOf(scans), {1});
+  const evaluation::PredictionCheckResult result = evaluation::checkPredictions(testConfig(true), replayOf(scans), {1});
   EXPECT_GT(result.tied_cell_steps, 0U);
   EXPECT_GT(result.scans_rejected, 0U);
   EXPECT_GT(result.horizons[0].occupied_labels, 0U);
@@ -322,7 +323,7 @@ TEST(PredictionCheck, MatchesBruteForceOnRandomRecordings) {
   for (const TestScan& scan : scans) steps_with_scans[stepOf(scans, scan.stamp_s)] = true;
   EXPECT_LT(steps_with_scans.size(), 30U) << "no step without scans";
   // No horizon beyond the recording's end gets a label.
-  const dog::PredictionCheckResult far = dog::checkPredictions(testConfig(true), replayOf(scans), {40});
+  const evaluation::PredictionCheckResult far = evaluation::checkPredictions(testConfig(true), replayOf(scans), {40});
   EXPECT_EQ(far.horizons[0].labels, 0U);
   EXPECT_TRUE(std::isnan(far.horizons[0].dynamic_model.brier()));
 }
@@ -340,7 +341,7 @@ TEST(PredictionCheck, MatchesBruteForceWithParameterSweep) {
       config.static_clamp = dog::LogOddsClamp{-1.0, 1.5};
       expectMatchesReference(config, scans, {0, 1, 4},
                              "p_hit_given_occ " + std::to_string(p_hit_given_occ) + ", prior " + std::to_string(prior));
-      const dog::PredictionCheckResult result = dog::checkPredictions(config, replayOf(scans), {1});
+      const evaluation::PredictionCheckResult result = evaluation::checkPredictions(config, replayOf(scans), {1});
       if (labels == 0) labels = result.horizons[0].labels;
       EXPECT_EQ(result.horizons[0].labels, labels);
     }
@@ -357,13 +358,14 @@ TEST(PredictionCheck, HorizonZeroScoresTheMapThatHasJustSeenTheStep) {
     scans.push_back(scanAt(step, 0, {rangeToCell(step < 5 ? 4 : 7), rangeToCell(2), rangeToCell(3), rangeToCell(2)}));
   }
   const std::vector<std::int64_t> horizons{0, 1, 2, 3, 4};
-  const dog::PredictionCheckResult result = dog::checkPredictions(testConfig(true), replayOf(scans), horizons);
+  const evaluation::PredictionCheckResult result =
+      evaluation::checkPredictions(testConfig(true), replayOf(scans), horizons);
   const std::size_t labels_at_first_steps = 1 + 4 + 2 + 3 + 2;  // cells (0, 0), +x 1..4, +y 1..2, ...
   const std::size_t labels_at_later_steps = 1 + 7 + 2 + 3 + 2;
   EXPECT_EQ(result.tied_cell_steps, 0U);
   for (std::size_t k = 0; k < horizons.size(); ++k) {
     const std::int64_t h = horizons[k];
-    const dog::HorizonScore& score = result.horizons[k];
+    const evaluation::HorizonScore& score = result.horizons[k];
     // Labels of steps h..9; horizon 0 scores all of them.
     std::size_t expected_labels = 0;
     for (int step = static_cast<int>(h); step < steps; ++step) {
@@ -379,7 +381,7 @@ TEST(PredictionCheck, HorizonZeroScoresTheMapThatHasJustSeenTheStep) {
   // p = 0.5); only the wall cell (4, 0) that turned free can be wrong: the static map's
   // log-odds go 3.5 (clamped) -> 2.52 -> 1.54 -> 0.56 -> -0.42 over steps 5-8, three wrong
   // labels; the dynamic belief, as sure of the wall, needs as long (at most one step more).
-  const dog::HorizonScore& fit = result.horizons[0];
+  const evaluation::HorizonScore& fit = result.horizons[0];
   EXPECT_EQ(fit.static_model.free_predicted_occupied, 3U);
   EXPECT_EQ(fit.static_model.occupied_predicted_free, 0U);
   EXPECT_LE(fit.dynamic_model.free_predicted_occupied, 4U);
@@ -402,7 +404,8 @@ TEST(PredictionCheck, StepsWithoutScansAreOriginsToo) {
   const std::size_t before = 1 + 3 + 2 + 11 + 4;
   const std::size_t after = 1 + 5 + 2 + 11 + 4;
   const std::vector<std::int64_t> horizons{0, 1, 2, 3, 4, 5, 6, 7, 8};
-  const dog::PredictionCheckResult result = dog::checkPredictions(testConfig(true), replayOf(scans), horizons);
+  const evaluation::PredictionCheckResult result =
+      evaluation::checkPredictions(testConfig(true), replayOf(scans), horizons);
   for (std::size_t k = 0; k < horizons.size(); ++k) {
     std::size_t expected = 0;
     for (const int step : {0, 1, 5, 6, 7}) {
@@ -422,7 +425,8 @@ TEST(PredictionCheck, HugeGapsBetweenSteps) {
                               scanAt(2000000000, 0, {rangeToCell(3), rangeToCell(3), rangeToCell(3), rangeToCell(3)})};
   const std::vector<std::int64_t> horizons{0, 1, 1000000000, 2000000000, std::numeric_limits<std::int64_t>::max()};
   expectMatchesReference(testConfig(true), scans, horizons, "huge gap");
-  const dog::PredictionCheckResult result = dog::checkPredictions(testConfig(true), replayOf(scans), horizons);
+  const evaluation::PredictionCheckResult result =
+      evaluation::checkPredictions(testConfig(true), replayOf(scans), horizons);
   const std::size_t per_step = 1 + 4 * 3;
   EXPECT_EQ(result.horizons[0].labels, 2 * per_step);
   EXPECT_EQ(result.horizons[3].labels, per_step);
@@ -461,11 +465,11 @@ TEST(PredictionCheck, DynamicModelPredictsATogglingDoorBetterThanTheStaticMap) {
   const std::vector<TestScan> door = recording(true);
   const std::vector<TestScan> calm = recording(false);
   const std::vector<std::int64_t> horizons{4, 8};
-  const dog::PredictionCheckResult with_door = dog::checkPredictions(config, replayOf(door), horizons);
-  const dog::PredictionCheckResult without = dog::checkPredictions(config, replayOf(calm), horizons);
+  const evaluation::PredictionCheckResult with_door = evaluation::checkPredictions(config, replayOf(door), horizons);
+  const evaluation::PredictionCheckResult without = evaluation::checkPredictions(config, replayOf(calm), horizons);
   for (std::size_t k = 0; k < horizons.size(); ++k) {
-    const dog::HorizonScore& moving = with_door.horizons[k];
-    const dog::HorizonScore& still = without.horizons[k];
+    const evaluation::HorizonScore& moving = with_door.horizons[k];
+    const evaluation::HorizonScore& still = without.horizons[k];
     const std::string at = "horizon " + std::to_string(horizons[k]);
     EXPECT_LT(moving.dynamic_model.brier(), 0.75 * moving.static_model.brier()) << at;
     EXPECT_LT(moving.dynamic_model.brier(), moving.static_model.brier() - still.static_model.brier()) << at;
@@ -487,35 +491,39 @@ TEST(PredictionCheck, BadInputGivesClearErrors) {
     return "no exception";
   };
   // Negative horizon, no horizon, no replay function, bad config: invalid_argument.
-  EXPECT_THROW(dog::checkPredictions(testConfig(true), replayOf(scans), {1, -2}), std::invalid_argument);
-  EXPECT_NE(message_of([&] { dog::checkPredictions(testConfig(true), replayOf(scans), {1, -2}); }).find("-2"),
+  EXPECT_THROW(evaluation::checkPredictions(testConfig(true), replayOf(scans), {1, -2}), std::invalid_argument);
+  EXPECT_NE(message_of([&] { evaluation::checkPredictions(testConfig(true), replayOf(scans), {1, -2}); }).find("-2"),
             std::string::npos);
-  EXPECT_THROW(dog::checkPredictions(testConfig(true), replayOf(scans), {}), std::invalid_argument);
-  EXPECT_THROW(dog::checkPredictions(testConfig(true), dog::ScanReplay(), {1}), std::invalid_argument);
+  EXPECT_THROW(evaluation::checkPredictions(testConfig(true), replayOf(scans), {}), std::invalid_argument);
+  EXPECT_THROW(evaluation::checkPredictions(testConfig(true), evaluation::ScanReplay(), {1}), std::invalid_argument);
   dog::MapperConfig bad = testConfig(true);
   bad.resolution_m = -1.0;
-  EXPECT_THROW(dog::checkPredictions(bad, replayOf(scans), {1}), std::invalid_argument);
+  EXPECT_THROW(evaluation::checkPredictions(bad, replayOf(scans), {1}), std::invalid_argument);
 
   // A replay without scans, or without a usable one: runtime_error saying so.
   const std::vector<TestScan> none;
-  EXPECT_THROW(dog::checkPredictions(testConfig(true), replayOf(none), {1}), std::runtime_error);
-  EXPECT_NE(message_of([&] { dog::checkPredictions(testConfig(true), replayOf(none), {1}); }).find("0 handed out"),
-            std::string::npos);
+  EXPECT_THROW(evaluation::checkPredictions(testConfig(true), replayOf(none), {1}), std::runtime_error);
+  EXPECT_NE(
+      message_of([&] { evaluation::checkPredictions(testConfig(true), replayOf(none), {1}); }).find("0 handed out"),
+      std::string::npos);
   std::vector<TestScan> invalid{scanAt(0, 0, {}), scanAt(1, 0, {})};
   for (TestScan& scan : invalid) scan.invalid = true;
-  EXPECT_NE(message_of([&] { dog::checkPredictions(testConfig(true), replayOf(invalid), {1}); }).find("empty scan"),
-            std::string::npos);
+  EXPECT_NE(
+      message_of([&] { evaluation::checkPredictions(testConfig(true), replayOf(invalid), {1}); }).find("empty scan"),
+      std::string::npos);
 
   // A replay that hands out other scans the second time.
   int calls = 0;
-  const dog::ScanReplay shrinking = [&](const dog::ScanConsumer& consumer) {
+  const evaluation::ScanReplay shrinking = [&](const evaluation::ScanConsumer& consumer) {
     ++calls;
     for (std::size_t i = 0; i + (calls == 1 ? 0 : 1) < scans.size(); ++i) consumer(toScan(scans[i]));
   };
-  EXPECT_NE(message_of([&] { dog::checkPredictions(testConfig(true), shrinking, {1}); }).find("not repeatable"),
+  EXPECT_NE(message_of([&] { evaluation::checkPredictions(testConfig(true), shrinking, {1}); }).find("not repeatable"),
             std::string::npos);
 
   // The replay's own errors pass through unchanged.
-  const dog::ScanReplay failing = [](const dog::ScanConsumer&) { throw std::out_of_range("bag ended early"); };
-  EXPECT_THROW(dog::checkPredictions(testConfig(true), failing, {1}), std::out_of_range);
+  const evaluation::ScanReplay failing = [](const evaluation::ScanConsumer&) {
+    throw std::out_of_range("bag ended early");
+  };
+  EXPECT_THROW(evaluation::checkPredictions(testConfig(true), failing, {1}), std::out_of_range);
 }

@@ -20,7 +20,7 @@
 #include "dynamic_occupancy_grid/core/cell/offline_em.h"
 
 namespace dynamic_occupancy_grid {
-namespace core {
+namespace evaluation {
 namespace {
 
 constexpr double kPi = 3.14159265358979323846;
@@ -68,9 +68,9 @@ TEST(Rng, DistributionsHaveTheirMoments) {
 
 TEST(World, DynamicCellsChangeAtTheirConfiguredRates) {
   World world(3, 1, 0.1);
-  world.setDynamic(0, 0, TransitionParams{0.05, 0.2}, false);
+  world.setDynamic(0, 0, core::TransitionParams{0.05, 0.2}, false);
   world.setStatic(1, 0, true);
-  world.setScheduled(2, 0, TransitionParams{0.3, 0.3}, true);
+  world.setScheduled(2, 0, core::TransitionParams{0.3, 0.3}, true);
   Rng rng(1);
   double from_free = 0;
   double free_to_occ = 0;
@@ -100,7 +100,7 @@ TEST(World, RejectsBadInput) {
   EXPECT_THROW(World(5, 5, 0.0), std::invalid_argument);
   World world(5, 5, 0.1);
   EXPECT_THROW(world.setStatic(5, 0, true), std::invalid_argument);
-  EXPECT_THROW(world.setDynamic(0, 0, TransitionParams{1.5, 0.1}, true), std::invalid_argument);
+  EXPECT_THROW(world.setDynamic(0, 0, core::TransitionParams{1.5, 0.1}, true), std::invalid_argument);
   EXPECT_FALSE(world.occupied(-1, 0));  // outside is free
 }
 
@@ -110,11 +110,11 @@ TEST(World, RejectsBadInput) {
 double marchedEntry(const World& world, double x, double y, double angle, double max_range) {
   const double step = 1e-5;
   const auto cell_at = [&](double t) {
-    return CellXY{static_cast<std::int32_t>(std::floor((x + t * std::cos(angle)) / world.resolution())),
+    return core::CellXY{static_cast<std::int32_t>(std::floor((x + t * std::cos(angle)) / world.resolution())),
                   static_cast<std::int32_t>(std::floor((y + t * std::sin(angle)) / world.resolution()))};
   };
   for (double t = 0.0; t < max_range; t += step) {
-    const CellXY cell = cell_at(t);
+    const core::CellXY cell = cell_at(t);
     if (!world.occupied(cell.x, cell.y)) continue;
     double leave = t;
     while (cell_at(leave) == cell) leave += step;
@@ -184,14 +184,14 @@ TEST(SimulateScan, ReadsChordMiddlesWithNoiseDropoutsAndNoReturns) {
   laser.noise_sigma_m = 0.01;
   laser.dropout_probability = 0.1;
   Rng rng(5);
-  const Pose2D pose{1.0, 2.05, 0.0};
+  const core::Pose2D pose{1.0, 2.05, 0.0};
   const int n = 20000;
   double sum = 0.0;
   double squares = 0.0;
   int readings = 0;
   int dropouts = 0;
   for (int i = 0; i < n; ++i) {
-    const Scan scan = simulateScan(world, pose, laser, 1.0, rng);
+    const core::Scan scan = simulateScan(world, pose, laser, 1.0, rng);
     ASSERT_EQ(scan.ranges_m.size(), 1U);
     const float r = scan.ranges_m[0];
     if (std::isnan(r)) {
@@ -208,7 +208,7 @@ TEST(SimulateScan, ReadsChordMiddlesWithNoiseDropoutsAndNoReturns) {
 
   // Looking away from the wall: no return reads +inf; the scan carries the laser's geometry.
   laser.dropout_probability = 0.0;
-  const Scan away = simulateScan(world, Pose2D{1.0, 2.05, kPi}, laser, 3.5, rng);
+  const core::Scan away = simulateScan(world, core::Pose2D{1.0, 2.05, kPi}, laser, 3.5, rng);
   EXPECT_TRUE(std::isinf(away.ranges_m[0]));
   EXPECT_EQ(away.stamp_s, 3.5);
   EXPECT_EQ(away.range_max_m, 8.0);
@@ -222,20 +222,20 @@ TEST(SimulateScan, DarkBeamsReadNothingAndDrawNothing) {
   laser.angle_min_rad = -kPi / 2;
   laser.angle_increment_rad = kPi / 4;
   laser.dropout_probability = 0.0;
-  const Pose2D pose{1.0, 2.05, 0.0};
+  const core::Pose2D pose{1.0, 2.05, 0.0};
   // Listing every beam is the same sensor as listing none: the same readings from the same
   // noise stream.
   Rng all_rng(9);
   Rng listed_rng(9);
   LaserConfig listed = laser;
   listed.active_beams = {0, 1, 2, 3, 4};
-  const Scan all = simulateScan(world, pose, laser, 1.0, all_rng);
-  const Scan same = simulateScan(world, pose, listed, 1.0, listed_rng);
+  const core::Scan all = simulateScan(world, pose, laser, 1.0, all_rng);
+  const core::Scan same = simulateScan(world, pose, listed, 1.0, listed_rng);
   EXPECT_EQ(all.ranges_m, same.ranges_m);
   // The middle beam dark: NaN; the beams before it read as before.
   Rng dark_rng(9);
   listed.active_beams = {0, 1, 3, 4};
-  const Scan dark = simulateScan(world, pose, listed, 1.0, dark_rng);
+  const core::Scan dark = simulateScan(world, pose, listed, 1.0, dark_rng);
   ASSERT_EQ(dark.ranges_m.size(), 5U);
   EXPECT_TRUE(std::isnan(dark.ranges_m[2]));
   EXPECT_EQ(dark.ranges_m[0], all.ranges_m[0]);
@@ -251,7 +251,7 @@ TEST(SimulateScan, DarkBeamsReadNothingAndDrawNothing) {
 TEST(LoopPath, DrivesTheLoopAtItsSpeed) {
   const LoopPath path({{0.0, 0.0}, {2.0, 0.0}, {2.0, 1.0}}, 0.5);
   EXPECT_NEAR(path.lengthM(), 3.0 + std::sqrt(5.0), 1e-12);
-  Pose2D p = path.poseAt(1.0);
+  core::Pose2D p = path.poseAt(1.0);
   EXPECT_NEAR(p.x_m, 0.5, 1e-12);
   EXPECT_NEAR(p.y_m, 0.0, 1e-12);
   EXPECT_NEAR(p.yaw_rad, 0.0, 1e-12);
@@ -259,14 +259,14 @@ TEST(LoopPath, DrivesTheLoopAtItsSpeed) {
   EXPECT_NEAR(p.x_m, 2.0, 1e-12);
   EXPECT_NEAR(p.y_m, 0.5, 1e-12);
   EXPECT_NEAR(p.yaw_rad, kPi / 2, 1e-12);
-  const Pose2D wrapped = path.poseAt(1.0 + path.lengthM() / 0.5);
+  const core::Pose2D wrapped = path.poseAt(1.0 + path.lengthM() / 0.5);
   EXPECT_NEAR(wrapped.x_m, 0.5, 1e-9);
   EXPECT_THROW(LoopPath({{0.0, 0.0}}, 1.0), std::invalid_argument);
   EXPECT_THROW(LoopPath({{0.0, 0.0}, {1.0, 0.0}}, 0.0), std::invalid_argument);
 }
 
 TEST(Compose, MountsTheLaserOnTheRobot) {
-  const Pose2D laser = composePose(Pose2D{1.0, 2.0, kPi / 2}, Pose2D{0.1, 0.0, 0.0});
+  const core::Pose2D laser = core::composePose(core::Pose2D{1.0, 2.0, kPi / 2}, core::Pose2D{0.1, 0.0, 0.0});
   EXPECT_NEAR(laser.x_m, 1.0, 1e-12);
   EXPECT_NEAR(laser.y_m, 2.1, 1e-12);
   EXPECT_NEAR(laser.yaw_rad, kPi / 2, 1e-12);
@@ -299,7 +299,7 @@ TEST(Scenarios, RandomDynamicHasItsFractionAndRates) {
     const std::vector<std::size_t> dynamic = world.dynamicCells();
     std::size_t candidates = 0;  // neither a wall nor the robot's lane: free or dynamic
     for (std::size_t i = 0; i < world.occupancy().size(); ++i) {
-      const CellXY c = world.cellOf(i);
+      const core::CellXY c = world.cellOf(i);
       const bool wall = !world.isDynamic(c.x, c.y) && world.occupied(c.x, c.y);
       if (!wall) ++candidates;
     }
@@ -314,14 +314,14 @@ TEST(Scenarios, RandomDynamicHasItsFractionAndRates) {
     double changes = 0.0;
     double trials = 0.0;
     for (int t = 0; t < 400; ++t) {
-      const Pose2D robot = simulation.robotPose();
+      const core::Pose2D robot = simulation.robotPose();
       ASSERT_FALSE(world.occupied(static_cast<std::int32_t>(robot.x_m / config.resolution_m),
                                   static_cast<std::int32_t>(robot.y_m / config.resolution_m)))
           << name << " step " << t;
       simulation.advance();
       const std::vector<std::uint8_t>& after = world.occupancy();
       for (std::size_t i = 0; i < after.size(); ++i) {
-        const CellXY c = world.cellOf(i);
+        const core::CellXY c = world.cellOf(i);
         if (world.isDynamic(c.x, c.y)) {
           trials += 1.0;
           changes += before[i] != after[i];
@@ -398,16 +398,16 @@ TEST(Scenarios, ParkingLotChangesOnlyOnTheHourAtItsRates) {
 }
 
 // Shortest 4-connected path length on the free cells, by breadth-first search.
-int shortestPath(const World& world, CellXY from, CellXY to, bool door_open, CellXY door) {
+int shortestPath(const World& world, core::CellXY from, core::CellXY to, bool door_open, core::CellXY door) {
   std::vector<int> distance(world.occupancy().size(), -1);
-  std::deque<CellXY> queue{from};
+  std::deque<core::CellXY> queue{from};
   distance[world.index(from.x, from.y)] = 0;
   while (!queue.empty()) {
-    const CellXY c = queue.front();
+    const core::CellXY c = queue.front();
     queue.pop_front();
     if (c == to) return distance[world.index(c.x, c.y)];
     for (const auto& [dx, dy] : {std::pair{1, 0}, std::pair{-1, 0}, std::pair{0, 1}, std::pair{0, -1}}) {
-      const CellXY n{c.x + dx, c.y + dy};
+      const core::CellXY n{c.x + dx, c.y + dy};
       if (!world.inside(n.x, n.y) || distance[world.index(n.x, n.y)] >= 0) continue;
       const bool blocked = n == door ? !door_open : world.occupied(n.x, n.y);
       if (blocked) continue;
@@ -436,8 +436,8 @@ TEST(Scenarios, DoorLayoutAndExplorationRoute) {
   bool near_west = false;
   bool near_east = false;
   for (int t = 0; t < 400; ++t) {
-    const Pose2D p = simulation.robotPose();
-    const CellXY c{static_cast<std::int32_t>(std::floor(p.x_m / config.resolution_m)),
+    const core::Pose2D p = simulation.robotPose();
+    const core::CellXY c{static_cast<std::int32_t>(std::floor(p.x_m / config.resolution_m)),
                    static_cast<std::int32_t>(std::floor(p.y_m / config.resolution_m))};
     ASSERT_NE(c, layout.door);
     ASSERT_FALSE(world.occupied(c.x, c.y) && c != layout.door);
@@ -480,7 +480,7 @@ TEST(Scenarios, MrfSquaresHoldTheirStatesForTheirHoldTimes) {
   EXPECT_GT(repeat_loops[2], config.steps / loop);
   const auto square_of = [&](std::int32_t x, std::int32_t y) {
     for (std::size_t k = 0; k < layout.square_corner.size(); ++k) {
-      const CellXY c = layout.square_corner[k];
+      const core::CellXY c = layout.square_corner[k];
       if (x >= c.x && y >= c.y && x < c.x + layout.square_side_cells && y < c.y + layout.square_side_cells) {
         return static_cast<int>(k);
       }
@@ -488,7 +488,7 @@ TEST(Scenarios, MrfSquaresHoldTheirStatesForTheirHoldTimes) {
     return -1;
   };
   std::int32_t leftmost_square = world.width();
-  for (const CellXY c : layout.square_corner) leftmost_square = std::min(leftmost_square, c.x);
+  for (const core::CellXY c : layout.square_corner) leftmost_square = std::min(leftmost_square, c.x);
   std::size_t walls = 0;
   for (std::int32_t y = 0; y < world.height(); ++y) {
     for (std::int32_t x = 0; x < world.width(); ++x) {
@@ -519,7 +519,7 @@ TEST(Scenarios, MrfSquaresHoldTheirStatesForTheirHoldTimes) {
     std::array<int, 4> changed{};
     for (std::size_t i = 0; i < after.size(); ++i) {
       if (after[i] == before[i]) continue;
-      const CellXY c = world.cellOf(i);
+      const core::CellXY c = world.cellOf(i);
       const int k = square_of(c.x, c.y);
       ASSERT_GE(k, 0) << "cell " << c.x << ", " << c.y << " changed at step " << t;
       ++changed[static_cast<std::size_t>(k)];
@@ -549,15 +549,15 @@ TEST(Scenarios, MrfSquaresRobotAndBeams) {
   EXPECT_DOUBLE_EQ(config.robot_speed_m_per_step, 3 * config.resolution_m);
   Simulation simulation(config, 81, 82);
   const std::int64_t dt = simulation.mrfSquaresLayout().loop_steps;  // the loop
-  std::vector<Pose2D> poses;
+  std::vector<core::Pose2D> poses;
   std::array<int, 5> readings{};
   for (std::int64_t t = 0; t < config.steps; ++t) {
-    const Pose2D robot = simulation.robotPose();
+    const core::Pose2D robot = simulation.robotPose();
     poses.push_back(robot);
     ASSERT_FALSE(simulation.world().occupied(static_cast<std::int32_t>(std::floor(robot.x_m / config.resolution_m)),
                                              static_cast<std::int32_t>(std::floor(robot.y_m / config.resolution_m))))
         << "step " << t;
-    const Scan scan = simulation.scan();
+    const core::Scan scan = simulation.scan();
     EXPECT_EQ(scan.laser_pose.x_m, robot.x_m);
     EXPECT_EQ(scan.laser_pose.yaw_rad, robot.yaw_rad);
     ASSERT_EQ(scan.ranges_m.size(), 5U);
@@ -586,8 +586,8 @@ TEST(Scenarios, MrfSquaresRobotAndBeams) {
   double dx = 0.0, dx2 = 0.0, dyaw2 = 0.0;
   double n = 0.0;
   for (std::size_t t = 0; t + static_cast<std::size_t>(dt) < poses.size(); ++t) {
-    const Pose2D& a = poses[t];
-    const Pose2D& b = poses[t + static_cast<std::size_t>(dt)];
+    const core::Pose2D& a = poses[t];
+    const core::Pose2D& b = poses[t + static_cast<std::size_t>(dt)];
     dx += b.x_m - a.x_m;
     dx2 += (b.x_m - a.x_m) * (b.x_m - a.x_m) + (b.y_m - a.y_m) * (b.y_m - a.y_m);
     dyaw2 += (b.yaw_rad - a.yaw_rad) * (b.yaw_rad - a.yaw_rad);
@@ -620,13 +620,13 @@ TEST(Scenarios, SensorModelIsNoMoreCertainThanTheLaser) {
     double readings[2] = {0, 0};
     for (std::uint64_t run = 0; run < 4; ++run) {
       Simulation simulation(config, 51 + 2 * run, 52 + 2 * run);
-      MapperConfig mapper_config;
+      core::MapperConfig mapper_config;
       mapper_config.resolution_m = config.resolution_m;
       mapper_config.fixed_bounds = true;
       mapper_config.width_m = config.width_cells * config.resolution_m;
       mapper_config.height_m = config.height_cells * config.resolution_m;
-      Mapper mapper(mapper_config);
-      SequenceBuilder recorder;
+      core::Mapper mapper(mapper_config);
+      core::SequenceBuilder recorder;
       mapper.recordObservations(&recorder);
       std::vector<std::vector<std::uint8_t>> truth;
       for (int t = 0; t < 200; ++t) {
@@ -635,10 +635,10 @@ TEST(Scenarios, SensorModelIsNoMoreCertainThanTheLaser) {
         simulation.advance();
       }
       mapper.finishStep();
-      const ObservationSequences sequences = recorder.build();
+      const core::ObservationSequences sequences = recorder.build();
       for (std::size_t i = 0; i < sequences.cellCount(); ++i) {
-        const CellXY c = sequences.cell(i);
-        for (const StepObservation* o = sequences.begin(i); o != sequences.end(i); ++o) {
+        const core::CellXY c = sequences.cell(i);
+        for (const core::StepObservation* o = sequences.begin(i); o != sequences.end(i); ++o) {
           const int occupied = truth[static_cast<std::size_t>(o->step)][simulation.world().index(c.x, c.y)];
           hits[occupied] += o->hits;
           readings[occupied] += o->hits + o->misses;
@@ -657,8 +657,8 @@ TEST(Simulation, ScanStampsFallInTheirStepAndRunsReproduce) {
   Simulation b(config, 61, 62);
   for (int t = 0; t < 5; ++t) {
     for (int k = 0; k < 4; ++k) {
-      const Scan sa = a.scan(k);
-      const Scan sb = b.scan(k);
+      const core::Scan sa = a.scan(k);
+      const core::Scan sb = b.scan(k);
       EXPECT_GT(sa.stamp_s, t * config.time_step_s);
       EXPECT_LT(sa.stamp_s, (t + 1) * config.time_step_s);
       ASSERT_EQ(sa.ranges_m.size(), sb.ranges_m.size());
@@ -728,14 +728,14 @@ TEST(Scenarios, DividersPeopleWalkOneCellPerStepAndNeverOverlapStructure) {
   Simulation simulation(config, 5, 6);
   const DividersLayout& layout = simulation.dividersLayout();
   ASSERT_EQ(layout.people.size(), 6U);
-  std::vector<CellXY> before = layout.people;
+  std::vector<core::CellXY> before = layout.people;
   double moves = 0.0;
   int crossings = 0;
   for (int t = 1; t <= 5000; ++t) {
     simulation.advance();
     const bool dividers_moved = t % config.divider_period_steps == 0;
     for (std::size_t i = 0; i < layout.people.size(); ++i) {
-      const CellXY c = layout.people[i];
+      const core::CellXY c = layout.people[i];
       ASSERT_TRUE(simulation.world().occupied(c.x, c.y));
       ASSERT_TRUE(simulation.isPerson(c.x, c.y));
       ASSERT_FALSE(simulation.isStructure(c.x, c.y));
@@ -787,9 +787,9 @@ TEST(Scenarios, DividersRunsReproducePerSeedAndPeopleHideFromTheLaserInTheirCell
   }
   EXPECT_TRUE(differs);
   // A laser in a person's cell reads as if the cell were free (no range_min hits).
-  const CellXY person = a.dividersLayout().people.front();
+  const core::CellXY person = a.dividersLayout().people.front();
   const double r = config.resolution_m;
-  const Scan scan = a.scanFrom(Pose2D{(person.x + 0.5) * r, (person.y + 0.5) * r, 0.0});
+  const core::Scan scan = a.scanFrom(core::Pose2D{(person.x + 0.5) * r, (person.y + 0.5) * r, 0.0});
   int short_readings = 0;
   for (const float range : scan.ranges_m) short_readings += std::isfinite(range) && range < 0.5 * r ? 1 : 0;
   EXPECT_EQ(short_readings, 0);
@@ -813,14 +813,14 @@ TEST(Scenarios, SparseOfficeHasFewChangingCellsChangingAtTheirRates) {
   Simulation simulation(config, 71, 72);
   const World& world = simulation.world();
   const PatrolLayout& layout = simulation.patrolLayout();
-  const std::map<std::string, TransitionParams> rates{
+  const std::map<std::string, core::TransitionParams> rates{
       {"door", {0.03, 0.03}}, {"cart", {0.01, 0.02}}, {"person", {0.15, 0.30}}};
   std::map<std::string, int> parts;
   std::size_t part_cells = 0;
   for (const PatrolLayout::Part& part : layout.parts) {
     ++parts[part.kind];
     part_cells += part.cells.size();
-    for (const CellXY& c : part.cells) {
+    for (const core::CellXY& c : part.cells) {
       ASSERT_EQ(world.truth(c.x, c.y).p_occ_given_free, rates.at(part.kind).p_occ_given_free) << part.kind;
       ASSERT_EQ(world.truth(c.x, c.y).p_free_given_occ, rates.at(part.kind).p_free_given_occ) << part.kind;
     }
@@ -839,7 +839,7 @@ TEST(Scenarios, SparseOfficeHasFewChangingCellsChangingAtTheirRates) {
   std::map<std::string, std::array<double, 4>> counts;  // left free, free steps, left occupied, occupied steps
   std::vector<std::uint8_t> before(layout.parts.size());
   const auto state = [&](std::size_t k) {
-    const CellXY c = layout.parts[k].cells.front();
+    const core::CellXY c = layout.parts[k].cells.front();
     return world.occupied(c.x, c.y) ? 1 : 0;
   };
   for (std::size_t k = 0; k < layout.parts.size(); ++k) before[k] = state(k);
@@ -847,7 +847,7 @@ TEST(Scenarios, SparseOfficeHasFewChangingCellsChangingAtTheirRates) {
     simulation.advance();
     for (std::size_t k = 0; k < layout.parts.size(); ++k) {
       const int now = state(k);
-      for (const CellXY& c : layout.parts[k].cells) ASSERT_EQ(world.occupied(c.x, c.y) ? 1 : 0, now);
+      for (const core::CellXY& c : layout.parts[k].cells) ASSERT_EQ(world.occupied(c.x, c.y) ? 1 : 0, now);
       std::array<double, 4>& n = counts[layout.parts[k].kind];
       const int from = before[k];
       n[from == 0 ? 1 : 3] += 1.0;
@@ -856,7 +856,7 @@ TEST(Scenarios, SparseOfficeHasFewChangingCellsChangingAtTheirRates) {
     }
   }
   for (const auto& [kind, n] : counts) {
-    const TransitionParams& truth = rates.at(kind);
+    const core::TransitionParams& truth = rates.at(kind);
     EXPECT_NEAR(n[0] / n[1], truth.p_occ_given_free, binomialTolerance(truth.p_occ_given_free, n[1])) << kind;
     EXPECT_NEAR(n[2] / n[3], truth.p_free_given_occ, binomialTolerance(truth.p_free_given_occ, n[3])) << kind;
   }
@@ -871,23 +871,23 @@ TEST(Scenarios, SparseOfficeSeesEachPartAFewStepsPerLoop) {
   const World& world = simulation.world();
   const PatrolLayout& layout = simulation.patrolLayout();
   const std::int64_t loop = 120;
-  MapperConfig mapper_config;
+  core::MapperConfig mapper_config;
   mapper_config.resolution_m = config.resolution_m;
   mapper_config.fixed_bounds = true;
   mapper_config.width_m = config.width_cells * config.resolution_m;
   mapper_config.height_m = config.height_cells * config.resolution_m;
-  Mapper mapper(mapper_config);
-  SequenceBuilder recorder;
+  core::Mapper mapper(mapper_config);
+  core::SequenceBuilder recorder;
   mapper.recordObservations(&recorder);
-  const Pose2D start = simulation.robotPose();
+  const core::Pose2D start = simulation.robotPose();
   for (std::int64_t t = 0; t < 2 * loop; ++t) {
     for (int k = 0; k < config.scans_per_step; ++k) {
-      const Pose2D robot = simulation.robotPose(k);
+      const core::Pose2D robot = simulation.robotPose(k);
       ASSERT_FALSE(world.occupied(static_cast<std::int32_t>(robot.x_m / config.resolution_m),
                                   static_cast<std::int32_t>(robot.y_m / config.resolution_m)))
           << "step " << t;
       for (const PatrolLayout::Part& part : layout.parts) {
-        for (const CellXY& c : part.cells) {
+        for (const core::CellXY& c : part.cells) {
           const double dx = (c.x + 0.5) * config.resolution_m - robot.x_m;
           const double dy = (c.y + 0.5) * config.resolution_m - robot.y_m;
           ASSERT_GT(dx * dx + dy * dy, 0.5 * 0.5) << part.kind << " step " << t;
@@ -897,14 +897,14 @@ TEST(Scenarios, SparseOfficeSeesEachPartAFewStepsPerLoop) {
     }
     simulation.advance();
     if (t + 1 == loop / 2) {  // half a loop from the start, across the office
-      const Pose2D half = simulation.robotPose();
+      const core::Pose2D half = simulation.robotPose();
       EXPECT_GT(std::hypot(half.x_m - start.x_m, half.y_m - start.y_m), 5.0);
     }
   }
   EXPECT_NEAR(simulation.robotPose().x_m, start.x_m, 1e-9);  // two loops later, back at the start
   EXPECT_NEAR(simulation.robotPose().y_m, start.y_m, 1e-9);
   mapper.finishStep();
-  const ObservationSequences sequences = recorder.build();
+  const core::ObservationSequences sequences = recorder.build();
   std::map<std::size_t, std::size_t> sequence_of;  // world index -> the cell's sequence
   for (std::size_t i = 0; i < sequences.cellCount(); ++i) {
     sequence_of[world.index(sequences.cell(i).x, sequences.cell(i).y)] = i;
@@ -912,11 +912,11 @@ TEST(Scenarios, SparseOfficeSeesEachPartAFewStepsPerLoop) {
   for (const PatrolLayout::Part& part : layout.parts) {
     std::array<std::set<std::int64_t>, 2> in_view;  // per loop, the steps
     std::size_t seen_cells = 0;
-    for (const CellXY& c : part.cells) {
+    for (const core::CellXY& c : part.cells) {
       const auto found = sequence_of.find(world.index(c.x, c.y));
       if (found == sequence_of.end()) continue;
       ++seen_cells;
-      for (const StepObservation* o = sequences.begin(found->second); o != sequences.end(found->second); ++o) {
+      for (const core::StepObservation* o = sequences.begin(found->second); o != sequences.end(found->second); ++o) {
         in_view[static_cast<std::size_t>(o->step / loop)].insert(o->step);
       }
     }
@@ -941,8 +941,8 @@ TEST(Scenarios, SparseOfficeRunsReproducePerSeed) {
   bool differs = false;
   for (int t = 0; t < 150; ++t) {
     ASSERT_EQ(a.world().occupancy(), b.world().occupancy()) << t;
-    const Scan sa = a.scan(t % config.scans_per_step);
-    const Scan sb = b.scan(t % config.scans_per_step);
+    const core::Scan sa = a.scan(t % config.scans_per_step);
+    const core::Scan sb = b.scan(t % config.scans_per_step);
     ASSERT_EQ(sa.ranges_m.size(), sb.ranges_m.size());
     for (std::size_t i = 0; i < sa.ranges_m.size(); ++i) {
       ASSERT_TRUE(sa.ranges_m[i] == sb.ranges_m[i] || (std::isnan(sa.ranges_m[i]) && std::isnan(sb.ranges_m[i])));
@@ -959,15 +959,15 @@ TEST(Scenarios, SparseOfficeRunsReproducePerSeed) {
 
 // The sample variance of the last pose's error of `runs` runs of `motion` (one true pose per
 // step from the start (0, 0, 0)), for x, y and yaw.
-std::array<double, 3> driftVariance(const OdometryNoise& noise, int runs, int steps,
-                                    const std::function<Pose2D(int)>& truth_at) {
+std::array<double, 3> driftVariance(const core::OdometryNoise& noise, int runs, int steps,
+                                    const std::function<core::Pose2D(int)>& truth_at) {
   std::array<double, 3> sum{};
   std::array<double, 3> sum_sq{};
   for (int run = 0; run < runs; ++run) {
     DriftingOdometry odometry(noise, mixSeed(static_cast<std::uint64_t>(run) + 100));
-    Pose2D last;
+    core::Pose2D last;
     for (int step = 0; step <= steps; ++step) last = odometry.update(truth_at(step));
-    const Pose2D truth = truth_at(steps);
+    const core::Pose2D truth = truth_at(steps);
     const std::array<double, 3> error{last.x_m - truth.x_m, last.y_m - truth.y_m,
                                       std::remainder(last.yaw_rad - truth.yaw_rad, 2.0 * kPi)};
     for (int k = 0; k < 3; ++k) {
@@ -982,10 +982,10 @@ std::array<double, 3> driftVariance(const OdometryNoise& noise, int runs, int st
 
 TEST(DriftingOdometry, WithoutNoiseItIsTheTruth) {
   const LoopPath path({{0.0, 0.0}, {6.0, 0.0}, {6.0, 4.0}, {0.0, 4.0}}, 0.35);
-  DriftingOdometry odometry(OdometryNoise{}, 7);
+  DriftingOdometry odometry(core::OdometryNoise{}, 7);
   for (int step = 0; step < 200; ++step) {
-    const Pose2D truth = path.poseAt(step);
-    const Pose2D read = odometry.update(truth);
+    const core::Pose2D truth = path.poseAt(step);
+    const core::Pose2D read = odometry.update(truth);
     ASSERT_NEAR(read.x_m, truth.x_m, 1e-9) << step;
     ASSERT_NEAR(read.y_m, truth.y_m, 1e-9) << step;
     ASSERT_NEAR(std::remainder(read.yaw_rad - truth.yaw_rad, 2.0 * kPi), 0.0, 1e-9) << step;
@@ -995,10 +995,10 @@ TEST(DriftingOdometry, WithoutNoiseItIsTheTruth) {
 TEST(DriftingOdometry, TranslationNoiseGrowsWithTheDistanceAsTheModelSays) {
   // 400 steps of 0.5 m straight ahead, alpha3 = 0.01: each step's length has variance
   // 0.01 * 0.25, so the end's x error has variance 400 * 0.0025 = 1 m^2; nothing turns.
-  OdometryNoise noise;
+  core::OdometryNoise noise;
   noise.trans_from_trans = 0.01;
   const std::array<double, 3> variance =
-      driftVariance(noise, 400, 400, [](int step) { return Pose2D{0.5 * step, 0.0, 0.0}; });
+      driftVariance(noise, 400, 400, [](int step) { return core::Pose2D{0.5 * step, 0.0, 0.0}; });
   EXPECT_NEAR(variance[0], 1.0, 0.2);  // the sample variance of 400 runs: sd 0.07
   EXPECT_EQ(variance[1], 0.0);
   EXPECT_EQ(variance[2], 0.0);
@@ -1007,26 +1007,26 @@ TEST(DriftingOdometry, TranslationNoiseGrowsWithTheDistanceAsTheModelSays) {
 TEST(DriftingOdometry, RotationNoiseGrowsWithTheTurnsAsTheModelSays) {
   // Turning on the spot 0.5 rad per step for 100 steps, alpha1 = 0.01: each turn has
   // variance 0.01 * 0.25, the end's heading 100 * 0.0025 = 0.25 rad^2; nothing moves.
-  OdometryNoise noise;
+  core::OdometryNoise noise;
   noise.rot_from_rot = 0.01;
   const std::array<double, 3> variance =
-      driftVariance(noise, 400, 100, [](int step) { return Pose2D{1.0, 2.0, 0.5 * step}; });
+      driftVariance(noise, 400, 100, [](int step) { return core::Pose2D{1.0, 2.0, 0.5 * step}; });
   EXPECT_NEAR(variance[2], 0.25, 0.05);
   EXPECT_EQ(variance[0], 0.0);
   EXPECT_EQ(variance[1], 0.0);
 }
 
 TEST(DriftingOdometry, SameSeedSameDriftAndBadNoiseIsRefused) {
-  OdometryNoise noise{0.02, 0.01, 0.02, 0.01};
+  core::OdometryNoise noise{0.02, 0.01, 0.02, 0.01};
   const LoopPath path({{0.0, 0.0}, {6.0, 0.0}, {6.0, 4.0}}, 0.4);
   DriftingOdometry a(noise, 3);
   DriftingOdometry b(noise, 3);
   DriftingOdometry c(noise, 4);
-  Pose2D pa;
-  Pose2D pc;
+  core::Pose2D pa;
+  core::Pose2D pc;
   for (int step = 0; step < 50; ++step) {
     pa = a.update(path.poseAt(step));
-    const Pose2D pb = b.update(path.poseAt(step));
+    const core::Pose2D pb = b.update(path.poseAt(step));
     ASSERT_EQ(pa.x_m, pb.x_m);
     ASSERT_EQ(pa.yaw_rad, pb.yaw_rad);
     pc = c.update(path.poseAt(step));
@@ -1034,12 +1034,12 @@ TEST(DriftingOdometry, SameSeedSameDriftAndBadNoiseIsRefused) {
   EXPECT_NE(pa.x_m, pc.x_m);
   EXPECT_GT(std::hypot(pa.x_m - path.poseAt(49).x_m, pa.y_m - path.poseAt(49).y_m), 0.0);
   for (const double bad : {-0.1, std::numeric_limits<double>::quiet_NaN(), std::numeric_limits<double>::infinity()}) {
-    OdometryNoise wrong;
+    core::OdometryNoise wrong;
     wrong.trans_from_rot = bad;
     EXPECT_THROW(DriftingOdometry(wrong, 1), std::invalid_argument);
   }
 }
 
 }  // namespace
-}  // namespace core
+}  // namespace evaluation
 }  // namespace dynamic_occupancy_grid

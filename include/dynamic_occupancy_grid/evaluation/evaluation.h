@@ -27,7 +27,7 @@
 #include "dynamic_occupancy_grid/evaluation/simulator.h"
 
 namespace dynamic_occupancy_grid {
-namespace core {
+namespace evaluation {
 
 enum class Method { kStatic, kStaticUnclamped, kOnline, kOffline, kOracle };
 constexpr std::array<Method, 5> kAllMethods{Method::kStatic, Method::kStaticUnclamped, Method::kOnline,
@@ -37,20 +37,20 @@ std::string methodName(Method method);
 
 /// The mapper settings of the evaluation for a scenario: its resolution and time step,
 /// fixed bounds on the world, everything else the package's defaults.
-MapperConfig evaluationMapperConfig(const ScenarioConfig& scenario);
+core::MapperConfig evaluationMapperConfig(const ScenarioConfig& scenario);
 
 /// Offline EM on a training run: the observations of `steps` steps of `training` mapped
 /// with `mapper_config`, then Baum–Welch with `em_config` (its initial_p_occ and prior
 /// should match the mapper's).
 struct OfflineTraining {
-  ObservationSequences sequences;
-  OfflineEmResult result;
+  core::ObservationSequences sequences;
+  core::OfflineEmResult result;
 };
-OfflineTraining trainOffline(Simulation& training, const MapperConfig& mapper_config, std::int64_t steps,
-                             const OfflineEmConfig& em_config);
+OfflineTraining trainOffline(Simulation& training, const core::MapperConfig& mapper_config, std::int64_t steps,
+                             const core::OfflineEmConfig& em_config);
 /// The offline EM settings matching `mapper_config` (initial belief, prior transitions,
 /// bounds) with the tools' prior weight of 2 pseudo-transitions per from-state.
-OfflineEmConfig evaluationOfflineEmConfig(const MapperConfig& mapper_config);
+core::OfflineEmConfig evaluationOfflineEmConfig(const core::MapperConfig& mapper_config);
 
 /// One Mapper per way of learning, all fed the same scans.
 class MethodMappers {
@@ -58,7 +58,7 @@ class MethodMappers {
   /// `base` with fixed bounds on `world`: the online mapper learns; the offline and oracle
   /// mappers do not (their transitions are set with setOffline / setOracle; until then, the
   /// prior) and keep unclamped static log-odds for static_unclamped.
-  MethodMappers(const MapperConfig& base, const World& world);
+  MethodMappers(const core::MapperConfig& base, const World& world);
 
   /// The offline mapper's transitions: the training result for the cells it has, the prior
   /// for the others.
@@ -69,7 +69,7 @@ class MethodMappers {
 
   /// Every mapper integrates the scan; the first rejection is thrown as std::runtime_error
   /// (a simulated scan is never invalid).
-  void integrate(const Scan& scan);
+  void integrate(const core::Scan& scan);
   /// Applies the step being gathered in every mapper: beliefs are then those at its end.
   void finishStep();
 
@@ -78,13 +78,13 @@ class MethodMappers {
   double belief(Method method, std::int32_t x, std::int32_t y) const;
   /// The transitions a dynamic method (online, offline, oracle) uses for cell (x, y), none
   /// if the method never observed the cell. Throws std::invalid_argument for a static method.
-  std::optional<TransitionParams> transitions(Method method, std::int32_t x, std::int32_t y) const;
-  const Mapper& mapper(Method method) const;
+  std::optional<core::TransitionParams> transitions(Method method, std::int32_t x, std::int32_t y) const;
+  const core::Mapper& mapper(Method method) const;
 
  private:
-  Mapper online_;
-  Mapper offline_;
-  Mapper oracle_;
+  core::Mapper online_;
+  core::Mapper offline_;
+  core::Mapper oracle_;
 };
 
 /// THEORY.md §9: a cell counts as occupied if p(occ) > 0.5, free if < 0.5, otherwise (and
@@ -136,5 +136,5 @@ struct AccuracyExperimentResult {
 AccuracyExperimentResult runAccuracyExperiment(const ScenarioConfig& scenario, const AccuracyExperimentConfig& config,
                                                const std::function<void(int done)>& progress = {});
 
-}  // namespace core
+}  // namespace evaluation
 }  // namespace dynamic_occupancy_grid

@@ -31,13 +31,13 @@
 #include "dynamic_occupancy_grid/evaluation/simulator.h"
 
 namespace dynamic_occupancy_grid {
-namespace core {
+namespace evaluation {
 
 /// An online learner to compare: a name and the settings that differ from the defaults
 /// (applied to the scenario's mapper configuration, see evaluationMapperConfig).
 struct LearnerVariant {
   std::string name;
-  std::function<void(MapperConfig&)> configure;
+  std::function<void(core::MapperConfig&)> configure;
 };
 /// The learners of the comparison in docs/online_learning.md: "default" (the package's
 /// defaults: kinds of cells, cell_kinds.h), "cell_em" (each cell's own online EM with the
@@ -66,7 +66,7 @@ struct LearningExperimentConfig {
 /// parameters, static cells by their state).
 struct KindScore {
   std::string kind;                ///< "static free", "static occupied" or "p_of / p_fo"
-  TransitionParams truth;
+  core::TransitionParams truth;
   double cells = 0.0;              ///< observed cells per run (mean)
   /// Mean absolute error of the learned transitions over the cells, and the median learned
   /// values (both pooled over repetitions).
@@ -76,7 +76,7 @@ struct KindScore {
   double median_p_free_given_occ = 0.0;
   /// Learners of kinds (TransitionLearner::kKinds) only: the share of the cells whose most
   /// probable kind at the end is kind k (pooled over repetitions); zeros otherwise.
-  std::array<double, kKindCount> most_probable_kind{};
+  std::array<double, core::kKindCount> most_probable_kind{};
 };
 
 struct MethodScore {
@@ -109,8 +109,8 @@ struct MethodScore {
   double p_hit_given_free = 0.0;
   /// Learners of kinds only (empty otherwise): per repetition, each kind's transitions and
   /// share of the cells at the end (CellKinds::transitions, weight).
-  std::vector<std::array<TransitionParams, kKindCount>> kind_transitions;
-  std::vector<std::array<double, kKindCount>> kind_weights;
+  std::vector<std::array<core::TransitionParams, core::kKindCount>> kind_transitions;
+  std::vector<std::array<double, core::kKindCount>> kind_weights;
 };
 
 struct LearningExperimentResult {
@@ -128,5 +128,5 @@ struct LearningExperimentResult {
 LearningExperimentResult runLearningExperiment(const ScenarioConfig& scenario, const LearningExperimentConfig& config,
                                                const std::function<void(int done)>& progress = {});
 
-}  // namespace core
+}  // namespace evaluation
 }  // namespace dynamic_occupancy_grid

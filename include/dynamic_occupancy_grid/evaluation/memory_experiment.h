@@ -68,7 +68,7 @@
 #include "dynamic_occupancy_grid/evaluation/simulator.h"
 
 namespace dynamic_occupancy_grid {
-namespace core {
+namespace evaluation {
 
 enum class NavigationMethod { kStatic, kHmm, kMemory };
 constexpr std::array<NavigationMethod, 3> kAllNavigationMethods{NavigationMethod::kStatic, NavigationMethod::kHmm,
@@ -79,11 +79,11 @@ std::string navigationMethodName(NavigationMethod method);
 /// What the current scan says, laid over a map for planning: the cells its beams cross are
 /// free, the cells its returns end in occupied (over the crossed ones).
 struct LiveLayer {
-  std::vector<CellXY> free;
-  std::vector<CellXY> occupied;
+  std::vector<core::CellXY> free;
+  std::vector<core::CellXY> occupied;
 
   /// From a scan on a grid of the world's lattice (cells outside are dropped).
-  static LiveLayer fromScan(const Scan& scan, double resolution_m, std::int32_t width, std::int32_t height);
+  static LiveLayer fromScan(const core::Scan& scan, double resolution_m, std::int32_t width, std::int32_t height);
   void applyTo(BlockedGrid& grid) const;
 };
 
@@ -100,9 +100,9 @@ class HypothesisSelector {
 
   /// The memory's current hypotheses and their maps (blocked = occupied in the hypothesis),
   /// all of the same size; the actioned one is forgotten (select() again).
-  void setHypotheses(std::vector<MapHypothesis> hypotheses, std::vector<BlockedGrid> grids);
+  void setHypotheses(std::vector<core::MapHypothesis> hypotheses, std::vector<BlockedGrid> grids);
   std::size_t size() const { return hypotheses_.size(); }
-  const MapHypothesis& hypothesis(std::size_t h) const { return hypotheses_.at(h); }
+  const core::MapHypothesis& hypothesis(std::size_t h) const { return hypotheses_.at(h); }
   const BlockedGrid& grid(std::size_t h) const { return grids_.at(h); }
   /// Prior weight times the accumulated factor.
   double score(std::size_t h) const;
@@ -110,25 +110,25 @@ class HypothesisSelector {
   /// Algorithm 2: the hypotheses by descending score (ties: their order), the first with a
   /// valid plan from start to goal on its grid overlaid with `live` becomes the actioned one and its plan is returned; if none has one, the best
   /// scored is actioned and the plan is empty. Throws std::logic_error without hypotheses.
-  std::vector<CellXY> select(CellXY start, CellXY goal, const LiveLayer& live);
+  std::vector<core::CellXY> select(core::CellXY start, core::CellXY goal, const LiveLayer& live);
   /// The actioned hypothesis (valid after select()).
   std::size_t actioned() const { return actioned_; }
   /// A* on the actioned hypothesis overlaid with `live`.
-  std::vector<CellXY> plan(CellXY start, CellXY goal, const LiveLayer& live);
+  std::vector<core::CellXY> plan(core::CellXY start, core::CellXY goal, const LiveLayer& live);
 
   /// Algorithm 1: the actioned plan ran into `obstacles` (cells it holds free, now seen
   /// occupied). If any other hypothesis predicted one of them (holds it occupied), the
   /// actioned hypothesis is penalised and those are rewarded, and true is returned; an
   /// obstacle no hypothesis predicted (a person, a divider never seen there) says nothing
   /// about which map is right and changes nothing.
-  bool reportObstacles(const std::vector<CellXY>& obstacles);
+  bool reportObstacles(const std::vector<core::CellXY>& obstacles);
 
  private:
   double& factor(std::size_t h);
 
   double penalty_;
   double reward_;
-  std::vector<MapHypothesis> hypotheses_;
+  std::vector<core::MapHypothesis> hypotheses_;
   std::vector<BlockedGrid> grids_;
   std::map<std::vector<std::uint32_t>, double> factors_;
   std::size_t actioned_ = 0;
@@ -146,8 +146,8 @@ struct MemoryExperimentConfig {
   /// consecutive views now and then. Person cells in LTM over 10 repetitions (seed 1):
   /// 15 with 1 m views, 1 with 2 m, 0 with 2.5 m (but 1 with seed 3), 0 with 3 m (seeds
   /// 1-4, 40 repetitions), while 100-150 divider cells migrate in every setting.
-  MemoryModelConfig memory = [] {
-    MemoryModelConfig c;
+  core::MemoryModelConfig memory = [] {
+    core::MemoryModelConfig c;
     c.update_distance_m = 3.0;
     return c;
   }();
@@ -201,5 +201,5 @@ MemoryExperimentResult runMemoryExperiment(const ScenarioConfig& dividers, const
 /// then the memory's LTM counts.
 std::string formatMemoryTable(const MemoryExperimentResult& result);
 
-}  // namespace core
+}  // namespace evaluation
 }  // namespace dynamic_occupancy_grid

@@ -21,7 +21,7 @@
 #include "dynamic_occupancy_grid/evaluation/simulator.h"
 
 namespace dynamic_occupancy_grid {
-namespace core {
+namespace evaluation {
 
 /// Root mean squared error of learned transitions against the truth over a set of cells.
 struct TransitionRmse {
@@ -39,8 +39,9 @@ struct SplitRmse {
 /// RMSE of `learned` (one entry per cell of `sequences`, in its order) against
 /// world.truth(x, y), split by the number of observed steps of each cell (end - begin).
 /// Throws std::invalid_argument if the sizes differ or a cell lies outside the world.
-SplitRmse transitionRmse(const ObservationSequences& sequences, const std::vector<TransitionParams>& learned,
-                         const World& world, std::size_t sparse_below);
+SplitRmse transitionRmse(const core::ObservationSequences& sequences,
+                         const std::vector<core::TransitionParams>& learned, const World& world,
+                         std::size_t sparse_below);
 
 /// What a cell of the world is, for scoring by kind: its parameters are identifiable from
 /// its data only where both states occur. A static free cell is never occupied, so its
@@ -61,22 +62,22 @@ bool isScored(CellKind kind, bool occ_given_free);
 /// transitionRmse over the cells of each kind separately (index: CellKind), on the
 /// parameters isScored gives the kind: the other one is NaN (a static free cell's
 /// p_free_given_occ is the prior's and the chain start's, whatever the learner).
-std::array<SplitRmse, kCellKinds> transitionRmseByKind(const ObservationSequences& sequences,
-                                                        const std::vector<TransitionParams>& learned,
+std::array<SplitRmse, kCellKinds> transitionRmseByKind(const core::ObservationSequences& sequences,
+                                                        const std::vector<core::TransitionParams>& learned,
                                                         const World& world, std::size_t sparse_below);
 
 /// The changing cells by what their data show: [0] those seen in both states (a step of more
 /// hits than misses and one of more misses than hits), [1] the others (in the squares: the
 /// cells behind the front face, observed only while the square is free), each split as
 /// transitionRmse, both parameters scored.
-std::array<SplitRmse, 2> changingRmseBySeenStates(const ObservationSequences& sequences,
-                                                  const std::vector<TransitionParams>& learned, const World& world,
-                                                  std::size_t sparse_below);
+std::array<SplitRmse, 2> changingRmseBySeenStates(const core::ObservationSequences& sequences,
+                                                  const std::vector<core::TransitionParams>& learned,
+                                                  const World& world, std::size_t sparse_below);
 
 /// Per square of the mrf_squares scenario (MrfSquaresLayout order): how many of its cells
 /// `sequences` show in both states, with at least one step of more hits than misses and
 /// one of more misses than hits.
-std::array<std::size_t, 4> squareCellsSeenInBothStates(const ObservationSequences& sequences,
+std::array<std::size_t, 4> squareCellsSeenInBothStates(const core::ObservationSequences& sequences,
                                                        const MrfSquaresLayout& layout);
 
 struct MrfExperimentConfig {
@@ -107,7 +108,7 @@ struct MrfEmOutcome {
 
 /// One kind of cells as the kinds learner ended a run with (CellKinds::transitions, weight).
 struct MrfLearnedKind {
-  TransitionParams transitions;
+  core::TransitionParams transitions;
   double weight = 0.0;  ///< the kind's share of the cells
 };
 
@@ -146,11 +147,11 @@ struct MrfMaps {
   std::int32_t width = 0;
   std::int32_t height = 0;
   std::vector<std::uint32_t> observed_steps;  ///< 0 for cells never observed
-  std::vector<TransitionParams> truth;
-  std::vector<TransitionParams> plain;
-  std::vector<TransitionParams> mrf;
-  std::vector<TransitionParams> online;
-  std::vector<TransitionParams> online_kinds;
+  std::vector<core::TransitionParams> truth;
+  std::vector<core::TransitionParams> plain;
+  std::vector<core::TransitionParams> mrf;
+  std::vector<core::TransitionParams> online;
+  std::vector<core::TransitionParams> online_kinds;
 };
 
 struct MrfExperimentResult {
@@ -172,5 +173,5 @@ struct MrfExperimentResult {
 MrfExperimentResult runMrfExperiment(const ScenarioConfig& scenario, const MrfExperimentConfig& config,
                                      const std::function<void(int done)>& progress = {});
 
-}  // namespace core
+}  // namespace evaluation
 }  // namespace dynamic_occupancy_grid

@@ -31,7 +31,7 @@
 #include "dynamic_occupancy_grid/evaluation/simulator.h"
 
 namespace dynamic_occupancy_grid {
-namespace core {
+namespace evaluation {
 
 /// The model of Murphy's Section 2 on a corridor of `cells` cells.
 struct CorridorModel {
@@ -41,9 +41,9 @@ struct CorridorModel {
   double p_change = 0.0;       ///< p_c: a cell's label flips per step (0 in Section 3: static)
 
   /// The cell HMM of one cell in the core's terms (label 1 = occ): p_c both ways.
-  TransitionParams cellTransitions() const { return TransitionParams{p_change, p_change}; }
+  core::TransitionParams cellTransitions() const { return core::TransitionParams{p_change, p_change}; }
   /// The core's sensor model for z: p(z = 1 | label 1) = p_o, p(z = 1 | label 0) = 1 - p_o.
-  ObservationModel observationModel() const { return ObservationModel(p_observation, 1.0 - p_observation); }
+  core::ObservationModel observationModel() const { return core::ObservationModel(p_observation, 1.0 - p_observation); }
   /// Throws std::invalid_argument naming the first bad field: cells in [2, 30], p_a in
   /// [0, 1], p_o in (0.5, 1), p_c in [0, 0.5].
   void validate() const;
@@ -318,5 +318,5 @@ struct MurphyTarget {
 std::string formatMurphySummary(const MurphyExperimentConfig& config, const MurphyExperimentResult& result,
                                 std::vector<MurphyTarget>* targets);
 
-}  // namespace core
+}  // namespace evaluation
 }  // namespace dynamic_occupancy_grid

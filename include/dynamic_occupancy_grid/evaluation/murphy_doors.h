@@ -41,7 +41,7 @@
 #include "dynamic_occupancy_grid/evaluation/murphy_corridor.h"
 
 namespace dynamic_occupancy_grid {
-namespace core {
+namespace evaluation {
 
 enum class DoorsCell : std::uint8_t { kFree = 0, kWall = 1, kDoor = 2 };
 
@@ -128,5 +128,5 @@ std::vector<std::pair<std::string, std::string>> doorsCsvTables(const DoorsExper
 std::string formatDoorsSummary(const DoorsExperimentConfig& config, const DoorsExperimentResult& result,
                                std::vector<MurphyTarget>* targets);
 
-}  // namespace core
+}  // namespace evaluation
 }  // namespace dynamic_occupancy_grid

@@ -72,7 +72,7 @@
 #include "dynamic_occupancy_grid/evaluation/simulator.h"
 
 namespace dynamic_occupancy_grid {
-namespace core {
+namespace evaluation {
 
 enum class Policy { kStatic, kOnline, kOffline, kRandom, kOptimal };
 constexpr std::array<Policy, 5> kAllPolicies{Policy::kStatic, Policy::kOnline, Policy::kOffline, Policy::kRandom,
@@ -179,8 +179,8 @@ struct RunRecord {
 struct ExplorationSummary {
   std::int64_t door_changes = 0;          ///< true changes of the door during exploration
   double door_open_fraction = 0.0;        ///< of the exploration's steps
-  TransitionParams offline_door;          ///< the door's transitions learned by offline EM
-  TransitionParams online_door;           ///< the online mapper's at the end of exploration
+  core::TransitionParams offline_door;          ///< the door's transitions learned by offline EM
+  core::TransitionParams online_door;           ///< the online mapper's at the end of exploration
 };
 
 struct MeanStd {
@@ -221,5 +221,5 @@ MeanStd paperEffectiveness(Policy policy);
 /// policy run: "ours mean ± std (paper mean ± std)".
 std::string formatPathPlanningTable(const PathPlanningResult& result);
 
-}  // namespace core
+}  // namespace evaluation
 }  // namespace dynamic_occupancy_grid

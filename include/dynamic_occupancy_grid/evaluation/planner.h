@@ -12,7 +12,7 @@
 #include "dynamic_occupancy_grid/core/grid/traversal.h"
 
 namespace dynamic_occupancy_grid {
-namespace core {
+namespace evaluation {
 
 /// Which cells of a width x height grid a robot may not enter (row-major, index = y * width
 /// + x); cells outside the grid are blocked.
@@ -49,7 +49,7 @@ class AStarPlanner {
   /// every move to one of the 4 neighbours; empty when no path exists. The start cell's own
   /// flag is ignored (the robot stands there); a blocked goal is unreachable. Throws
   /// std::out_of_range when start or goal is outside the grid.
-  std::vector<CellXY> plan(const BlockedGrid& grid, CellXY start, CellXY goal);
+  std::vector<core::CellXY> plan(const BlockedGrid& grid, core::CellXY start, core::CellXY goal);
 
  private:
   struct OpenEntry {
@@ -74,5 +74,5 @@ class AStarPlanner {
   std::vector<OpenEntry> open_;  ///< a min-heap (std::push_heap with std::greater), capacity kept
 };
 
-}  // namespace core
+}  // namespace evaluation
 }  // namespace dynamic_occupancy_grid

@@ -30,7 +30,7 @@
 #include "dynamic_occupancy_grid/evaluation/simulator.h"
 
 namespace dynamic_occupancy_grid {
-namespace core {
+namespace evaluation {
 
 struct PoseCorrectionConfig {
   std::string scenario = "patrol_office";
@@ -38,9 +38,9 @@ struct PoseCorrectionConfig {
   std::uint64_t world_seed = 1;
   std::uint64_t run_seed = 1;
   /// The odometry's drift (amcl's alphas; the simulator's DriftingOdometry).
-  OdometryNoise odometry_noise{0.02, 0.001, 0.01, 0.005};
+  core::OdometryNoise odometry_noise{0.02, 0.001, 0.01, 0.005};
   /// The filters' settings (resolution, time step and sensor model come from the scenario).
-  PoseFilterConfig filter;
+  core::PoseFilterConfig filter;
   std::size_t relative_error_scans = 10;  ///< the relative error's span
   /// rbpf_hmm: cells its learner has observed in fewer steps stay static (MapperTransitions).
   std::uint32_t learned_min_observed_steps = 30;
@@ -101,5 +101,5 @@ std::map<std::string, std::string> poseCorrectionCsvTables(const std::vector<Pos
 /// The summary's section: the means over the runs per estimator, then each run.
 std::string formatPoseCorrectionSummary(const PoseCorrectionConfig& config, const std::vector<PoseCorrectionResult>& runs);
 
-}  // namespace core
+}  // namespace evaluation
 }  // namespace dynamic_occupancy_grid

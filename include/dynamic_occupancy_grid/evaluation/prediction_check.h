@@ -45,10 +45,10 @@
 #include "dynamic_occupancy_grid/core/grid/scan.h"
 
 namespace dynamic_occupancy_grid {
-namespace core {
+namespace evaluation {
 
 /// Receives the scans of a recording one by one, in order.
-using ScanConsumer = std::function<void(const Scan&)>;
+using ScanConsumer = std::function<void(const core::Scan&)>;
 /// Hands every scan of a recording to the consumer, in recording order. checkPredictions
 /// calls it twice; both calls must hand out the same scans.
 using ScanReplay = std::function<void(const ScanConsumer&)>;
@@ -108,8 +108,8 @@ struct PredictionCheckResult {
 /// negative one; std::runtime_error if no scan could be integrated (the message says how
 /// many were handed out and why the last was rejected) or if the second replay handed out
 /// other scans than the first. Exceptions of `replay` pass through.
-PredictionCheckResult checkPredictions(const MapperConfig& config, const ScanReplay& replay,
+PredictionCheckResult checkPredictions(const core::MapperConfig& config, const ScanReplay& replay,
                                        const std::vector<std::int64_t>& horizons_steps);
 
-}  // namespace core
+}  // namespace evaluation
 }  // namespace dynamic_occupancy_grid

@@ -23,7 +23,7 @@
 #include "dynamic_occupancy_grid/core/grid/traversal.h"
 
 namespace dynamic_occupancy_grid {
-namespace core {
+namespace evaluation {
 
 /// xoshiro256** seeded through splitmix64: the same numbers on every platform (unlike the
 /// standard library's distributions).
@@ -62,25 +62,25 @@ class World {
   std::size_t index(std::int32_t x, std::int32_t y) const {
     return static_cast<std::size_t>(y) * static_cast<std::size_t>(width_) + static_cast<std::size_t>(x);
   }
-  CellXY cellOf(std::size_t index) const {
-    return CellXY{static_cast<std::int32_t>(index % static_cast<std::size_t>(width_)),
+  core::CellXY cellOf(std::size_t index) const {
+    return core::CellXY{static_cast<std::int32_t>(index % static_cast<std::size_t>(width_)),
                   static_cast<std::int32_t>(index / static_cast<std::size_t>(width_))};
   }
 
   /// State now; cells outside the world are free.
   bool occupied(std::int32_t x, std::int32_t y) const { return inside(x, y) && occupancy_[index(x, y)] != 0; }
   /// True transition probabilities per step ({0, 0} for a static cell).
-  TransitionParams truth(std::int32_t x, std::int32_t y) const { return truth_[index(x, y)]; }
+  core::TransitionParams truth(std::int32_t x, std::int32_t y) const { return truth_[index(x, y)]; }
   /// Whether step() changes the cell at random (with truth(x, y)).
   bool isDynamic(std::int32_t x, std::int32_t y) const { return random_[index(x, y)] != 0; }
 
   /// A static cell (never changes by itself; truth {0, 0}).
   void setStatic(std::int32_t x, std::int32_t y, bool occupied);
   /// A cell that step() changes at random with `truth`, starting in state `occupied`.
-  void setDynamic(std::int32_t x, std::int32_t y, const TransitionParams& truth, bool occupied);
+  void setDynamic(std::int32_t x, std::int32_t y, const core::TransitionParams& truth, bool occupied);
   /// A cell changed by scheduled events only (parking bays), whose true parameters are the
   /// per-step Markov rates of those events: step() leaves it alone.
-  void setScheduled(std::int32_t x, std::int32_t y, const TransitionParams& truth, bool occupied);
+  void setScheduled(std::int32_t x, std::int32_t y, const core::TransitionParams& truth, bool occupied);
   /// Changes the state of a cell now (an event), keeping its kind and truth.
   void setState(std::int32_t x, std::int32_t y, bool occupied);
 
@@ -100,7 +100,7 @@ class World {
   double resolution_m_;
   std::vector<std::uint8_t> occupancy_;
   std::vector<std::uint8_t> random_;
-  std::vector<TransitionParams> truth_;
+  std::vector<core::TransitionParams> truth_;
 };
 
 /// Where a ray meets the first occupied cell: the distances (m) along it at which it enters
@@ -141,7 +141,7 @@ struct LaserConfig {
 /// artefact of the grid world, not of a real laser, whose surfaces lie inside cells). Plus
 /// Gaussian noise; a return at or beyond range_max (or none) reads +inf (no return), a
 /// dropout NaN, a reading below range_min is clamped to range_min.
-Scan simulateScan(const World& world, const Pose2D& laser_pose, const LaserConfig& laser, double stamp_s,
+core::Scan simulateScan(const World& world, const core::Pose2D& laser_pose, const LaserConfig& laser, double stamp_s,
                   Rng& rng);
 
 /// Odometry that drifts: each true motion between two poses, taken as rotation,
@@ -151,15 +151,15 @@ Scan simulateScan(const World& world, const Pose2D& laser_pose, const LaserConfi
 class DriftingOdometry {
  public:
   /// Throws std::invalid_argument for bad noise (OdometryNoise::validate).
-  DriftingOdometry(const OdometryNoise& noise, std::uint64_t seed);
+  DriftingOdometry(const core::OdometryNoise& noise, std::uint64_t seed);
   /// The odometry pose once the robot has moved to `truth` (the first call: `truth`).
-  Pose2D update(const Pose2D& truth);
+  core::Pose2D update(const core::Pose2D& truth);
 
  private:
-  OdometryNoise noise_;
+  core::OdometryNoise noise_;
   Rng rng_;
-  std::optional<Pose2D> last_truth_;
-  Pose2D odometry_;
+  std::optional<core::Pose2D> last_truth_;
+  core::Pose2D odometry_;
 };
 
 /// A robot driving a closed polygon at constant speed, heading along the current segment.
@@ -169,7 +169,7 @@ class LoopPath {
   /// std::invalid_argument otherwise.
   LoopPath(std::vector<std::array<double, 2>> waypoints_m, double speed_m_per_step);
   /// Pose after `steps` (fractional) steps from the first waypoint.
-  Pose2D poseAt(double steps) const;
+  core::Pose2D poseAt(double steps) const;
   double lengthM() const { return cumulative_.back(); }
 
  private:
@@ -206,7 +206,7 @@ struct ScenarioConfig {
   std::int64_t steps = 1000;  ///< length of a run
   int scans_per_step = 1;
   LaserConfig laser;
-  Pose2D laser_mount{0.05, 0.0, 0.0};  ///< laser pose in the robot frame (base_link -> laser)
+  core::Pose2D laser_mount{0.05, 0.0, 0.0};  ///< laser pose in the robot frame (base_link -> laser)
   double robot_speed_m_per_step = 0.2;
   /// The robot drives near its scripted path, not on it: every step its pose is offset by
   /// Gaussian noise of these standard deviations (each axis; heading), drawn from the run
@@ -249,9 +249,9 @@ struct ScenarioConfig {
   // kPatrol (see PatrolLayout): the floor and the true per-step rates of its three kinds of
   // moving parts.
   PatrolFloor patrol_floor = PatrolFloor::kTwoRooms;
-  TransitionParams patrol_door{0.025, 0.05};      ///< doors in the rooms' walls
-  TransitionParams patrol_cart{0.004, 0.012};     ///< carts parked in bays along the outer walls
-  TransitionParams patrol_person{0.12, 0.25};     ///< spots where people stand and leave
+  core::TransitionParams patrol_door{0.025, 0.05};      ///< doors in the rooms' walls
+  core::TransitionParams patrol_cart{0.004, 0.012};     ///< carts parked in bays along the outer walls
+  core::TransitionParams patrol_person{0.12, 0.25};     ///< spots where people stand and leave
 
   /// Throws std::invalid_argument naming the first bad field.
   void validate() const;
@@ -264,9 +264,9 @@ ScenarioConfig scenarioConfig(const std::string& name);
 
 /// The door scenario's places (cells).
 struct DoorLayout {
-  CellXY a;            ///< one end of both paths
-  CellXY b;            ///< the other end
-  CellXY door;         ///< on the short path
+  core::CellXY a;            ///< one end of both paths
+  core::CellXY b;            ///< the other end
+  core::CellXY door;         ///< on the short path
   std::int32_t short_path_cells = 0;  ///< moves from a to b through the door
   std::int32_t long_path_cells = 0;   ///< moves from a to b along the detour
 };
@@ -274,7 +274,7 @@ struct DoorLayout {
 /// The MRF scenario's places (scenarioConfig("mrf_squares"); Li, Barão & Rato, Sec. IV).
 struct MrfSquaresLayout {
   /// The lowest (x, y) cell of each square, in the order of square_hold_steps.
-  std::array<CellXY, 4> square_corner{};
+  std::array<core::CellXY, 4> square_corner{};
   std::int32_t square_side_cells = 0;
   /// The steps of one loop of the robot's path.
   std::int64_t loop_steps = 0;
@@ -316,10 +316,10 @@ struct DividersLayout {
   std::int32_t wall_x = 0;
   std::int32_t passage_height = 0;
   std::vector<std::int32_t> passage_min_y;  ///< the lowest cell row of each passage, ascending
-  CellXY a;  ///< left half
-  CellXY b;  ///< right half
+  core::CellXY a;  ///< left half
+  core::CellXY b;  ///< right half
   std::vector<std::uint8_t> closed;  ///< now, per passage (1 = its divider is closed)
-  std::vector<CellXY> people;        ///< now
+  std::vector<core::CellXY> people;        ///< now
 
   /// Whether (x, y) is a cell of passage p's divider (open or closed).
   bool inDivider(std::size_t p, std::int32_t x, std::int32_t y) const {
@@ -356,8 +356,8 @@ struct DividersLayout {
 struct PatrolLayout {
   struct Part {
     std::string kind;           ///< "door", "cart" or "person"
-    std::vector<CellXY> cells;
-    TransitionParams truth;
+    std::vector<core::CellXY> cells;
+    core::TransitionParams truth;
   };
   std::vector<Part> parts;
 };
@@ -379,12 +379,12 @@ class Simulation {
 
   /// The robot's pose at scan `scan_index` of the current step: the scripted path's, plus
   /// the step's path noise (ScenarioConfig::path_noise_sigma_m).
-  Pose2D robotPose(int scan_index = 0) const;
+  core::Pose2D robotPose(int scan_index = 0) const;
   /// Scan `scan_index` (0 .. scans_per_step - 1) of the current step from the scripted
   /// robot; stamped (step + (scan_index + 0.5) / scans_per_step) * time_step_s.
-  Scan scan(int scan_index = 0);
+  core::Scan scan(int scan_index = 0);
   /// The same from any robot pose (a robot driven by a planner).
-  Scan scanFrom(const Pose2D& robot_pose, int scan_index = 0);
+  core::Scan scanFrom(const core::Pose2D& robot_pose, int scan_index = 0);
   /// Ends the current step: the random changes of the dynamic cells, then the events
   /// scheduled for the next step (re-drawing the dynamic cells, the parking lot's hour, the
   /// squares' toggles) and the next step's path noise.
@@ -421,7 +421,7 @@ class Simulation {
   void moveDividers(bool initial);
   void movePeople();
   bool freeForPerson(std::int32_t x, std::int32_t y) const;
-  CellXY randomFreeCell(Rng& rng) const;
+  core::CellXY randomFreeCell(Rng& rng) const;
 
   ScenarioConfig config_;
   World world_;
@@ -430,7 +430,7 @@ class Simulation {
   Rng sensor_rng_;
   Rng path_rng_;
   std::int64_t step_ = 0;
-  Pose2D path_noise_;                                  ///< this step's offset from the path
+  core::Pose2D path_noise_;                                  ///< this step's offset from the path
   std::vector<std::array<double, 2>> route_;           ///< the scripted robot's loop
   std::optional<LoopPath> path_;
   std::vector<std::size_t> free_candidates_;           ///< cells that may become dynamic
@@ -442,8 +442,8 @@ class Simulation {
   DividersLayout dividers_;
   PatrolLayout patrol_;
   std::vector<std::uint8_t> part_occupied_;            ///< patrol: per part, now
-  std::vector<CellXY> waypoints_;                      ///< dividers: each person's waypoint
+  std::vector<core::CellXY> waypoints_;                      ///< dividers: each person's waypoint
 };
 
-}  // namespace core
+}  // namespace evaluation
 }  // namespace dynamic_occupancy_grid
