@@ -5,8 +5,9 @@
 // the map layers out as latched OccupancyGrids plus their updates, the memory model's map
 // hypotheses, and the services; its health on /diagnostics (diagnostic_updater) and the
 // parameters that may change while mapping through dynamic_reconfigure. One class for the
-// node (src/nodes/mapping_node.cpp) and the nodelet (src/ros/mapping_nodelet.cpp). Topics,
-// services and parameters: README.md.
+// node (src/nodes/mapping_node.cpp) and the nodelet (src/ros/mapping_nodelet.cpp), defined in
+// src/ros/mapping_node*.cpp by concern (docs/architecture.md). Topics, services and
+// parameters: README.md.
 //
 // Threads: scans, tf, the publish timer and dynamic_reconfigure run on the callback queues
 // of the node handles given (the node's global queue, a nodelet's own); the services run
