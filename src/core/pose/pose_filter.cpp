@@ -86,8 +86,7 @@ void PoseFilterConfig::validate() const {
           "weight_max_distance_m must be finite, > 0 and at most 64 cells");
   require(std::isfinite(guard_sigmas) && guard_sigmas >= 0.0, "guard_sigmas must be finite and >= 0");
   require(std::isfinite(guard_window_m) && guard_window_m >= 0.0, "guard_window_m must be finite and >= 0");
-  require(std::isfinite(correction_min_gain) && correction_min_gain >= 0.0,
-          "correction_min_gain must be finite and >= 0");
+  require(std::isfinite(correction_min_gain), "correction_min_gain must be finite");
 }
 
 double nearestOccupiedDistance(const ParticleMap& map, const TransitionSource& transitions, double x_m,
@@ -340,7 +339,7 @@ bool PoseFilter::updateParticle(Particle& particle, const Scan& scan, const std:
   };
   double log_likelihood = field_log_likelihood(pose);
   bool refused = false;
-  if (config_.guard_sigmas > 0.0 || config_.correction_min_gain > 0.0) {
+  if (config_.guard_sigmas > 0.0 || config_.correction_test) {
     // Odometry's increment from the particle's last pose: what the particle falls back to.
     Pose2D odometry_pose = applyMotion(particle.pose, motion);
     odometry_pose.yaw_rad = std::remainder(odometry_pose.yaw_rad, 2.0 * kPi);
@@ -352,12 +351,23 @@ bool PoseFilter::updateParticle(Particle& particle, const Scan& scan, const std:
                               config_.guard_sigmas, config_.resolution_m);
     }
     double odometry_log_likelihood = 0.0;
-    if (!refused && config_.correction_min_gain > 0.0) {
+    if (!refused && config_.correction_test) {
+      // The pose against odometry's increment: the scan's log-likelihood ratio minus the
+      // motion model's (a Gaussian with this update's heading and position variances) must
+      // reach correction_min_gain.
       odometry_log_likelihood = field_log_likelihood(odometry_pose);
-      refused = log_likelihood - odometry_log_likelihood < config_.correction_min_gain;
+      const double step_heading_var = heading_variance - last.heading_variance;
+      const double step_position_var =
+          translation_variance - last.translation_variance + t2 * step_heading_var / 3.0;
+      const double turn = std::remainder(pose.yaw_rad - odometry_pose.yaw_rad, 2.0 * kPi);
+      const double shift2 = (pose.x_m - odometry_pose.x_m) * (pose.x_m - odometry_pose.x_m) +
+                            (pose.y_m - odometry_pose.y_m) * (pose.y_m - odometry_pose.y_m);
+      const double prior = -0.5 * (turn * turn / std::max(step_heading_var, 1e-300) +
+                                   shift2 / std::max(step_position_var, 1e-300));
+      refused = log_likelihood - odometry_log_likelihood + prior < config_.correction_min_gain;
     }
     if (refused) {
-      if (config_.guard_sigmas > 0.0 && config_.correction_min_gain <= 0.0) {
+      if (!config_.correction_test) {
         odometry_log_likelihood = field_log_likelihood(odometry_pose);
       }
       refused = std::abs(pose.x_m - odometry_pose.x_m) > 1e-9 || std::abs(pose.y_m - odometry_pose.y_m) > 1e-9 ||

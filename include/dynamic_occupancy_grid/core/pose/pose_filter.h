@@ -73,9 +73,13 @@ struct PoseFilterConfig {
   double guard_sigmas = 3.0;
   double guard_window_m = 10.0;
   /// A particle's pose other than odometry's increment from its last pose is taken only if
-  /// its likelihood-field log-likelihood exceeds that of odometry's increment by at least
-  /// this (nats): the scan must support a correction. 0: no such test.
-  double correction_min_gain = 3.0;
+  /// the scan supports it: its likelihood-field log-likelihood minus that of odometry's
+  /// increment, plus the motion model's log prior ratio of the two (-m^2 / 2, m the
+  /// correction's Mahalanobis distance under this update's heading and position variances),
+  /// is at least correction_min_gain (nats; 0: the more probable of the two under the
+  /// motion model and the scan). false: no such test.
+  bool correction_test = true;
+  double correction_min_gain = 0.0;
   /// An update once odometry moved this far or turned this much since the last (gmapping's
   /// linearUpdate / angularUpdate); the first scan is always one.
   double update_distance_m = 0.5;
