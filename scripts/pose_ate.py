@@ -35,7 +35,8 @@ Estimates:
   best particle's poses at the filter's updates, the laser being at base_link in these
   bags). Given --trajectory FILE it is read from there; else process_bag is run on the bag
   with `--fixed-frame odom --pose-correction rbpf --out DIR/<bag name>` plus the options
-  after `--`, and its summary line (updates, resamplings) and run time are read;
+  after `--`, and its summary lines (updates, resamplings; N_eff's median, min and max and
+  the filter's ms per update from its `pose filter:` line) and run time are read;
 * `filter online` (only with --filter-log): the pose the filter gave each scan as it came
   (map -> odom of that moment times odometry), from a per-scan log of an instrumented build
   (docs/pose_correction_real.md, "Instrumentation": rows `S,stamp,odom x,y,yaw,corrected
