@@ -441,6 +441,47 @@ TEST(PoseFilter, WeightIsTheLikelihoodFieldOfTheSubsampledBeams) {
   EXPECT_THROW(filter.integrate(simulatedScan(boxes, {4.0, 2.0, 0.0}, 1.0, rng, 0.01)), std::invalid_argument);
 }
 
+TEST(PoseFilter, ARefusedPoseTakesOdometrysIncrementAndItsWeight) {
+  // Noisy samples that the guard (a bound of almost 0 sigma) or the correction test (a gain
+  // no scan reaches) refuses: the particle moves by odometry's increment and is weighed
+  // there, exactly as a filter without noise.
+  const std::vector<Box> boxes = room();
+  auto transitions = std::make_shared<dog::UniformTransitions>(dog::TransitionParams{0.0, 0.0});
+  dog::PoseFilterConfig exact;
+  exact.particles = 3;
+  exact.resolution_m = 0.1;
+  exact.motion_noise = {};
+  exact.scan_matching = false;
+  exact.resample_below = 0.0;
+  exact.guard_sigmas = 0.0;
+  exact.correction_test = false;
+  dog::PoseFilterConfig guarded = exact;
+  guarded.motion_noise = {0.05, 0.05, 0.05, 0.05};
+  guarded.guard_sigmas = 1e-6;
+  guarded.correction_test = true;
+  dog::PoseFilterConfig tested = guarded;
+  tested.guard_sigmas = 0.0;
+  tested.correction_min_gain = 1e6;
+  std::vector<std::unique_ptr<dog::PoseFilter>> filters;
+  for (const auto& config : {exact, guarded, tested}) filters.push_back(std::make_unique<dog::PoseFilter>(config, transitions));
+  const std::vector<dog::Pose2D> poses = {{2.0, 2.0, 0.0}, {2.6, 2.1, 0.2}, {3.2, 2.3, 0.3}};
+  for (std::size_t i = 0; i < poses.size(); ++i) {
+    for (auto& filter : filters) {
+      std::mt19937_64 rng(3 + i);
+      ASSERT_TRUE(filter->integrate(simulatedScan(boxes, poses[i], 2.0 * i, rng, 0.01)).updated);
+    }
+  }
+  EXPECT_EQ(filters[0]->guardRefusals(), 0u);
+  for (std::size_t f = 1; f < filters.size(); ++f) {
+    EXPECT_EQ(filters[f]->guardRefusals(), 6u) << f;  // 3 particles, 2 updates
+    for (std::size_t p = 0; p < 3; ++p) {
+      expectPose(filters[f]->particles()[p].pose, filters[0]->particles()[p].pose, 1e-9);
+      EXPECT_NEAR(filters[f]->particles()[p].log_weight, filters[0]->particles()[p].log_weight, 1e-9) << f;
+    }
+  }
+  EXPECT_LT(filters[0]->particles()[0].log_weight, -0.5);  // a weight, not the maximum 0
+}
+
 TEST(PoseFilter, WeightsOfNearbyPosesDifferByAFewNats) {
   // The point of the likelihood field: two particles 5 cm apart differ by a few nats, not
   // the tens of a product over every cell. One particle each, a room mapped from the true

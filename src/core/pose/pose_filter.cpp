@@ -4,6 +4,7 @@
 #include <chrono>
 #include <cmath>
 #include <stdexcept>
+#include <optional>
 #include <string>
 
 #include <Eigen/Dense>
@@ -350,7 +351,7 @@ bool PoseFilter::updateParticle(Particle& particle, const Scan& scan, const std:
       refused = !guardAccepts(*anchor, pose, scan.laser_pose, travelled, heading_variance, translation_variance,
                               config_.guard_sigmas, config_.resolution_m);
     }
-    double odometry_log_likelihood = 0.0;
+    std::optional<double> odometry_log_likelihood;
     if (!refused && config_.correction_test) {
       // The pose against odometry's increment: the scan's log-likelihood ratio minus the
       // motion model's (a Gaussian with this update's heading and position variances) must
@@ -364,16 +365,14 @@ bool PoseFilter::updateParticle(Particle& particle, const Scan& scan, const std:
                             (pose.y_m - odometry_pose.y_m) * (pose.y_m - odometry_pose.y_m);
       const double prior = -0.5 * (turn * turn / std::max(step_heading_var, 1e-300) +
                                    shift2 / std::max(step_position_var, 1e-300));
-      refused = log_likelihood - odometry_log_likelihood + prior < config_.correction_min_gain;
+      refused = log_likelihood - *odometry_log_likelihood + prior < config_.correction_min_gain;
     }
     if (refused) {
-      if (!config_.correction_test) {
-        odometry_log_likelihood = field_log_likelihood(odometry_pose);
-      }
+      if (!odometry_log_likelihood) odometry_log_likelihood = field_log_likelihood(odometry_pose);
       refused = std::abs(pose.x_m - odometry_pose.x_m) > 1e-9 || std::abs(pose.y_m - odometry_pose.y_m) > 1e-9 ||
                 std::abs(std::remainder(pose.yaw_rad - odometry_pose.yaw_rad, 2.0 * kPi)) > 1e-9;
       pose = odometry_pose;
-      log_likelihood = odometry_log_likelihood;
+      log_likelihood = *odometry_log_likelihood;
     }
   }
   particle.log_weight += log_likelihood;
