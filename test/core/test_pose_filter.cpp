@@ -643,6 +643,14 @@ TEST(PoseFilter, BadConfigsAreRefused) {
   refused([](auto& c) { c.unknown_p_occ = 1.0; });
   refused([](auto& c) { c.match_beam_stride = 0; });
   refused([](auto& c) { c.motion_noise.rot_from_rot = -1.0; });
+  refused([](auto& c) { c.weight_beams = 0; });
+  refused([](auto& c) { c.weight_sigma_m = 0.0; });
+  refused([](auto& c) { c.weight_z_rand = 0.0; });
+  refused([](auto& c) { c.weight_z_hit = -0.1; });
+  refused([](auto& c) { c.weight_max_distance_m = 10.0; });  // 200 cells
+  refused([](auto& c) { c.guard_sigmas = -1.0; });
+  refused([](auto& c) { c.guard_window_m = std::nan(""); });
+  refused([](auto& c) { c.correction_min_gain = std::nan(""); });
   EXPECT_THROW(dog::PoseFilter(dog::PoseFilterConfig{}, nullptr), std::invalid_argument);
   EXPECT_THROW(dog::UniformTransitions({1.5, 0.0}), std::invalid_argument);
   dog::PoseFilter filter(dog::PoseFilterConfig{}, transitions);
