@@ -35,7 +35,8 @@ Estimates:
   best particle's poses at the filter's updates, the laser being at base_link in these
   bags). Given --trajectory FILE it is read from there; else process_bag is run on the bag
   with `--fixed-frame odom --pose-correction rbpf --out DIR/<bag name>` plus the options
-  after `--`, and its summary line (updates, resamplings) and run time are read;
+  after `--`, and its summary lines (updates, resamplings; N_eff's median, min and max and
+  the filter's ms per update from its `pose filter:` line) and run time are read;
 * `filter online` (only with --filter-log): the pose the filter gave each scan as it came
   (map -> odom of that moment times odometry), from a per-scan log of an instrumented build
   (docs/pose_correction_real.md, "Instrumentation": rows `S,stamp,odom x,y,yaw,corrected
@@ -277,6 +278,11 @@ def run_process_bag(command, bag, out_dir, extra):
     m = re.search(r'processed in ([0-9.]+) s', proc.stdout)
     if m:
         info['mapping_seconds'] = float(m.group(1))
+    m = re.search(r'pose filter: N_eff median ([0-9.]+) \(min ([0-9.]+), max ([0-9.]+)\).*?; (\d+) particle-updates '
+                  r'refused by the guard; ([0-9.]+) ms per update', proc.stdout)
+    if m:
+        info.update(n_eff_median=float(m.group(1)), n_eff_min=float(m.group(2)), n_eff_max=float(m.group(3)),
+                    guard_refusals=int(m.group(4)), update_ms=float(m.group(5)))
     path = os.path.join(out_dir, 'trajectory.tum')
     return path, info
 
@@ -333,8 +339,12 @@ def filter_columns(info, updates):
         cols['resamplings'] = '%d / %d' % (sum(u['resampled'] for u in updates), len(updates))
     elif info.get('updates'):
         cols['resamplings'] = '%d / %d' % (info['resamplings'], info['updates'] - 1)
-        if info.get('mapping_seconds'):
+        if 'update_ms' in info:
+            cols['ms'] = '%.0f' % info['update_ms']
+        elif info.get('mapping_seconds'):
             cols['ms'] = '≤ %.0f' % (1000.0 * info['mapping_seconds'] / info['updates'])
+        if 'n_eff_median' in info:
+            cols['n_eff'] = '%.1f (%.1f–%.1f)' % (info['n_eff_median'], info['n_eff_min'], info['n_eff_max'])
     return cols
 
 

@@ -2,6 +2,7 @@
 // time, optionally offline EM over the whole recording, and writes the map layers as
 // map_server files and the model file. See README.md, "process_bag".
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdint>
@@ -219,6 +220,16 @@ int run(const Options& options) {
                 "%.4f rad); %zu poses -> %s\n",
                 filter.particles().size(), filter.updates(), filter.resamplings(), correction_now.x_m, correction_now.y_m,
                 correction_now.yaw_rad, trajectory.size(), options.trajectory_path.c_str());
+    std::vector<double> n_eff = filter.effectiveSampleSizes();
+    if (!n_eff.empty()) {
+      std::sort(n_eff.begin(), n_eff.end());
+      const std::size_t n = n_eff.size();
+      const double median = n % 2 == 1 ? n_eff[n / 2] : 0.5 * (n_eff[n / 2 - 1] + n_eff[n / 2]);
+      std::printf("pose filter: N_eff median %.2f (min %.2f, max %.2f) of %zu over %zu updates; %zu resampled; "
+                  "%zu particle-updates refused by the guard; %.1f ms per update\n",
+                  median, n_eff.front(), n_eff.back(), filter.particles().size(), n, filter.resamplings(),
+                  filter.guardRefusals(), 1000.0 * filter.updateSeconds() / static_cast<double>(n));
+    }
   }
   if (options.offline_em) dog::bag_tools::runOfflineEmAndApply(mapper, recorder, options.shared.em, bar);
 

@@ -298,53 +298,215 @@ TEST(PoseFilter, ScanEvidenceCountsEachBeamsCells) {
   EXPECT_EQ(evidence.size(), expected.size());  // each cell once
 }
 
-// log p(z_c | q) of one cell's single hit or miss, written out: the mixture of the two
-// states under the cell's predicted p(occ) q.
-long double cellLogLikelihood(const dog::CellEvidence& cell, double q, double hit_occ, double hit_free) {
-  const long double occ = cell.hits > 0 ? hit_occ : 1.0L - hit_occ;
-  const long double free = cell.hits > 0 ? hit_free : 1.0L - hit_free;
-  return std::log(q * occ + (1.0L - q) * free);
+// The nearest occupied cell by brute force: every cell of the map's tiles.
+double bruteNearestOccupied(const dog::ParticleMap& map, const dog::TransitionSource& transitions, double x_m,
+                            double y_m, double resolution_m, double max_distance_m, std::int64_t step) {
+  double best = max_distance_m;
+  const dog::CellBox box = map.bounds();
+  for (std::int32_t y = box.min_y; y <= box.max_y; ++y) {
+    for (std::int32_t x = box.min_x; x <= box.max_x; ++x) {
+      if (map.lastStep(x, y) == dog::kNeverObserved) continue;
+      if (map.predicted(x, y, step, transitions, 0.5) <= 0.5) continue;
+      best = std::min(best, std::hypot(x_m - (x + 0.5) * resolution_m, y_m - (y + 0.5) * resolution_m));
+    }
+  }
+  return best;
 }
 
-TEST(PoseFilter, WeightIsTheScansLikelihoodUnderThePredictedMap) {
+TEST(PoseFilter, LikelihoodFieldDistanceIsTheNearestOccupiedCell) {
+  // Random cells hit (occupied) or missed (free) on tiles around -1 and 0; every query
+  // point's distance against the brute force over all cells, with and without the cap.
+  dog::ParticleMap map;
+  const dog::UniformTransitions transitions(dog::TransitionParams{0.05, 0.1});
+  std::mt19937_64 rng(11);
+  std::uniform_int_distribution<std::int32_t> cell(-40, 40);
+  for (int i = 0; i < 300; ++i) map.update(cell(rng), cell(rng), 2, std::log(0.7 / 0.2), transitions, 0.5);
+  for (int i = 0; i < 300; ++i) map.update(cell(rng), cell(rng), 2, std::log(0.3 / 0.8), transitions, 0.5);
+  const dog::CellBox box = map.bounds();
+  ASSERT_LE(box.min_x, -33);  // the box's cells all searched by the reference
+  std::uniform_real_distribution<double> coordinate(-2.2, 2.2);
+  int capped = 0;
+  for (const double max_distance : {0.05, 0.3, 1.0, 3.2}) {
+    for (int i = 0; i < 400; ++i) {
+      const double x = coordinate(rng);
+      const double y = coordinate(rng);
+      const double expected = bruteNearestOccupied(map, transitions, x, y, 0.05, max_distance, 5);
+      EXPECT_NEAR(dog::nearestOccupiedDistance(map, transitions, x, y, 0.05, max_distance, 5, 0.5), expected, 1e-12)
+          << x << ", " << y << " max " << max_distance;
+      if (expected == max_distance) ++capped;
+    }
+  }
+  EXPECT_GT(capped, 100);
+  EXPECT_LT(capped, 1400);
+  // An empty map: the cap.
+  EXPECT_EQ(dog::nearestOccupiedDistance(dog::ParticleMap{}, transitions, 0.3, 0.2, 0.05, 0.5, 1, 0.5), 0.5);
+}
+
+TEST(PoseFilter, GuardBoundsTheNetCorrectionByTheMotionModel) {
+  // The anchor at the origin with odometry at (1, 0, 0); 10 m of straight travel since, with
+  // heading variance 0.01 rad^2 (sigma 0.1) and translation variance 0.0004 m^2 accumulated.
+  dog::TrajectoryNode anchor;
+  anchor.pose = {0.0, 0.0, 0.0};
+  anchor.odometry = {1.0, 0.0, 0.0};
+  anchor.travelled_m = 2.0;
+  anchor.heading_variance = 0.001;
+  anchor.translation_variance = 0.0001;
+  const dog::Pose2D odometry{11.0, 0.0, 0.0};  // odometry's prediction from the anchor: (10, 0, 0)
+  const double sigma_h = 0.1;
+  const double sigma_p = std::sqrt(0.0004 + 100.0 * 0.01 / 3.0 + 0.05 * 0.05);
+  const auto accepts = [&](const dog::Pose2D& pose) {
+    return dog::guardAccepts(anchor, pose, odometry, 12.0, 0.011, 0.0005, 3.0, 0.05);
+  };
+  EXPECT_TRUE(accepts({10.0, 0.0, 0.0}));
+  EXPECT_TRUE(accepts({10.0, 0.0, 2.9 * sigma_h}));
+  EXPECT_TRUE(accepts({10.0, 0.0, -2.9 * sigma_h}));
+  EXPECT_FALSE(accepts({10.0, 0.0, 3.1 * sigma_h}));
+  EXPECT_FALSE(accepts({10.0, 0.0, -3.1 * sigma_h}));
+  EXPECT_TRUE(accepts({10.0, 2.9 * sigma_p, 0.0}));
+  EXPECT_FALSE(accepts({10.0, 3.1 * sigma_p, 0.0}));
+  EXPECT_FALSE(accepts({10.0 - 2.2 * sigma_p, 2.2 * sigma_p, 0.0}));  // 3.1 sigma in all
+  // The prediction turns with the anchor: odometry's motion since the anchor read from the
+  // anchor's corrected pose (here turned by pi/2, so odometry's +x is the map's +y).
+  anchor.pose = {0.0, 0.0, kPi / 2};
+  EXPECT_TRUE(accepts({0.0, 10.0, kPi / 2}));
+  EXPECT_FALSE(accepts({10.0, 0.0, kPi / 2}));
+  // Over one short step the same correction is refused: the bound grows with the travel.
+  anchor.pose = {0.0, 0.0, 0.0};
+  anchor.travelled_m = 11.5;
+  anchor.heading_variance = 0.0105;
+  anchor.translation_variance = 0.00049;
+  anchor.odometry = {10.5, 0.0, 0.0};
+  anchor.pose = {9.5, 0.0, 0.0};
+  EXPECT_TRUE(accepts({10.0, 0.0, 0.02}));
+  EXPECT_FALSE(accepts({10.0, 0.0, 0.1}));
+  // Odometry itself always passes.
+  EXPECT_TRUE(dog::guardAccepts(anchor, {10.0, 0.0, 0.0}, odometry, 12.0, 0.0105, 0.00049, 3.0, 0.0));
+}
+
+TEST(PoseFilter, WeightIsTheLikelihoodFieldOfTheSubsampledBeams) {
   const std::vector<Box> boxes = room();
   auto transitions = std::make_shared<dog::UniformTransitions>(dog::TransitionParams{0.05, 0.1});
-  for (const bool exact : {true, false}) {
-    dog::PoseFilterConfig config;
-    config.particles = 1;
-    config.resolution_m = 0.1;
-    config.motion_noise = {};
-    config.scan_matching = false;
-    config.resample_below = 0.0;
-    config.unknown_cells_as_prior = exact;
-    dog::PoseFilter filter(config, transitions);
-    std::mt19937_64 rng(2);
-    ASSERT_TRUE(filter.integrate(simulatedScan(boxes, {2.0, 2.0, 0.0}, 0.0, rng, 0.01)).updated);
-    const dog::ParticleMap before = filter.particles()[0].map;
-    const dog::Pose2D next{2.6, 2.1, 0.2};
-    const dog::Scan scan = simulatedScan(boxes, next, 3.5, rng, 0.01);
-    ASSERT_TRUE(filter.integrate(scan).updated);
-    long double expected = 0.0L;
-    int unseen = 0;
-    for (const dog::CellEvidence& cell : dog::scanEvidence(scan, next, 0.1, config.max_free_range_m, config.max_range_m)) {
-      ASSERT_EQ(cell.hits + cell.misses, 1u);
-      if (!exact && before.lastStep(cell.x, cell.y) == dog::kNeverObserved) {
-        // Not seen before: the state that explains it best.
-        expected += cell.hits > 0 ? std::log(0.7L) : std::log(0.8L);
-        ++unseen;
-        continue;
-      }
-      expected += cellLogLikelihood(cell, before.predicted(cell.x, cell.y, 3, *transitions, 0.5), 0.7, 0.2);
-    }
-    if (!exact) EXPECT_GT(unseen, 100);
-    EXPECT_NEAR(filter.particles()[0].log_weight, static_cast<double>(expected), 1e-9 * std::abs(static_cast<double>(expected)));
-    expectPose(filter.particles()[0].pose, next, 1e-9);
-    // Not moved enough: the scan is not used.
-    EXPECT_FALSE(filter.integrate(simulatedScan(boxes, {2.65, 2.1, 0.25}, 4.0, rng, 0.01)).updated);
-    EXPECT_EQ(filter.updates(), 2u);
-    // Time going back before the last update's step is refused.
-    EXPECT_THROW(filter.integrate(simulatedScan(boxes, {4.0, 2.0, 0.0}, 1.0, rng, 0.01)), std::invalid_argument);
+  dog::PoseFilterConfig config;
+  config.particles = 1;
+  config.resolution_m = 0.1;
+  config.motion_noise = {};
+  config.scan_matching = false;
+  config.resample_below = 0.0;
+  config.weight_beams = 60;
+  dog::PoseFilter filter(config, transitions);
+  std::mt19937_64 rng(2);
+  ASSERT_TRUE(filter.integrate(simulatedScan(boxes, {2.0, 2.0, 0.0}, 0.0, rng, 0.01)).updated);
+  const dog::ParticleMap before = filter.particles()[0].map;
+  const dog::Pose2D next{2.6, 2.1, 0.2};
+  const dog::Scan scan = simulatedScan(boxes, next, 3.5, rng, 0.01);
+  ASSERT_TRUE(filter.integrate(scan).updated);
+  // The beams with a return, 60 of them evenly spread; each end scored against the map of
+  // the first scan predicted to step 3 (brute force), or explained if the map has not been
+  // near it.
+  std::vector<std::array<double, 2>> ends;
+  for (std::size_t i = 0; i < scan.ranges_m.size(); ++i) {
+    const double range = scan.ranges_m[i];
+    if (!(range >= scan.range_min_m && range < scan.range_max_m)) continue;
+    const double angle = next.yaw_rad + scan.angle_min_rad + static_cast<double>(i) * scan.angle_increment_rad;
+    ends.push_back({next.x_m + range * std::cos(angle), next.y_m + range * std::sin(angle)});
   }
+  ASSERT_GT(ends.size(), 60u);
+  long double expected = 0.0L;
+  int unmapped = 0;
+  for (std::size_t k = 0; k < 60; ++k) {
+    const auto& end = ends[(2 * k + 1) * ends.size() / 120];
+    const auto cx = static_cast<std::int32_t>(std::floor(end[0] / 0.1));
+    const auto cy = static_cast<std::int32_t>(std::floor(end[1] / 0.1));
+    bool mapped = false;
+    for (int dy = -1; dy <= 1; ++dy) {
+      for (int dx = -1; dx <= 1; ++dx) mapped = mapped || before.lastStep(cx + dx, cy + dy) != dog::kNeverObserved;
+    }
+    double d = 0.0;
+    if (mapped) {
+      d = bruteNearestOccupied(before, *transitions, end[0], end[1], 0.1, config.weight_max_distance_m, 3);
+    } else {
+      ++unmapped;
+    }
+    expected += std::log(0.95L * std::exp(-d * d / (2.0L * 0.15L * 0.15L)) + 0.05L);
+  }
+  EXPECT_GT(unmapped, 0);
+  EXPECT_LT(unmapped, 60);
+  EXPECT_NEAR(filter.particles()[0].log_weight, static_cast<double>(expected), 1e-9);
+  EXPECT_LT(static_cast<double>(expected), -1.0);  // some beams off the first scan's walls
+  expectPose(filter.particles()[0].pose, next, 1e-9);
+  // Not moved enough: the scan is not used.
+  EXPECT_FALSE(filter.integrate(simulatedScan(boxes, {2.65, 2.1, 0.25}, 4.0, rng, 0.01)).updated);
+  EXPECT_EQ(filter.updates(), 2u);
+  // Time going back before the last update's step is refused.
+  EXPECT_THROW(filter.integrate(simulatedScan(boxes, {4.0, 2.0, 0.0}, 1.0, rng, 0.01)), std::invalid_argument);
+}
+
+TEST(PoseFilter, ARefusedPoseTakesOdometrysIncrementAndItsWeight) {
+  // Noisy samples that the guard (a bound of almost 0 sigma) or the correction test (a gain
+  // no scan reaches) refuses: the particle moves by odometry's increment and is weighed
+  // there, exactly as a filter without noise.
+  const std::vector<Box> boxes = room();
+  auto transitions = std::make_shared<dog::UniformTransitions>(dog::TransitionParams{0.0, 0.0});
+  dog::PoseFilterConfig exact;
+  exact.particles = 3;
+  exact.resolution_m = 0.1;
+  exact.motion_noise = {};
+  exact.scan_matching = false;
+  exact.resample_below = 0.0;
+  exact.guard_sigmas = 0.0;
+  exact.correction_test = false;
+  dog::PoseFilterConfig guarded = exact;
+  guarded.motion_noise = {0.05, 0.05, 0.05, 0.05};
+  guarded.guard_sigmas = 1e-6;
+  guarded.correction_test = true;
+  dog::PoseFilterConfig tested = guarded;
+  tested.guard_sigmas = 0.0;
+  tested.correction_min_gain = 1e6;
+  std::vector<std::unique_ptr<dog::PoseFilter>> filters;
+  for (const auto& config : {exact, guarded, tested}) filters.push_back(std::make_unique<dog::PoseFilter>(config, transitions));
+  const std::vector<dog::Pose2D> poses = {{2.0, 2.0, 0.0}, {2.6, 2.1, 0.2}, {3.2, 2.3, 0.3}};
+  for (std::size_t i = 0; i < poses.size(); ++i) {
+    for (auto& filter : filters) {
+      std::mt19937_64 rng(3 + i);
+      ASSERT_TRUE(filter->integrate(simulatedScan(boxes, poses[i], 2.0 * i, rng, 0.01)).updated);
+    }
+  }
+  EXPECT_EQ(filters[0]->guardRefusals(), 0u);
+  for (std::size_t f = 1; f < filters.size(); ++f) {
+    EXPECT_EQ(filters[f]->guardRefusals(), 6u) << f;  // 3 particles, 2 updates
+    for (std::size_t p = 0; p < 3; ++p) {
+      expectPose(filters[f]->particles()[p].pose, filters[0]->particles()[p].pose, 1e-9);
+      EXPECT_NEAR(filters[f]->particles()[p].log_weight, filters[0]->particles()[p].log_weight, 1e-9) << f;
+    }
+  }
+  EXPECT_LT(filters[0]->particles()[0].log_weight, -0.5);  // a weight, not the maximum 0
+}
+
+TEST(PoseFilter, WeightsOfNearbyPosesDifferByAFewNats) {
+  // The point of the likelihood field: two particles 5 cm apart differ by a few nats, not
+  // the tens of a product over every cell. One particle each, a room mapped from the true
+  // pose, the second scan's odometry off by 5 cm for the second filter.
+  const std::vector<Box> boxes = room();
+  auto transitions = std::make_shared<dog::UniformTransitions>(dog::TransitionParams{0.0, 0.0});
+  dog::PoseFilterConfig config;
+  config.particles = 1;
+  config.resolution_m = 0.05;
+  config.motion_noise = {};
+  config.scan_matching = false;
+  config.guard_sigmas = 0.0;
+  config.correction_min_gain = 0.0;
+  std::array<double, 2> weights{};
+  for (int k = 0; k < 2; ++k) {
+    dog::PoseFilter filter(config, transitions);
+    std::mt19937_64 rng(4);
+    for (int i = 0; i < 3; ++i) filter.integrate(simulatedScan(boxes, {2.0, 2.0, 0.0}, i, rng, 0.01));
+    dog::Scan scan = simulatedScan(boxes, {2.6, 2.0, 0.0}, 3.0, rng, 0.01, 361);
+    scan.laser_pose.y_m += 0.05 * k;
+    ASSERT_TRUE(filter.integrate(scan).updated);
+    weights[k] = filter.particles()[0].log_weight;
+  }
+  EXPECT_GT(weights[0] - weights[1], 0.5);
+  EXPECT_LT(weights[0] - weights[1], 5.0);
 }
 
 // --- the filter on a drive with drifting odometry ------------------------------------------
@@ -481,6 +643,14 @@ TEST(PoseFilter, BadConfigsAreRefused) {
   refused([](auto& c) { c.unknown_p_occ = 1.0; });
   refused([](auto& c) { c.match_beam_stride = 0; });
   refused([](auto& c) { c.motion_noise.rot_from_rot = -1.0; });
+  refused([](auto& c) { c.weight_beams = 0; });
+  refused([](auto& c) { c.weight_sigma_m = 0.0; });
+  refused([](auto& c) { c.weight_z_rand = 0.0; });
+  refused([](auto& c) { c.weight_z_hit = -0.1; });
+  refused([](auto& c) { c.weight_max_distance_m = 10.0; });  // 200 cells
+  refused([](auto& c) { c.guard_sigmas = -1.0; });
+  refused([](auto& c) { c.guard_window_m = std::nan(""); });
+  refused([](auto& c) { c.correction_min_gain = std::nan(""); });
   EXPECT_THROW(dog::PoseFilter(dog::PoseFilterConfig{}, nullptr), std::invalid_argument);
   EXPECT_THROW(dog::UniformTransitions({1.5, 0.0}), std::invalid_argument);
   dog::PoseFilter filter(dog::PoseFilterConfig{}, transitions);

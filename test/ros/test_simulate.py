@@ -445,7 +445,9 @@ class TestSimulate(unittest.TestCase):
                                               "--odometry-noise", PARAMS["rbpf_odometry_noise"], "--out", bag])
         self.assertEqual(rc, 0, stderr)
         out = os.path.join(self.tmp, "rbpf")
+        # The filter told the simulated odometry's noise (the default is real odometry's, 0.001).
         rc, stdout, stderr = run_tool("process_bag", [bag, "--resolution", "0.1", "--pose-correction", "rbpf",
+                                                      "--odometry-alphas", PARAMS["rbpf_odometry_noise"],
                                                       "--out", out])
         self.assertEqual(rc, 0, f"stdout:\n{stdout}\nstderr:\n{stderr}")
         self.assertIn("pose correction: 30 particles", stdout)

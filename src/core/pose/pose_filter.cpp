@@ -1,8 +1,10 @@
 #include "dynamic_occupancy_grid/core/pose/pose_filter.h"
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <stdexcept>
+#include <optional>
 #include <string>
 
 #include <Eigen/Dense>
@@ -45,6 +47,16 @@ std::vector<LaserPoint> matchBeams(const Scan& scan, std::size_t stride) {
   return beams;
 }
 
+/// At most `count` beams with a return, evenly spread over those with one, in the laser's frame.
+std::vector<LaserPoint> weightBeams(const Scan& scan, std::size_t count) {
+  const std::vector<LaserPoint> all = matchBeams(scan, 1);
+  if (all.size() <= count) return all;
+  std::vector<LaserPoint> beams;
+  beams.reserve(count);
+  for (std::size_t k = 0; k < count; ++k) beams.push_back(all[(2 * k + 1) * all.size() / (2 * count)]);
+  return beams;
+}
+
 }  // namespace
 
 void PoseFilterConfig::validate() const {
@@ -67,6 +79,68 @@ void PoseFilterConfig::validate() const {
   require(finitePositive(match_angular_step_rad), "match_angular_step_rad must be finite and > 0");
   require(match_max_iterations >= 0, "match_max_iterations must be >= 0");
   require(std::isfinite(match_min_score) && match_min_score >= 0.0, "match_min_score must be finite and >= 0");
+  require(weight_beams >= 1, "weight_beams must be >= 1");
+  require(finitePositive(weight_sigma_m), "weight_sigma_m must be finite and > 0");
+  require(std::isfinite(weight_z_hit) && weight_z_hit >= 0.0, "weight_z_hit must be finite and >= 0");
+  require(finitePositive(weight_z_rand), "weight_z_rand must be finite and > 0");
+  require(finitePositive(weight_max_distance_m) && weight_max_distance_m / resolution_m <= 64.0,
+          "weight_max_distance_m must be finite, > 0 and at most 64 cells");
+  require(std::isfinite(guard_sigmas) && guard_sigmas >= 0.0, "guard_sigmas must be finite and >= 0");
+  require(std::isfinite(guard_window_m) && guard_window_m >= 0.0, "guard_window_m must be finite and >= 0");
+  require(std::isfinite(correction_min_gain), "correction_min_gain must be finite");
+}
+
+double nearestOccupiedDistance(const ParticleMap& map, const TransitionSource& transitions, double x_m,
+                               double y_m, double resolution_m, double max_distance_m, std::int64_t step,
+                               double unknown_p_occ) {
+  // Rings of cells (Chebyshev radius r) around the point's cell: every centre in ring r is
+  // at least r - 0.5 cells away, so the search stops once that exceeds the best distance.
+  ParticleMap::Reader reader(map);
+  const double u = x_m / resolution_m;
+  const double v = y_m / resolution_m;
+  const auto cx = static_cast<std::int32_t>(std::floor(u));
+  const auto cy = static_cast<std::int32_t>(std::floor(v));
+  const double max_cells = max_distance_m / resolution_m;
+  double best_squared = max_cells * max_cells;
+  const auto consider = [&](std::int32_t x, std::int32_t y) {
+    const double du = u - (x + 0.5);
+    const double dv = v - (y + 0.5);
+    const double squared = du * du + dv * dv;
+    if (squared >= best_squared) return;
+    if (reader.lastStep(x, y) == kNeverObserved) return;
+    if (reader.predicted(x, y, step, transitions, unknown_p_occ) <= 0.5) return;
+    best_squared = squared;
+  };
+  const auto max_ring = static_cast<std::int32_t>(std::ceil(max_cells + 0.5));
+  for (std::int32_t r = 0; r <= max_ring; ++r) {
+    const double nearest = r - 0.5;
+    if (nearest > 0.0 && nearest * nearest >= best_squared) break;
+    if (r == 0) {
+      consider(cx, cy);
+      continue;
+    }
+    for (std::int32_t d = -r; d <= r; ++d) {
+      consider(cx + d, cy - r);
+      consider(cx + d, cy + r);
+    }
+    for (std::int32_t d = -r + 1; d <= r - 1; ++d) {
+      consider(cx - r, cy + d);
+      consider(cx + r, cy + d);
+    }
+  }
+  return std::sqrt(best_squared) * resolution_m;
+}
+
+bool guardAccepts(const TrajectoryNode& anchor, const Pose2D& pose, const Pose2D& odometry, double travelled_m,
+                  double heading_variance, double translation_variance, double sigmas, double floor_m) {
+  const Pose2D predicted = composePose(anchor.pose, relativePose(anchor.odometry, odometry));
+  const double heading_var = std::max(0.0, heading_variance - anchor.heading_variance);
+  const double distance = std::max(0.0, travelled_m - anchor.travelled_m);
+  const double position_var = std::max(0.0, translation_variance - anchor.translation_variance) +
+                              distance * distance * heading_var / 3.0 + floor_m * floor_m;
+  const double turn = std::abs(std::remainder(pose.yaw_rad - predicted.yaw_rad, 2.0 * kPi));
+  const double shift = std::hypot(pose.x_m - predicted.x_m, pose.y_m - predicted.y_m);
+  return turn <= sigmas * std::sqrt(heading_var) + 1e-12 && shift <= sigmas * std::sqrt(position_var) + 1e-12;
 }
 
 std::vector<CellEvidence> scanEvidence(const Scan& scan, const Pose2D& laser_pose, double resolution_m,
@@ -225,43 +299,91 @@ Pose2D PoseFilter::matchPose(const Particle& particle, const std::vector<LaserPo
   return pose;
 }
 
-void PoseFilter::updateParticle(Particle& particle, const Scan& scan, const std::vector<LaserPoint>& match_beams,
-                                const OdometryMotion& motion, const std::array<double, 3>& normals,
-                                std::int64_t step) const {
+bool PoseFilter::updateParticle(Particle& particle, const Scan& scan, const std::vector<LaserPoint>& match_beams,
+                                const std::vector<LaserPoint>& weight_beams, const OdometryMotion& motion,
+                                const std::array<double, 3>& normals, std::int64_t step) const {
   Pose2D pose = applyMotion(particle.pose, perturbMotion(motion, config_.motion_noise, normals));
   if (config_.scan_matching) pose = matchPose(particle, match_beams, pose, step);
-  const std::vector<CellEvidence> evidence =
-      scanEvidence(scan, pose, config_.resolution_m, config_.max_free_range_m, config_.max_range_m);
-  // The weight: the product over cells of q p(z|occ) + (1 - q) p(z|free), each evidence a
-  // single hit or miss (scanEvidence), multiplied up and taken as a log every 64 factors
-  // (each is at least min(p(z|s)) > 0, so 64 of them never underflow).
-  const double hit_occ = sensor_.pHitGivenOcc();
-  const double hit_free = sensor_.pHitGivenFree();
-  double log_likelihood = 0.0;
-  double product = 1.0;
-  int factors = 0;
+  // The motion model's variances of this motion (as perturbMotion's), accumulated along the
+  // lineage for the guard.
+  const TrajectoryNode& last = *particle.trajectory;
+  const OdometryNoise& noise = config_.motion_noise;
+  const auto turn_size = [](double rot) {
+    const double folded = std::abs(rot);
+    return std::min(folded, kPi - folded);
+  };
+  const double r1 = turn_size(motion.rot1_rad);
+  const double r2 = turn_size(motion.rot2_rad);
+  const double t2 = motion.trans_m * motion.trans_m;
+  const double heading_variance = last.heading_variance + noise.rot_from_rot * (r1 * r1 + r2 * r2) +
+                                  2.0 * noise.rot_from_trans * t2;
+  const double translation_variance =
+      last.translation_variance + noise.trans_from_trans * t2 + noise.trans_from_rot * (r1 * r1 + r2 * r2);
+  const double travelled = last.travelled_m + motion.trans_m;
+  // amcl's likelihood field over the subsampled beams, at a pose.
   ParticleMap::Reader reader(particle.map);
-  for (const CellEvidence& cell : evidence) {
-    const bool hit = cell.hits > 0;
-    double factor;
-    if (!config_.unknown_cells_as_prior && reader.lastStep(cell.x, cell.y) == kNeverObserved) {
-      // The state that explains the evidence best: no pull towards mapped places.
-      factor = hit ? hit_occ : 1.0 - hit_free;
-    } else {
-      const double q = reader.predicted(cell.x, cell.y, step, *transitions_, config_.unknown_p_occ);
-      factor = hit ? q * hit_occ + (1.0 - q) * hit_free : q * (1.0 - hit_occ) + (1.0 - q) * (1.0 - hit_free);
+  const double kernel = -0.5 / (config_.weight_sigma_m * config_.weight_sigma_m);
+  const auto field_log_likelihood = [&](const Pose2D& at) {
+    const double c = std::cos(at.yaw_rad);
+    const double s = std::sin(at.yaw_rad);
+    double sum = 0.0;
+    for (const LaserPoint& beam : weight_beams) {
+      double d = 0.0;
+      if (endInMappedPlace(reader, config_, beam, at)) {
+        d = nearestOccupiedDistance(particle.map, *transitions_, at.x_m + c * beam[0] - s * beam[1],
+                                    at.y_m + s * beam[0] + c * beam[1], config_.resolution_m,
+                                    config_.weight_max_distance_m, step, config_.unknown_p_occ);
+      }
+      sum += std::log(config_.weight_z_hit * std::exp(kernel * d * d) + config_.weight_z_rand);
     }
-    product *= factor;
-    if (++factors == 64) {
-      log_likelihood += std::log(product);
-      product = 1.0;
-      factors = 0;
+    return sum;
+  };
+  double log_likelihood = field_log_likelihood(pose);
+  bool refused = false;
+  if (config_.guard_sigmas > 0.0 || config_.correction_test) {
+    // Odometry's increment from the particle's last pose: what the particle falls back to.
+    Pose2D odometry_pose = applyMotion(particle.pose, motion);
+    odometry_pose.yaw_rad = std::remainder(odometry_pose.yaw_rad, 2.0 * kPi);
+    if (config_.guard_sigmas > 0.0) {
+      // The anchor: the lineage's state guard_window_m of travel ago (or its first).
+      const TrajectoryNode* anchor = &last;
+      while (anchor->parent && travelled - anchor->travelled_m < config_.guard_window_m) anchor = anchor->parent.get();
+      refused = !guardAccepts(*anchor, pose, scan.laser_pose, travelled, heading_variance, translation_variance,
+                              config_.guard_sigmas, config_.resolution_m);
+    }
+    std::optional<double> odometry_log_likelihood;
+    if (!refused && config_.correction_test) {
+      // The pose against odometry's increment: the scan's log-likelihood ratio minus the
+      // motion model's (a Gaussian with this update's heading and position variances) must
+      // reach correction_min_gain.
+      odometry_log_likelihood = field_log_likelihood(odometry_pose);
+      const double step_heading_var = heading_variance - last.heading_variance;
+      const double step_position_var =
+          translation_variance - last.translation_variance + t2 * step_heading_var / 3.0;
+      const double turn = std::remainder(pose.yaw_rad - odometry_pose.yaw_rad, 2.0 * kPi);
+      const double shift2 = (pose.x_m - odometry_pose.x_m) * (pose.x_m - odometry_pose.x_m) +
+                            (pose.y_m - odometry_pose.y_m) * (pose.y_m - odometry_pose.y_m);
+      const double prior = -0.5 * (turn * turn / std::max(step_heading_var, 1e-300) +
+                                   shift2 / std::max(step_position_var, 1e-300));
+      refused = log_likelihood - *odometry_log_likelihood + prior < config_.correction_min_gain;
+    }
+    if (refused) {
+      if (!odometry_log_likelihood) odometry_log_likelihood = field_log_likelihood(odometry_pose);
+      refused = std::abs(pose.x_m - odometry_pose.x_m) > 1e-9 || std::abs(pose.y_m - odometry_pose.y_m) > 1e-9 ||
+                std::abs(std::remainder(pose.yaw_rad - odometry_pose.yaw_rad, 2.0 * kPi)) > 1e-9;
+      pose = odometry_pose;
+      log_likelihood = *odometry_log_likelihood;
     }
   }
-  log_likelihood += std::log(product);
   particle.log_weight += log_likelihood;
   particle.pose = pose;
-  particle.trajectory = std::make_shared<const TrajectoryNode>(TrajectoryNode{scan.stamp_s, pose, particle.trajectory});
+  auto node = std::make_shared<TrajectoryNode>(TrajectoryNode{scan.stamp_s, pose, particle.trajectory});
+  node->odometry = scan.laser_pose;
+  node->travelled_m = travelled;
+  node->heading_variance = heading_variance;
+  node->translation_variance = translation_variance;
+  particle.trajectory = std::move(node);
+  return refused;
 }
 
 void PoseFilter::mapEvidence(ParticleMap& map, const std::vector<CellEvidence>& evidence, std::int64_t step) const {
@@ -296,7 +418,9 @@ PoseUpdate PoseFilter::integrate(const Scan& scan) {
         scanEvidence(scan, odometry, config_.resolution_m, config_.max_free_range_m, config_.max_range_m);
     clock_ = clock;
     mapEvidence(first.map, evidence, 0);
-    first.trajectory = std::make_shared<const TrajectoryNode>(TrajectoryNode{scan.stamp_s, odometry, nullptr});
+    auto root = std::make_shared<TrajectoryNode>(TrajectoryNode{scan.stamp_s, odometry, nullptr});
+    root->odometry = odometry;
+    first.trajectory = std::move(root);
     std::fill(particles_.begin(), particles_.end(), first);  // every map shares the first's tiles
     last_odometry_ = odometry;
     last_step_ = 0;
@@ -315,6 +439,7 @@ PoseUpdate PoseFilter::integrate(const Scan& scan) {
   const double turned = std::abs(std::remainder(odometry.yaw_rad - last_odometry_->yaw_rad, 2.0 * kPi));
   if (motion.trans_m < config_.update_distance_m && turned < config_.update_angle_rad) return result;
 
+  const auto started_at = std::chrono::steady_clock::now();
   // The noise of every particle drawn here, in particle order: results do not depend on the
   // threads.
   std::normal_distribution<double> normal;
@@ -323,14 +448,20 @@ PoseUpdate PoseFilter::integrate(const Scan& scan) {
     for (double& value : draw) value = normal(rng_);
   }
   const std::vector<LaserPoint> match_beams = matchBeams(scan, config_.match_beam_stride);  // the same for all
+  const std::vector<LaserPoint> weight_beams = weightBeams(scan, config_.weight_beams);
+  std::vector<char> refused(particles_.size(), 0);
   runRepetitions(particles_.size(), config_.threads,
-                 [&](std::size_t i) { updateParticle(particles_[i], scan, match_beams, motion, normals[i], step); },
+                 [&](std::size_t i) {
+                   refused[i] = updateParticle(particles_[i], scan, match_beams, weight_beams, motion, normals[i], step);
+                 },
                  nullptr);
+  for (const char r : refused) guard_refusals_ += r != 0 ? 1 : 0;
   last_odometry_ = odometry;
   last_step_ = step;
   ++updates_;
   result.updated = true;
   result.effective_sample_size = effectiveSampleSize();
+  effective_sample_sizes_.push_back(result.effective_sample_size);
   std::vector<std::size_t> ancestors(particles_.size());
   for (std::size_t i = 0; i < ancestors.size(); ++i) ancestors[i] = i;
   if (result.effective_sample_size < config_.resample_below * static_cast<double>(particles_.size())) {
@@ -341,6 +472,7 @@ PoseUpdate PoseFilter::integrate(const Scan& scan) {
   std::vector<const ParticleMap*> maps;
   for (const Particle& particle : particles_) maps.push_back(&particle.map);
   result.map_bytes = ParticleMap::distinctTileBytes(maps);
+  update_seconds_ += std::chrono::duration<double>(std::chrono::steady_clock::now() - started_at).count();
   return result;
 }
 

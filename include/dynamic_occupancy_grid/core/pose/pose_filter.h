@@ -9,12 +9,18 @@
 //      model's noise (motion_model.h), then refined by scan matching against the
 //      particle's map *predicted* to the scan's step (a hill climb of gmapping's kind on the
 //      beam end points' distance to predicted-occupied cells);
-//   2. weight: times the scan's likelihood under the particle's predicted map. Cells are
-//      independent given the trajectory, so p(z | trajectory, past scans) is the product
-//      over the cells the scan reaches of q p(z_c | occ) + (1 - q) p(z_c | free), q the
-//      cell's predicted p(occ) (the RBPF's exact incremental weight under the package's
-//      sensor model); cells the particle has never seen count as explained
-//      (PoseFilterConfig::unknown_cells_as_prior says why);
+//      The pose is refused, and odometry's increment from the particle's last pose taken
+//      instead, when its correction of odometry is more than the motion model allows over
+//      the last guard_window_m of travel (guardAccepts), or when the scan does not support
+//      it (its likelihood is not correction_min_gain nats above odometry's increment's);
+//   2. weight: times the scan's likelihood under the particle's predicted map, amcl's
+//      likelihood field: weight_beams beams evenly subsampled, each end's distance d to the
+//      nearest cell the map predicts occupied scored z_hit exp(-d^2 / 2 sigma^2) + z_rand.
+//      (The exact incremental weight, a product over the 2 500-6 000 cells a real scan
+//      reaches, ranked particles 2-5 cm apart by 15 nats and resampled at every update to
+//      one lineage: docs/pose_correction_real.md.) A beam ending where the particle's map
+//      has not been counts as explained (no pull towards mapped places: along a corridor
+//      that pull shrank every leg);
 //   3. resampling (Liu's residual resampling) when N_eff = 1 / sum w^2 falls below
 //      resample_below * N. Maps are copied by their tile pointers (particle_map.h);
 //   4. map: each cell the scan reaches takes one filter step with its evidence from the
@@ -47,6 +53,33 @@ struct PoseFilterConfig {
   std::size_t particles = 30;
   /// The odometry's noise (amcl's odom_alpha1..4) for the proposal.
   OdometryNoise motion_noise{0.05, 0.05, 0.05, 0.05};
+  /// The weight: a likelihood field (amcl's likelihood_field model) over at most this many
+  /// beams with a return, evenly subsampled; each beam end's distance d to the nearest
+  /// cell its particle's map predicts occupied (p > 0.5) gives
+  /// p = weight_z_hit exp(-d^2 / 2 weight_sigma_m^2) + weight_z_rand. A beam ending where
+  /// the particle's map has not been (no observed cell in the 3 x 3 around its end) counts
+  /// as explained (d = 0): no pull towards mapped places.
+  std::size_t weight_beams = 60;
+  double weight_sigma_m = 0.15;
+  double weight_z_hit = 0.95;
+  double weight_z_rand = 0.05;
+  /// Nearest occupied cells are searched up to this far (d is at most this).
+  double weight_max_distance_m = 0.5;
+  /// The guard: a particle's pose (matched or sampled) is refused, and odometry's increment
+  /// taken from its last pose instead, when its net correction of odometry since the state
+  /// of its lineage guard_window_m of travel ago (its first pose while the trajectory is
+  /// shorter) exceeds guard_sigmas standard deviations of what the motion model allows over
+  /// that motion (heading; position with the heading's lateral error). 0: no guard.
+  double guard_sigmas = 3.0;
+  double guard_window_m = 10.0;
+  /// A particle's pose other than odometry's increment from its last pose is taken only if
+  /// the scan supports it: its likelihood-field log-likelihood minus that of odometry's
+  /// increment, plus the motion model's log prior ratio of the two (-m^2 / 2, m the
+  /// correction's Mahalanobis distance under this update's heading and position variances),
+  /// is at least correction_min_gain (nats; 0: the more probable of the two under the
+  /// motion model and the scan). false: no such test.
+  bool correction_test = true;
+  double correction_min_gain = 0.0;
   /// An update once odometry moved this far or turned this much since the last (gmapping's
   /// linearUpdate / angularUpdate); the first scan is always one.
   double update_distance_m = 0.5;
@@ -58,14 +91,6 @@ struct PoseFilterConfig {
   double p_hit_given_occ = 0.7;       ///< sensor model, as MapperConfig's
   double p_hit_given_free = 0.2;
   double unknown_p_occ = 0.5;         ///< p(occ) of a cell no scan has reached
-  /// The weight's term of a cell the particle's map has not observed. true: its evidence's
-  /// likelihood under unknown_p_occ (the exact incremental weight of the model). false (the
-  /// default): under the state that explains it best. With an uninformed prior the exact
-  /// weight favours the particles whose scan falls on cells their map has seen: every
-  /// unseen cell costs about log 2. Along a corridor that is the particles that moved
-  /// least, and a filter resampling on it shrinks every corridor (patrol_office: a 15 m
-  /// leg mapped 3 m short).
-  bool unknown_cells_as_prior = false;
   double max_free_range_m = 10.0;     ///< beams without return clear up to here (0: ignored)
   double max_range_m = 30.0;          ///< no beam is walked further (at most 1022 cells)
   /// Scan matching: on by default; off, the proposal is the motion model alone.
@@ -91,7 +116,32 @@ struct TrajectoryNode {
   double stamp_s = 0.0;
   Pose2D pose;
   std::shared_ptr<const TrajectoryNode> parent;
+  /// For the guard: odometry's pose at this update, the odometry's travel (m) and the
+  /// motion model's heading variance (rad^2) and translation variance (m^2) accumulated
+  /// since the first update.
+  Pose2D odometry;
+  double travelled_m = 0.0;
+  double heading_variance = 0.0;
+  double translation_variance = 0.0;
 };
+
+/// The guard's test (PoseFilterConfig::guard_sigmas): whether `pose` at odometry
+/// `odometry`, with the totals `travelled_m`, `heading_variance`, `translation_variance`
+/// since the first update, stays within `sigmas` standard deviations of odometry's motion
+/// since `anchor`: heading |yaw - yaw_pred| <= k sigma_h with sigma_h^2 the heading
+/// variance accumulated since the anchor, position |xy - xy_pred| <= k sigma_p with
+/// sigma_p^2 = the translation variance since the anchor + (d sigma_h)^2 / 3 (the heading's
+/// random walk over the distance d travelled) + (one cell)^2 floor `floor_m`^2; pred is the
+/// anchor's pose moved by odometry's motion since the anchor.
+bool guardAccepts(const TrajectoryNode& anchor, const Pose2D& pose, const Pose2D& odometry, double travelled_m,
+                  double heading_variance, double translation_variance, double sigmas, double floor_m);
+
+/// The distance (m) from (x_m, y_m) to the centre of the nearest cell that `map` has
+/// observed and predicts occupied (p > 0.5 at `step`), on a lattice of `resolution_m`;
+/// `max_distance_m` if there is none within it.
+double nearestOccupiedDistance(const ParticleMap& map, const TransitionSource& transitions, double x_m,
+                               double y_m, double resolution_m, double max_distance_m, std::int64_t step,
+                               double unknown_p_occ);
 
 struct Particle {
   Pose2D pose;              ///< the laser's pose in the map frame at the last update
@@ -172,6 +222,12 @@ class PoseFilter {
   /// The step of the last update (0 before the first scan's).
   std::int64_t lastUpdateStep() const { return last_step_; }
   std::size_t resamplings() const { return resamplings_; }
+  /// Particle-updates whose pose the guard refused (odometry's increment taken instead).
+  std::size_t guardRefusals() const { return guard_refusals_; }
+  /// N_eff before resampling of every update after the first, in order.
+  const std::vector<double>& effectiveSampleSizes() const { return effective_sample_sizes_; }
+  /// Wall time (s) spent in the updates after the first.
+  double updateSeconds() const { return update_seconds_; }
   /// The filter's steps (started by the first scan): step 0 starts at startStepsAt's origin,
   /// or else at the first scan's stamp.
   const StepClock& clock() const { return clock_; }
@@ -180,9 +236,11 @@ class PoseFilter {
   /// `beams`: the ends of the scan's beams that take part in matching.
   Pose2D matchPose(const Particle& particle, const std::vector<LaserPoint>& beams, const Pose2D& start,
                    std::int64_t step) const;
-  /// Moves and weighs one particle (its map is updated after resampling: mapScan).
-  void updateParticle(Particle& particle, const Scan& scan, const std::vector<LaserPoint>& match_beams,
-                      const OdometryMotion& motion, const std::array<double, 3>& normals, std::int64_t step) const;
+  /// Moves and weighs one particle (its map is updated after resampling: mapScan); true if
+  /// the guard refused its pose.
+  bool updateParticle(Particle& particle, const Scan& scan, const std::vector<LaserPoint>& match_beams,
+                      const std::vector<LaserPoint>& weight_beams, const OdometryMotion& motion,
+                      const std::array<double, 3>& normals, std::int64_t step) const;
   /// Maps `scan` in every particle's map from its pose; `ancestors[i]` the particle that
   /// particle i was copied from at resampling (the copies of one share pose and map: one
   /// update, shared).
@@ -203,6 +261,9 @@ class PoseFilter {
   std::optional<double> steps_origin_s_;  ///< startStepsAt's, until the first scan
   std::size_t updates_ = 0;
   std::size_t resamplings_ = 0;
+  std::size_t guard_refusals_ = 0;
+  std::vector<double> effective_sample_sizes_;
+  double update_seconds_ = 0.0;
 };
 
 }  // namespace core
