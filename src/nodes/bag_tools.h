@@ -155,22 +155,6 @@ inline void addPoseCorrectionOptions(command_line::CommandLine& line, PoseCorrec
            ->value_name("A1,A2,A3,A4"),
        "pose correction: the odometry's noise, amcl's odom_alpha1..4 (rotation from rotation, rotation from "
        "translation, translation from translation, translation from rotation; default 0.001 each)")
-      ("guard-sigmas", cl::number(&filter.guard_sigmas, cl::between(0.0, 1000.0))->value_name("K"),
-       "pose correction: refuse a particle's correction of odometry beyond K standard deviations of the motion "
-       "model over the last --guard-window metres (default 3; 0: no guard)")
-      ("guard-window", cl::number(&filter.guard_window_m, cl::between(0.0, 1e6))->value_name("M"),
-       "pose correction: the guard's window of travel (default 10)")
-      ("correction-min-gain", cl::number(&filter.correction_min_gain, cl::between(-1e6, 1e6))->value_name("NATS"),
-       "pose correction: a particle leaves odometry's increment only for a pose whose log-likelihood ratio to it, "
-       "plus the motion model's log prior ratio, is at least this (default 0)")
-      ("no-correction-test", boost::program_options::bool_switch()->notifier([&filter](bool off) {
-         if (off) filter.correction_test = false;
-       }),
-       "pose correction: take the matched (or sampled) pose without --correction-min-gain's test")
-      ("weight-beams", cl::number(&filter.weight_beams, cl::between<std::size_t>(1, 100000))->value_name("N"),
-       "pose correction: beams in a particle's likelihood-field weight (default 60)")
-      ("weight-sigma", cl::number(&filter.weight_sigma_m, cl::above(0.0))->value_name("M"),
-       "pose correction: the likelihood field's sigma (default 0.15)")
       ("update-distance", cl::number(&filter.update_distance_m, cl::above(0.0))->value_name("M"),
        "pose correction: a filter update once odometry moved M metres (default 0.5)")
       ("update-angle", cl::number(&filter.update_angle_rad, cl::above(0.0))->value_name("RAD"),
