@@ -2,8 +2,8 @@
 # Checks the rviz configuration in a real rviz under Xvfb, headless, and writes one JUnit
 # testcase per check:
 #   static/config               YAML readable; fixed frame map, the default fixed_frame of
-#                               replay.launch and the config; a top-down view that fits the
-#                               map demo.launch builds; a Map display per layer with
+#                               replay.launch and the config; a top-down view that follows
+#                               base_link and fits the map demo.launch builds; a Map display per layer with
 #                               its topic, _updates topic, color scheme and enabled state;
 #                               LaserScan /scan, TF, Grid; every class declared by a plugin
 #   rviz/loads_without_errors   rviz (own roscore on a free port) comes up with it, is still
@@ -64,7 +64,12 @@ for _ in $(seq 60); do master_up && break; sleep 0.5; done
 if ! master_up; then
   { echo "FAIL: roscore did not start on port $port"; cat "$work/roscore.log"; } > "$work/core.log"
   record "rviz/roscore_starts" fail 30 "$work/core.log"
-  python3 "$checks" junit rviz_config "$results" "$output"
+  # A view that stays at the fixed frame's origin: a robot driving away leaves it.
+sed 's/^      Target Frame: base_link$/      Target Frame: <Fixed Frame>/' "$config" > "$broken/fixed_view.rviz"
+expect_failure "negative_control/view_does_not_follow_the_robot/static" "expected 'base_link'" \
+  python3 "$checks" static-rviz "$broken/fixed_view.rviz"
+
+python3 "$checks" junit rviz_config "$results" "$output"
   exit 1
 fi
 read -r -a core_pids < <(python3 - <<'PY'
@@ -92,7 +97,12 @@ for _ in $(seq 40); do [ -s "$work/display" ] && break; sleep 0.25; done
 if [ ! -s "$work/display" ]; then
   { echo "FAIL: Xvfb did not start"; cat "$work/xvfb.log"; } > "$work/xvfb_failed.log"
   record "rviz/xvfb_starts" fail 10 "$work/xvfb_failed.log"
-  python3 "$checks" junit rviz_config "$results" "$output"
+  # A view that stays at the fixed frame's origin: a robot driving away leaves it.
+sed 's/^      Target Frame: base_link$/      Target Frame: <Fixed Frame>/' "$config" > "$broken/fixed_view.rviz"
+expect_failure "negative_control/view_does_not_follow_the_robot/static" "expected 'base_link'" \
+  python3 "$checks" static-rviz "$broken/fixed_view.rviz"
+
+python3 "$checks" junit rviz_config "$results" "$output"
   exit 1
 fi
 DISPLAY=":$(head -n 1 "$work/display")"
@@ -162,5 +172,10 @@ expect_failure "negative_control/wrong_layer_topic/static" "stationnary" \
 sed 's/^      Scale: [0-9.]*$/      Scale: 200/' "$config" > "$broken/zoomed_in.rviz"
 expect_failure "negative_control/view_misses_the_map/static" "does not show the demo map" \
   python3 "$checks" static-rviz "$broken/zoomed_in.rviz"
+
+# A view that stays at the fixed frame's origin: a robot driving away leaves it.
+sed 's/^      Target Frame: base_link$/      Target Frame: <Fixed Frame>/' "$config" > "$broken/fixed_view.rviz"
+expect_failure "negative_control/view_does_not_follow_the_robot/static" "expected 'base_link'" \
+  python3 "$checks" static-rviz "$broken/fixed_view.rviz"
 
 python3 "$checks" junit rviz_config "$results" "$output"

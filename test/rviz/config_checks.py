@@ -35,6 +35,11 @@ LAYERS = {
 SCAN_TOPIC = "/scan"
 FIXED_FRAME = "map"
 PACKAGE_DIR = os.path.abspath(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", ".."))
+# The view follows the robot's base (REP 105's base_link), so a bag whose robot drives far
+# from the fixed frame's origin stays in view; rviz follows the frame's position, not its yaw.
+# Where there is no base_link (the bundled example: a stationary laser), the view stays at the
+# fixed frame's origin.
+VIEW_TARGET_FRAME = "base_link"
 # The map demo.launch builds (the bundled example in the frame map, 0.05 m cells, the laser at
 # the origin): x -3.2..6.4 m, y -6.4..6.4 m. The view must show all of it in the render
 # panel of rviz's default window (about 540 x 680 px, measured under Xvfb).
@@ -155,7 +160,7 @@ def static_rviz_problems(path):
 
 def frame_and_view_problems(frame, views):
     """The fixed frame is the default ~fixed_frame of the config and of replay.launch; the
-    view is top-down and fits the map demo.launch builds."""
+    view is top-down, follows base_link and fits the map demo.launch builds."""
     problems = []
     defaults = {}
     for arg in ET.parse(os.path.join(PACKAGE_DIR, "launch", "replay.launch")).getroot().findall("arg"):
@@ -169,6 +174,9 @@ def frame_and_view_problems(frame, views):
     current = views.get("Current") or {}
     if current.get("Class") != "rviz/TopDownOrtho":
         return problems + [f"the view is {current.get('Class')!r}, expected rviz/TopDownOrtho"]
+    if current.get("Target Frame") != VIEW_TARGET_FRAME:
+        problems.append(f"the view's Target Frame is {current.get('Target Frame')!r}, expected "
+                        f"{VIEW_TARGET_FRAME!r} (the view follows the robot)")
     try:
         scale, x, y = (float(current.get(key)) for key in ("Scale", "X", "Y"))
     except (TypeError, ValueError):
