@@ -77,7 +77,7 @@ class DaskOfflineEmTest(unittest.TestCase):
         cls.patrol = []
         for seed in (1, 2, 3):
             path = os.path.join(cls.tmp, 'patrol_%d.bag' % seed)
-            subprocess.run([executable('simulate'), '--scenario', 'patrol_office', '--steps', '150', '--seed',
+            subprocess.run([executable('simulate'), '--scenario', 'patrol_office', '--steps', '80', '--seed',
                             str(seed), '--out', path], check=True, capture_output=True, timeout=TIMEOUT_S)
             cls.patrol.append(path)
 
@@ -130,11 +130,13 @@ class DaskOfflineEmTest(unittest.TestCase):
     def test_mrf_iterations_over_blocks(self):
         # The MRF couples neighbouring cells across blocks: the blocks' E-steps, then the
         # joint M-step over all cells in offline_em's cell order, every iteration.
-        lines = self.assert_same_model('mrf', [NEATO_BAG] * 2, NEATO_ARGS + ['--mrf-temperature', '50'],
-                                       block_cells=64)
+        # Three iterations (of the 20 it takes to converge): the test is that each matches
+        # offline_em's, not convergence, and each costs a round of block tasks.
+        lines = self.assert_same_model('mrf', [NEATO_BAG] * 2,
+                                       NEATO_ARGS + ['--mrf-temperature', '50', '--em-iterations', '3'], block_cells=64)
         self.assertGreaterEqual(sum(line.startswith('continue: iteration') for line in lines), 2, lines)
         self.assertTrue(any(line.startswith('done: ') for line in lines), lines)
-        self.assert_same_model('mrf_patrol', self.patrol, ['--mrf-temperature', '20', '--em-iterations', '8'],
+        self.assert_same_model('mrf_patrol', self.patrol, ['--mrf-temperature', '20', '--em-iterations', '3'],
                                block_cells=128)
 
     def test_bag_whose_stamps_round_differently_is_extracted_again(self):
