@@ -5,9 +5,8 @@
 # line "N passed, N failed" computed from the JUnit XML results. Exits non-zero if anything
 # failed or did not run.
 #   DOG_FUZZ_SECONDS=N   seconds per fuzz target (default 25)
-#   DOG_SANITIZED=0      skip the tests again in an ASan + UBSan build (test/sanitizers), which
-#                        run by default: from scratch they add 8-13 min on 2 quiet cores, about
-#                        30 min on busy ones (docs/reliability.md)
+#   DOG_SANITIZED=0      skip the core's tests and the node's rostests again in an ASan + UBSan
+#                        build (test/sanitizers), which run by default (docs/reliability.md)
 set -uo pipefail
 
 package_dir=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)

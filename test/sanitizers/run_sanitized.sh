@@ -1,8 +1,10 @@
 #!/usr/bin/env bash
 # The tests again in an ASan + UBSan build (docs/reliability.md): the package built by gcc
-# with -fsanitize=address,undefined in a catkin workspace of its own, then its GoogleTest
-# binaries (core and evaluation) and its rostests (the node and the tools they launch are
-# sanitized executables). Any sanitizer report fails: each one stops its process
+# with -fsanitize=address,undefined in a catkin workspace of its own, then the core's
+# GoogleTest binaries and the node's rostests (the node, the nodelet and the tools they
+# launch are sanitized executables). Not again: the evaluation library's tests (experiments
+# on the simulator, on the core the core's tests cover) and the rostests of the offline tools
+# (TOOL_ROSTESTS: they run the same core on bags; each runs once, unsanitized). Any sanitizer report fails: each one stops its process
 # (halt_on_error, -fno-sanitize-recover) and is written to a report directory that
 # collect_results.py turns into a failing testcase, also when the process was a node whose
 # test went on.
@@ -34,7 +36,20 @@ configure=(-DCMAKE_BUILD_TYPE=None "-DCMAKE_CXX_FLAGS=$flags" "-DCMAKE_C_FLAGS=$
            -DCMAKE_EXE_LINKER_FLAGS=-fsanitize=address,undefined
            -DCMAKE_SHARED_LINKER_FLAGS=-fsanitize=address,undefined
            -DCATKIN_ENABLE_TESTING=ON -DCMAKE_DISABLE_FIND_PACKAGE_benchmark=ON)
-if ! (cd "$workspace" && catkin_make "${configure[@]}" -j2 >"$workspace/build.log" 2>&1); then
+TOOL_ROSTESTS=" bag_tools check_bag dask_offline_em real_recordings_report simulate "
+binaries=(mapping_node dynamic_occupancy_grid_nodelet process_bag offline_em sharded_em simulate check_bag evaluate
+          dynamic_occupancy_grid_generate_messages_py)
+targets=()
+for test_file in "$package_dir"/test/core/test_*.cpp; do
+  binaries+=("$(basename "$test_file" .cpp)")
+  targets+=("run_tests_dynamic_occupancy_grid_gtest_$(basename "$test_file" .cpp)")
+done
+for test_file in "$package_dir"/test/ros/*.test; do
+  [[ "$TOOL_ROSTESTS" == *" $(basename "$test_file" .test) "* ]] && continue
+  targets+=("run_tests_dynamic_occupancy_grid_rostest_test_ros_$(basename "$test_file")")
+done
+# What those tests run (the rostests' nodes and tools, the core's test binaries), not all.
+if ! (cd "$workspace" && catkin_make "${configure[@]}" --make-args "${binaries[@]}" -j2 >"$workspace/build.log" 2>&1); then
   tail -30 "$workspace/build.log"
   echo "run_sanitized: the sanitized build failed (log: $workspace/build.log)" >&2
   exit 1
@@ -53,10 +68,6 @@ export UBSAN_OPTIONS="halt_on_error=1:abort_on_error=1:print_stacktrace=1:log_pa
 DOG_NODELET_PRELOAD=$(gcc -print-file-name=libasan.so)
 export DOG_NODELET_PRELOAD
 
-targets=(run_tests_dynamic_occupancy_grid_gtest)
-for test_file in "$package_dir"/test/ros/*.test; do
-  targets+=("run_tests_dynamic_occupancy_grid_rostest_test_ros_$(basename "$test_file")")
-done
 status=0
 (cd "$workspace" && catkin_make "${targets[@]}" -j2) >"$workspace/test.log" 2>&1 || status=1
 
