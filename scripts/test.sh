@@ -4,7 +4,7 @@
 # include audit and the fuzz targets for a bounded time (test/fuzz), then prints one summary
 # line "N passed, N failed" computed from the JUnit XML results. Exits non-zero if anything
 # failed or did not run.
-#   DOG_FUZZ_SECONDS=N   seconds per fuzz target (default 25)
+#   DOG_FUZZ_SECONDS=N   seconds per fuzz target (default 15)
 #   DOG_SANITIZED=0      skip the core's tests and the node's rostests again in an ASan + UBSan
 #                        build (test/sanitizers), which run by default (docs/reliability.md)
 set -uo pipefail
@@ -53,7 +53,7 @@ fi
 # Each fuzz target for a bounded time from its committed corpus (docs/reliability.md): one
 # testcase per target, failed by a crash, a sanitizer finding, a leak or a hang.
 start=$(date +%s)
-if ! "$package_dir/test/fuzz/run_fuzz.sh" "$workspace/build/fuzz" "$results_dir/fuzz.xml" "${DOG_FUZZ_SECONDS:-25}"; then
+if ! "$package_dir/test/fuzz/run_fuzz.sh" "$workspace/build/fuzz" "$results_dir/fuzz.xml" "${DOG_FUZZ_SECONDS:-15}"; then
   status=1
   [ -s "$results_dir/fuzz.xml" ] || broken+=("test/fuzz/run_fuzz.sh wrote no $results_dir/fuzz.xml")
 fi

@@ -4,13 +4,13 @@
 # sanitizer finding, a leak, a timeout or running out of memory fails it, with the input
 # that did it kept (docs/reliability.md says how to replay one).
 #
-#   run_fuzz.sh BUILD_DIR RESULT_XML [SECONDS]   (default 25 s per target)
+#   run_fuzz.sh BUILD_DIR RESULT_XML [SECONDS]   (default 15 s per target)
 set -uo pipefail
 
 fuzz_dir=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
 build_dir=$1
 result=$2
-seconds=${3:-25}
+seconds=${3:-15}
 targets=(model_reader scan_integrate bag_scan_source command_line)
 export PATH=/usr/bin:/bin:$PATH
 

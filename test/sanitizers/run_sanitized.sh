@@ -4,7 +4,8 @@
 # GoogleTest binaries and the node's rostests (the node, the nodelet and the tools they
 # launch are sanitized executables). Not again: the evaluation library's tests (experiments
 # on the simulator, on the core the core's tests cover) and the rostests of the offline tools
-# (TOOL_ROSTESTS: they run the same core on bags; each runs once, unsanitized). Any sanitizer report fails: each one stops its process
+# (TOOL_ROSTESTS: they run the same core on bags; each runs once, unsanitized), nor are the
+# tools those need built. Any sanitizer report fails: each one stops its process
 # (halt_on_error, -fno-sanitize-recover) and is written to a report directory that
 # collect_results.py turns into a failing testcase, also when the process was a node whose
 # test went on.
@@ -36,9 +37,13 @@ configure=(-DCMAKE_BUILD_TYPE=None "-DCMAKE_CXX_FLAGS=$flags" "-DCMAKE_C_FLAGS=$
            -DCMAKE_EXE_LINKER_FLAGS=-fsanitize=address,undefined
            -DCMAKE_SHARED_LINKER_FLAGS=-fsanitize=address,undefined
            -DCATKIN_ENABLE_TESTING=ON -DCMAKE_DISABLE_FIND_PACKAGE_benchmark=ON)
-TOOL_ROSTESTS=" bag_tools check_bag dask_offline_em real_recordings_report simulate "
-binaries=(mapping_node dynamic_occupancy_grid_nodelet process_bag offline_em sharded_em simulate check_bag evaluate
-          dynamic_occupancy_grid_generate_messages_py)
+# The offline tools' rostests: CMakeLists.txt's DOG_TOOL_ROSTESTS.
+TOOL_ROSTESTS=" $(sed -n 's/^ *set(DOG_TOOL_ROSTESTS \(.*\))$/\1/p' "$package_dir/CMakeLists.txt") "
+if [ "$TOOL_ROSTESTS" = "  " ]; then
+  echo "run_sanitized: no set(DOG_TOOL_ROSTESTS ...) line in $package_dir/CMakeLists.txt" >&2
+  exit 1
+fi
+binaries=(mapping_node dynamic_occupancy_grid_nodelet simulate dynamic_occupancy_grid_generate_messages_py)
 targets=()
 for test_file in "$package_dir"/test/core/test_*.cpp; do
   binaries+=("$(basename "$test_file" .cpp)")
