@@ -71,8 +71,8 @@ Options parseArguments(int argc, char** argv) {
       ("transition-scale", cl::number(&options.transition_scale, cl::between(1.0e-6, 1.0))->value_name("P"),
        "transition layers: P per step is written as 100 (default 0.1)")
       ("trajectory", cl::nonEmpty(&options.trajectory_path, "a file name")->value_name("FILE"),
-       "pose correction: the best particle's trajectory (the laser's poses in the map frame at the filter's "
-       "updates) in TUM format, for evo (default DIR/trajectory.tum)");
+       "pose correction: the laser's poses in the map frame at the filter's updates, as the scans were mapped "
+       "(odometry moved by the correction in use), in TUM format, for evo (default DIR/trajectory.tum)");
   dog::bag_tools::addMappingOptions(line, &options.shared);
   dog::bag_tools::addEmOptions(line, &options.shared);
   dog::bag_tools::addPoseCorrectionOptions(line, &options.correction);
@@ -216,10 +216,11 @@ int run(const Options& options) {
     if (!directory.empty()) std::filesystem::create_directories(directory);
     dog::core::writeFileAtomically(options.trajectory_path, tumTrajectory(trajectory));
     const dog::core::Pose2D correction_now = correction->mapToOdometry();
-    std::printf("pose correction: %zu particles, %zu updates, %zu resamplings; map -> odom at the end (%.3f m, %.3f m, "
-                "%.4f rad); %zu poses -> %s\n",
-                filter.particles().size(), filter.updates(), filter.resamplings(), correction_now.x_m, correction_now.y_m,
-                correction_now.yaw_rad, trajectory.size(), options.trajectory_path.c_str());
+    std::printf("pose correction: %zu particles, %zu updates, %zu resamplings; map -> odom changed %zu times, at the "
+                "end (%.3f m, %.3f m, %.4f rad); %zu poses -> %s\n",
+                filter.particles().size(), filter.updates(), filter.resamplings(), correction->correctionsTaken(),
+                correction_now.x_m, correction_now.y_m, correction_now.yaw_rad, trajectory.size(),
+                options.trajectory_path.c_str());
     std::vector<double> n_eff = filter.effectiveSampleSizes();
     if (!n_eff.empty()) {
       std::sort(n_eff.begin(), n_eff.end());

@@ -680,12 +680,14 @@ TEST(CorrectedMapping, ConfigTakesTheMappersMapAndSensor) {
   EXPECT_NO_THROW(made.validate());
 }
 
-TEST(CorrectedMapping, MapsEachScanAtTheFiltersCorrectedPose) {
-  // A drive through CorrectedMapping started with a correction S, against the same filter
-  // run alone on odometry moved by S (its frame is then the map frame) with a learner fed
-  // the corrected scans: the same corrections, poses, trajectory and map, cell for cell.
-  // The learner's transitions matter (one observed step makes a cell learned), so a filter
-  // reading them at other cells than the map's would part from the reference.
+TEST(CorrectedMapping, MapsAtOdometryUntilASettledMapAsksForACorrection) {
+  // A drive of 15 s through CorrectedMapping started with a correction S, against the same
+  // filter run alone on odometry moved by S (its frame is then the map frame) with a learner
+  // fed the scans as mapped. No settled map (the map as it was 30 s ago) exists yet, so the
+  // correction in use stays S: every scan is mapped at S times odometry, while the filter
+  // runs as it would alone: the same updates and trajectory, and the same map, cell for
+  // cell. The learner's transitions matter (one observed step makes a cell learned), so a
+  // filter reading them at other cells than the map's would part from the reference.
   const std::vector<Box> boxes = room();
   dog::MapperConfig mapper_config;
   mapper_config.resolution_m = 0.1;
@@ -701,6 +703,8 @@ TEST(CorrectedMapping, MapsEachScanAtTheFiltersCorrectedPose) {
   dog::PoseFilter reference(config, std::make_shared<dog::MapperTransitions>(reference_learner, 0.1, 1));
   std::mt19937_64 rng(3);
   dog::Pose2D truth{2.0, 2.0, 0.0};  // in the room
+  std::vector<dog::TrajectoryNode> expected_trajectory;
+  bool filter_moved = false;
   for (int i = 0; i < 30; ++i) {
     truth = dog::applyMotion(truth, dog::OdometryMotion{0.05, 0.15, -0.02});
     dog::Scan scan = simulatedScan(boxes, truth, 0.5 * i, rng, 0.01);
@@ -711,20 +715,29 @@ TEST(CorrectedMapping, MapsEachScanAtTheFiltersCorrectedPose) {
     shifted.laser_pose = truth;  // S times odometry
     const dog::PoseUpdate update = reference.integrate(shifted);
     EXPECT_EQ(result.update.updated, update.updated) << i;
-    const dog::Pose2D expected = dog::composePose(reference.mapToOdometry(), truth);
-    expectPose(result.corrected.laser_pose, expected, 1e-9);
-    expectPose(mapping.mapToOdometry(), dog::composePose(reference.mapToOdometry(), start), 1e-9);
-    dog::Scan corrected = scan;
-    corrected.laser_pose = result.corrected.laser_pose;
-    reference_learner.integrate(corrected);
+    expectPose(result.corrected.laser_pose, truth, 1e-9);
+    expectPose(mapping.mapToOdometry(), start, 1e-9);
+    expectPose(mapping.filter().mapToOdometry(), reference.mapToOdometry(), 1e-9);
+    const dog::Pose2D filters = reference.mapToOdometry();
+    filter_moved = filter_moved || filters.x_m != 0.0 || filters.y_m != 0.0 || filters.yaw_rad != 0.0;
+    if (update.updated) expected_trajectory.push_back({scan.stamp_s, truth});
+    reference_learner.integrate(result.corrected);
   }
   EXPECT_GT(mapping.filter().updates(), 5u);
-  const std::vector<dog::TrajectoryNode> trajectory = mapping.trajectory();
+  EXPECT_TRUE(filter_moved);  // the filter did correct: the correction in use held against it
+  EXPECT_EQ(mapping.correctionsTaken(), 0u);
   const std::vector<dog::TrajectoryNode> filters = reference.bestTrajectory();
-  ASSERT_EQ(trajectory.size(), filters.size());
+  const std::vector<dog::TrajectoryNode> lineage = mapping.filter().bestTrajectory();
+  ASSERT_EQ(lineage.size(), filters.size());
+  for (std::size_t i = 0; i < lineage.size(); ++i) {
+    EXPECT_EQ(lineage[i].stamp_s, filters[i].stamp_s);
+    expectPose(lineage[i].pose, filters[i].pose, 1e-9);
+  }
+  const std::vector<dog::TrajectoryNode> trajectory = mapping.trajectory();
+  ASSERT_EQ(trajectory.size(), expected_trajectory.size());
   for (std::size_t i = 0; i < trajectory.size(); ++i) {
-    EXPECT_EQ(trajectory[i].stamp_s, filters[i].stamp_s);
-    expectPose(trajectory[i].pose, filters[i].pose, 1e-9);
+    EXPECT_EQ(trajectory[i].stamp_s, expected_trajectory[i].stamp_s);
+    expectPose(trajectory[i].pose, expected_trajectory[i].pose, 1e-9);
   }
   mapper.finishStep();
   reference_learner.finishStep();
@@ -744,6 +757,113 @@ TEST(CorrectedMapping, MapsEachScanAtTheFiltersCorrectedPose) {
     }
   }
   EXPECT_GT(compared, 1000u);
+}
+
+// The farthest the scan's laser position and beam ends lie apart in the map under the
+// corrections (map -> odom) a and b.
+double farthestMove(const dog::Pose2D& a, const dog::Pose2D& b, const dog::Scan& scan) {
+  double farthest = 0.0;
+  const auto move = [&](const dog::Pose2D& point) {
+    const dog::Pose2D in_a = dog::composePose(a, point);
+    const dog::Pose2D in_b = dog::composePose(b, point);
+    farthest = std::max(farthest, std::hypot(in_a.x_m - in_b.x_m, in_a.y_m - in_b.y_m));
+  };
+  move(scan.laser_pose);
+  for (std::size_t i = 0; i < scan.ranges_m.size(); ++i) {
+    const double range = scan.ranges_m[i];
+    if (!(range >= scan.range_min_m && range <= scan.range_max_m)) continue;
+    const double angle = scan.angle_min_rad + static_cast<double>(i) * scan.angle_increment_rad;
+    move(dog::composePose(scan.laser_pose, dog::Pose2D{range * std::cos(angle), range * std::sin(angle), 0.0}));
+  }
+  return farthest;
+}
+
+struct CorrectedDrive {
+  std::size_t taken = 0;
+  double first_taken_s = -1.0;
+  double odometry_error_m = 0.0;  ///< mean position error over the last lap, at the filter's updates
+  double mapped_error_m = 0.0;    ///< of the poses the scans were mapped at
+};
+
+// `laps` laps of drive()'s loop (0.2 m and 0.5 s a scan: 40 s a lap) through CorrectedMapping,
+// odometry drifting by `drift`. Checks on the way that the correction in use changes only to
+// the filter's, by more than two cells (0.2 m), and that every scan is mapped at it.
+CorrectedDrive correctedDrive(std::uint64_t seed, const dog::OdometryNoise& drift, int laps) {
+  const std::vector<Box> boxes = room();
+  const std::vector<std::array<double, 2>> corners = {{1.5, 1.5}, {6.5, 1.5}, {6.5, 5.5}, {1.5, 5.5}};
+  std::vector<dog::Pose2D> truth;
+  for (int lap = 0; lap < laps; ++lap) {
+    for (std::size_t c = 0; c < corners.size(); ++c) {
+      const auto& a = corners[c];
+      const auto& b = corners[(c + 1) % corners.size()];
+      const double heading = std::atan2(b[1] - a[1], b[0] - a[0]);
+      const double length = std::hypot(b[0] - a[0], b[1] - a[1]);
+      for (double s = 0.0; s < length; s += 0.2) truth.push_back({a[0] + s * std::cos(heading), a[1] + s * std::sin(heading), heading});
+    }
+  }
+  dog::MapperConfig mapper_config;
+  mapper_config.resolution_m = 0.1;
+  dog::Mapper mapper(mapper_config);
+  dog::CorrectedMapping mapping(mapper, dog::poseFilterConfigFor(mapper_config, driveConfig()), 1);
+  std::mt19937_64 rng(seed);
+  std::normal_distribution<double> normal;
+  CorrectedDrive result;
+  dog::Pose2D odometry = truth[0];
+  std::size_t last_lap_updates = 0;
+  for (std::size_t i = 0; i < truth.size(); ++i) {
+    if (i > 0) {
+      odometry = dog::applyMotion(odometry, dog::perturbMotion(dog::odometryMotion(truth[i - 1], truth[i]), drift,
+                                                               {normal(rng), normal(rng), normal(rng)}));
+    }
+    dog::Scan scan = simulatedScan(boxes, truth[i], 0.5 * static_cast<double>(i), rng, 0.01);
+    scan.laser_pose = odometry;
+    const dog::Pose2D before = mapping.mapToOdometry();
+    const dog::CorrectedScan corrected = mapping.integrate(scan);
+    EXPECT_EQ(corrected.mapped.status, dog::ScanStatus::kIntegrated) << corrected.mapped.error;
+    const dog::Pose2D now = mapping.mapToOdometry();
+    expectPose(corrected.corrected.laser_pose, dog::composePose(now, odometry), 1e-9);
+    if (now.x_m != before.x_m || now.y_m != before.y_m || now.yaw_rad != before.yaw_rad) {
+      ++result.taken;
+      if (result.first_taken_s < 0.0) result.first_taken_s = scan.stamp_s;
+      EXPECT_TRUE(corrected.update.updated) << i;
+      expectPose(now, mapping.filter().mapToOdometry(), 0.0);
+      EXPECT_GT(farthestMove(before, now, scan), 0.2) << i;
+    }
+    if (corrected.update.updated && static_cast<int>(i) * laps >= (laps - 1) * static_cast<int>(truth.size())) {
+      const dog::Pose2D& mapped = corrected.corrected.laser_pose;
+      result.mapped_error_m += std::hypot(mapped.x_m - truth[i].x_m, mapped.y_m - truth[i].y_m);
+      result.odometry_error_m += std::hypot(odometry.x_m - truth[i].x_m, odometry.y_m - truth[i].y_m);
+      ++last_lap_updates;
+    }
+  }
+  EXPECT_EQ(mapping.correctionsTaken(), result.taken);
+  result.mapped_error_m /= static_cast<double>(last_lap_updates);
+  result.odometry_error_m /= static_cast<double>(last_lap_updates);
+  return result;
+}
+
+TEST(CorrectedMapping, TakesTheFiltersCorrectionWhereTheSettledMapShowsDrift) {
+  // Drifting odometry, three laps: from the second on the scans see the map as it was a lap
+  // ago, and the filter's correction is taken; over the last lap the scans are mapped
+  // nearer the truth than odometry has them.
+  for (const std::uint64_t seed : {1u}) {
+    const CorrectedDrive result = correctedDrive(seed, dog::OdometryNoise{0.02, 0.002, 0.01, 0.01}, 3);
+    std::cout << "seed " << seed << ": " << result.taken << " corrections taken, the first at " << result.first_taken_s
+              << " s; last lap's mean position error: mapped " << result.mapped_error_m << " m, odometry "
+              << result.odometry_error_m << " m\n";
+    EXPECT_GT(result.taken, 0u);
+    EXPECT_GE(result.first_taken_s, 30.0);  // no settled map before
+    EXPECT_LT(result.mapped_error_m, 0.5 * result.odometry_error_m);
+  }
+}
+
+TEST(CorrectedMapping, PerfectOdometryIsNeverCorrected) {
+  // Odometry without error, two laps (a settled map from 30 s on): the settled map agrees
+  // with it, so whatever the filter's particles make of the scans, map -> odom stays where
+  // it started.
+  const CorrectedDrive result = correctedDrive(5, dog::OdometryNoise{0.0, 0.0, 0.0, 0.0}, 2);
+  EXPECT_EQ(result.taken, 0u);
+  EXPECT_EQ(result.mapped_error_m, 0.0);
 }
 
 TEST(PoseFilter, BestAfterResamplingIsTheBestBefore) {

@@ -284,16 +284,22 @@ class TestCheckBag(unittest.TestCase):
                         one_second)
 
     def test_pose_correction(self):
-        # --pose-correction rbpf: the scored map is built at the filter's corrected poses, the
-        # same in both passes (the labels come from the corrected scans too). On this bag the
-        # correction moves the poses (more cells observed) and the filter updates are said.
+        # --pose-correction rbpf: the scored map is built at the corrected poses, the same in
+        # both passes (the labels come from the corrected scans too), and the filter updates
+        # are said. The map's correction changes only where the map as it was 30-60 s ago
+        # shows drift (core/pose/corrected_mapping.h): on this 42 s drive it never does, so
+        # the scores are those without correction (the filter made the map worse here when it
+        # corrected every scan: docs/pose_correction_real.md).
         stdout, _, rows = self.run_once("neato_rbpf", NEATO_BAG, NEATO_ARGS + ["--pose-correction", "rbpf"])
         match = re.search(r"pose correction: 30 particles, (\d+) filter updates a pass", stdout)
         self.assertIsNotNone(match, stdout)
         self.assertGreater(int(match.group(1)), 5)
         plain = self.neato()[2]
         self.assertEqual(len(rows), len(plain))
-        self.assertNotEqual(rows[0]["dynamic_brier"], plain[0]["dynamic_brier"])
+        for row, without in zip(rows, plain):
+            self.assertEqual(row["labels"], without["labels"])
+            if row["labels"] > 0:
+                self.assertEqual(row["dynamic_brier"], without["dynamic_brier"])
         for row in rows[:2]:
             self.assertGreater(row["dynamic_accuracy"], 0.9, row)
         self.assert_fails([STATIONARY_BAG, "--pose-correction", "rbpf"] + STATIONARY_ARGS, 2, "--laser-pose")

@@ -536,7 +536,12 @@ class TestSimulate(unittest.TestCase):
         layer_same = int(np.count_nonzero((layer > 0.5) == (particle[seen] > 0.5)))
         print(f"the model's beliefs agree with best_particle_belief on {same} of {int(np.count_nonzero(seen))} cells, "
               f"the belief layer on {layer_same}")
-        self.assertGreater(same, 0.99 * np.count_nonzero(seen))
+        # Measured: 20604 of 21124 (97.5 %), the belief layer 20287. The cells kept (the
+        # particle saw them after the mapper's last update of them) hold the mapper's belief,
+        # and the mapper now maps at odometry until a settled map asks for a correction
+        # (core/pose/corrected_mapping.h), so more of them differ from the particle's than when
+        # it mapped at the best particle's pose of each scan (over 99 %).
+        self.assertGreater(same, 0.97 * np.count_nonzero(seen))
         self.assertGreater(same, layer_same)
 
         # The options' checks.

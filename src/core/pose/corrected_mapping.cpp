@@ -1,9 +1,12 @@
 #include "dynamic_occupancy_grid/core/pose/corrected_mapping.h"
 
 #include <algorithm>
+#include <array>
+#include <bitset>
 #include <cmath>
 #include <limits>
 #include <stdexcept>
+#include <unordered_map>
 
 #include "dynamic_occupancy_grid/core/layers/model_io.h"
 #include "dynamic_occupancy_grid/core/pose/motion_model.h"
@@ -18,12 +21,107 @@ constexpr double kPi = 3.14159265358979323846;
 /// The longest beam the filter walks, in cells (PoseFilterConfig allows 1022).
 constexpr double kMaxFilterRangeCells = 1000.0;
 
+/// The correction in use changes only for one that moves the scan by more than this many
+/// cells (CorrectedMapping's test).
+constexpr double kSmallestCorrectionCells = 2.0;
+/// The settled map is the Mapper's map as it was between this and twice this long ago
+/// (seconds of sensor time).
+constexpr double kSettledAge_s = 30.0;
+
 Pose2D wrapped(Pose2D pose) {
   pose.yaw_rad = std::remainder(pose.yaw_rad, 2.0 * kPi);
   return pose;
 }
 
+/// How far the scan's laser position and beam ends (odometry frame; readings in
+/// [range_min, min(range_max, max_range_m)]) lie apart in the map frame under the
+/// corrections (map -> odom) `from` and `to`: the largest of those distances.
+double largestMove(const Pose2D& from, const Pose2D& to, const Scan& scan, double max_range_m) {
+  const auto move = [&](double x, double y) {
+    const Pose2D a = composePose(from, Pose2D{x, y, 0.0});
+    const Pose2D b = composePose(to, Pose2D{x, y, 0.0});
+    return std::hypot(b.x_m - a.x_m, b.y_m - a.y_m);
+  };
+  const Pose2D& laser = scan.laser_pose;
+  double largest = move(laser.x_m, laser.y_m);
+  const double reach = std::min(scan.range_max_m, max_range_m);
+  const double direction = scan.upside_down ? -1.0 : 1.0;
+  for (std::size_t i = 0; i < scan.ranges_m.size(); ++i) {
+    const double range = scan.ranges_m[i];
+    if (!(range >= scan.range_min_m && range <= reach)) continue;
+    const double angle =
+        laser.yaw_rad + direction * (scan.angle_min_rad + static_cast<double>(i) * scan.angle_increment_rad);
+    largest = std::max(largest, move(laser.x_m + range * std::cos(angle), laser.y_m + range * std::sin(angle)));
+  }
+  return largest;
+}
+
+std::uint64_t tileKey(std::int32_t tile_x, std::int32_t tile_y) {
+  return (static_cast<std::uint64_t>(static_cast<std::uint32_t>(tile_x)) << 32) |
+         static_cast<std::uint32_t>(tile_y);
+}
+
 }  // namespace
+
+struct CorrectedMapping::MapSnapshot {
+  struct Cells {
+    std::bitset<CellGrid::kTileCells> observed;
+    std::bitset<CellGrid::kTileCells> occupied;
+  };
+  std::unordered_map<std::uint64_t, Cells> tiles;
+
+  MapSnapshot(const Mapper& mapper, std::int64_t step) {
+    mapper.grid().forEachTile([&](const CellGrid::Tile& tile) {
+      Cells cells;
+      for (int i = 0; i < CellGrid::kTileCells; ++i) {
+        if (tile.last_step[i] == kNeverObserved) continue;
+        cells.observed.set(i);
+        const TransitionParams params{tile.p_occ_given_free[i], tile.p_free_given_occ[i]};
+        if (predictOccupancy(tile.p_occ[i], params, step - tile.last_step[i]) > 0.5) cells.occupied.set(i);
+      }
+      if (cells.observed.any()) tiles.emplace(tileKey(tile.tile_x, tile.tile_y), cells);
+    });
+  }
+  const Cells* find(std::int32_t x, std::int32_t y) const {
+    const auto it = tiles.find(tileKey(x >> CellGrid::kTileBits, y >> CellGrid::kTileBits));
+    return it == tiles.end() ? nullptr : &it->second;
+  }
+  bool observed(std::int32_t x, std::int32_t y) const {
+    const Cells* cells = find(x, y);
+    return cells != nullptr && cells->observed.test(static_cast<std::size_t>(CellGrid::offsetOf(x, y)));
+  }
+  bool occupied(std::int32_t x, std::int32_t y) const {
+    const Cells* cells = find(x, y);
+    return cells != nullptr && cells->occupied.test(static_cast<std::size_t>(CellGrid::offsetOf(x, y)));
+  }
+  /// The scan's log-likelihood in this map with the laser at `laser_pose` (map frame): the
+  /// filter's weight (its beams and likelihood field, pose_filter.h). A beam whose end has
+  /// no observed cell in the 3 x 3 around it counts as explained, as in the filter.
+  double logLikelihood(const CellGrid& grid, const PoseFilterConfig& config,
+                       const std::vector<std::array<double, 2>>& beams, const Pose2D& laser_pose) const {
+    const double c = std::cos(laser_pose.yaw_rad);
+    const double s = std::sin(laser_pose.yaw_rad);
+    double sum = 0.0;
+    for (const std::array<double, 2>& beam : beams) {
+      const double u = grid.toLatticeX(laser_pose.x_m + c * beam[0] - s * beam[1]);
+      const double v = grid.toLatticeY(laser_pose.y_m + s * beam[0] + c * beam[1]);
+      const auto cx = static_cast<std::int32_t>(std::floor(u));
+      const auto cy = static_cast<std::int32_t>(std::floor(v));
+      bool mapped = false;
+      for (std::int32_t dy = -1; dy <= 1 && !mapped; ++dy) {
+        for (std::int32_t dx = -1; dx <= 1 && !mapped; ++dx) mapped = observed(cx + dx, cy + dy);
+      }
+      const double d =
+          mapped ? grid.resolution() * nearestCellDistance(u, v, config.weight_max_distance_m / grid.resolution(),
+                                                           [this](std::int32_t x, std::int32_t y) {
+                                                             return occupied(x, y);
+                                                           })
+                 : 0.0;
+      sum += beamLogLikelihood(config, d);
+    }
+    return sum;
+  }
+};
 
 PoseFilterConfig poseFilterConfigFor(const MapperConfig& mapper, PoseFilterConfig filter) {
   filter.resolution_m = mapper.resolution_m;
@@ -62,15 +160,55 @@ CorrectedScan CorrectedMapping::integrate(const Scan& odometry_scan) {
   }
   CorrectedScan result;
   result.update = filter_->integrate(shifted);
+  if (result.update.updated) {
+    refreshSnapshots();
+    const Pose2D candidate = filter_->mapToOdometry();
+    const bool passes = correctionPasses(candidate, shifted);
+    if (passes && passed_last_update_) {
+      correction_ = candidate;
+      ++corrections_taken_;
+    }
+    passed_last_update_ = passes && !passed_last_update_;
+  }
   result.corrected = odometry_scan;
-  result.corrected.laser_pose = wrapped(composePose(filter_->mapToOdometry(), shifted.laser_pose));
+  result.corrected.laser_pose = wrapped(composePose(correction_, shifted.laser_pose));
+  if (result.update.updated) {
+    TrajectoryNode node;
+    node.stamp_s = odometry_scan.stamp_s;
+    node.pose = result.corrected.laser_pose;
+    node.odometry = shifted.laser_pose;
+    trajectory_.push_back(node);
+  }
   result.mapped = mapper_.integrate(result.corrected);
   return result;
 }
 
+void CorrectedMapping::refreshSnapshots() {
+  const std::optional<std::int64_t> now = mapper_.lastAppliedStep();
+  if (!now) return;
+  const auto age_steps = static_cast<std::int64_t>(std::ceil(kSettledAge_s / mapper_.config().time_step_s));
+  if (newest_ && *now - newest_step_ < age_steps) return;
+  settled_ = newest_;
+  newest_ = std::make_shared<const MapSnapshot>(mapper_, *now);
+  newest_step_ = *now;
+}
+
+bool CorrectedMapping::correctionPasses(const Pose2D& candidate, const Scan& shifted) const {
+  if (!settled_) return false;
+  const PoseFilterConfig& config = filter_->config();
+  if (largestMove(correction_, candidate, shifted, config.max_range_m) <=
+      kSmallestCorrectionCells * config.resolution_m) {
+    return false;
+  }
+  const std::vector<std::array<double, 2>> beams = weightBeams(shifted, config.weight_beams);
+  const CellGrid& grid = mapper_.grid();
+  return settled_->logLikelihood(grid, config, beams, composePose(candidate, shifted.laser_pose)) >
+         settled_->logLikelihood(grid, config, beams, composePose(correction_, shifted.laser_pose));
+}
+
 Pose2D CorrectedMapping::mapToOdometry() const {
   if (!filter_->started()) return start_correction_;
-  return wrapped(composePose(filter_->mapToOdometry(), start_correction_));
+  return wrapped(composePose(correction_, start_correction_));
 }
 
 ParticleBelief CorrectedMapping::bestParticleBelief(std::int64_t horizon_steps) const {
@@ -137,9 +275,7 @@ std::string CorrectedMapping::serializeModel(BestParticleCells* cells) const {
   return bytes;
 }
 
-std::vector<TrajectoryNode> CorrectedMapping::trajectory() const {
-  return filter_->started() ? filter_->bestTrajectory() : std::vector<TrajectoryNode>{};
-}
+std::vector<TrajectoryNode> CorrectedMapping::trajectory() const { return trajectory_; }
 
 }  // namespace core
 }  // namespace dynamic_occupancy_grid

@@ -47,16 +47,6 @@ std::vector<LaserPoint> matchBeams(const Scan& scan, std::size_t stride) {
   return beams;
 }
 
-/// At most `count` beams with a return, evenly spread over those with one, in the laser's frame.
-std::vector<LaserPoint> weightBeams(const Scan& scan, std::size_t count) {
-  const std::vector<LaserPoint> all = matchBeams(scan, 1);
-  if (all.size() <= count) return all;
-  std::vector<LaserPoint> beams;
-  beams.reserve(count);
-  for (std::size_t k = 0; k < count; ++k) beams.push_back(all[(2 * k + 1) * all.size() / (2 * count)]);
-  return beams;
-}
-
 }  // namespace
 
 void PoseFilterConfig::validate() const {
@@ -93,42 +83,26 @@ void PoseFilterConfig::validate() const {
 double nearestOccupiedDistance(const ParticleMap& map, const TransitionSource& transitions, double x_m,
                                double y_m, double resolution_m, double max_distance_m, std::int64_t step,
                                double unknown_p_occ) {
-  // Rings of cells (Chebyshev radius r) around the point's cell: every centre in ring r is
-  // at least r - 0.5 cells away, so the search stops once that exceeds the best distance.
   ParticleMap::Reader reader(map);
-  const double u = x_m / resolution_m;
-  const double v = y_m / resolution_m;
-  const auto cx = static_cast<std::int32_t>(std::floor(u));
-  const auto cy = static_cast<std::int32_t>(std::floor(v));
-  const double max_cells = max_distance_m / resolution_m;
-  double best_squared = max_cells * max_cells;
-  const auto consider = [&](std::int32_t x, std::int32_t y) {
-    const double du = u - (x + 0.5);
-    const double dv = v - (y + 0.5);
-    const double squared = du * du + dv * dv;
-    if (squared >= best_squared) return;
-    if (reader.lastStep(x, y) == kNeverObserved) return;
-    if (reader.predicted(x, y, step, transitions, unknown_p_occ) <= 0.5) return;
-    best_squared = squared;
-  };
-  const auto max_ring = static_cast<std::int32_t>(std::ceil(max_cells + 0.5));
-  for (std::int32_t r = 0; r <= max_ring; ++r) {
-    const double nearest = r - 0.5;
-    if (nearest > 0.0 && nearest * nearest >= best_squared) break;
-    if (r == 0) {
-      consider(cx, cy);
-      continue;
-    }
-    for (std::int32_t d = -r; d <= r; ++d) {
-      consider(cx + d, cy - r);
-      consider(cx + d, cy + r);
-    }
-    for (std::int32_t d = -r + 1; d <= r - 1; ++d) {
-      consider(cx - r, cy + d);
-      consider(cx + r, cy + d);
-    }
-  }
-  return std::sqrt(best_squared) * resolution_m;
+  return resolution_m * nearestCellDistance(x_m / resolution_m, y_m / resolution_m, max_distance_m / resolution_m,
+                                            [&](std::int32_t x, std::int32_t y) {
+                                              return reader.lastStep(x, y) != kNeverObserved &&
+                                                     reader.predicted(x, y, step, transitions, unknown_p_occ) > 0.5;
+                                            });
+}
+
+double beamLogLikelihood(const PoseFilterConfig& config, double distance_m) {
+  const double kernel = -0.5 / (config.weight_sigma_m * config.weight_sigma_m);
+  return std::log(config.weight_z_hit * std::exp(kernel * distance_m * distance_m) + config.weight_z_rand);
+}
+
+std::vector<std::array<double, 2>> weightBeams(const Scan& scan, std::size_t count) {
+  const std::vector<LaserPoint> all = matchBeams(scan, 1);
+  if (all.size() <= count) return all;
+  std::vector<LaserPoint> beams;
+  beams.reserve(count);
+  for (std::size_t k = 0; k < count; ++k) beams.push_back(all[(2 * k + 1) * all.size() / (2 * count)]);
+  return beams;
 }
 
 bool guardAccepts(const TrajectoryNode& anchor, const Pose2D& pose, const Pose2D& odometry, double travelled_m,
@@ -322,7 +296,6 @@ bool PoseFilter::updateParticle(Particle& particle, const Scan& scan, const std:
   const double travelled = last.travelled_m + motion.trans_m;
   // amcl's likelihood field over the subsampled beams, at a pose.
   ParticleMap::Reader reader(particle.map);
-  const double kernel = -0.5 / (config_.weight_sigma_m * config_.weight_sigma_m);
   const auto field_log_likelihood = [&](const Pose2D& at) {
     const double c = std::cos(at.yaw_rad);
     const double s = std::sin(at.yaw_rad);
@@ -334,7 +307,7 @@ bool PoseFilter::updateParticle(Particle& particle, const Scan& scan, const std:
                                     at.y_m + s * beam[0] + c * beam[1], config_.resolution_m,
                                     config_.weight_max_distance_m, step, config_.unknown_p_occ);
       }
-      sum += std::log(config_.weight_z_hit * std::exp(kernel * d * d) + config_.weight_z_rand);
+      sum += beamLogLikelihood(config_, d);
     }
     return sum;
   };

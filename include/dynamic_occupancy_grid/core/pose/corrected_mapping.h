@@ -1,9 +1,23 @@
 #pragma once
 // Mapping with the laser's pose corrected by the pose filter (issue 19's node mode and
 // process_bag --pose-correction): each scan arrives with the laser's *odometry* pose, the
-// PoseFilter updates its particles on it, and the Mapper integrates the scan at the best
-// particle's pose of that moment. The filter's transitions are the ones that Mapper learns
-// (MapperTransitions), so the map the user sees is also the filter's learner.
+// PoseFilter updates its particles on it, and the Mapper integrates the scan at odometry's
+// pose moved by the correction in use (map -> odom). The filter's transitions are the ones
+// that Mapper learns (MapperTransitions), so the map the user sees is also the filter's
+// learner.
+//
+// The correction in use changes only when the filter's (its best particle's) has passed a
+// test at two filter updates in a row: it moves the scan (the laser or a beam's end) by
+// more than two cells, and the scan fits the *settled* map better with it than with the
+// correction in use. The settled map is the Mapper's map as it was 30 to 60 s of sensor
+// time ago: which cells had been observed and which of them were occupied. Each change of
+// map -> odom misaligns the scans mapped before it with those after, and a real robot's
+// odometry is millimetres off over seconds while the filter's estimate wanders by
+// centimetres and hundredths of a radian; the map built in the last seconds was built at
+// odometry's poses and so always agrees with odometry best. The settled map is where drift
+// shows: a place seen again after a loop (docs/pose_correction_real.md, "Corrections taken
+// only where the settled map asks for them"). Until a settled map exists (the first 60 s)
+// and where the scan sees none of it, the correction in use is kept.
 //
 // Frames: the map frame starts at odometry's at the first scan, shifted by a start
 // correction (the map -> odom transform in use when mapping restarts: a reset, a loaded
@@ -68,11 +82,15 @@ class CorrectedMapping {
   /// first scan's step).
   CorrectedScan integrate(const Scan& odometry_scan);
 
-  /// map -> odom for the laser's poses: the start correction before the first scan.
+  /// map -> odom for the laser's poses: the correction in use (see above) after the start
+  /// correction; the start correction before the first scan.
   Pose2D mapToOdometry() const;
-  /// The best particle's trajectory in the map frame (its poses at the filter's updates),
-  /// oldest first.
+  /// The laser's poses in the map frame at the filter's updates, as the scans were mapped
+  /// (odometry moved by the correction in use), oldest first. The filter's own estimate is
+  /// filter().bestTrajectory().
   std::vector<TrajectoryNode> trajectory() const;
+  /// How often the correction in use changed.
+  std::size_t correctionsTaken() const { return corrections_taken_; }
   /// The best particle's own map predicted to the filter's last update plus `horizon_steps`
   /// (>= 0; the node's `predicted` layer's horizon for its `~best_particle_predicted`), over
   /// its tiles (a later resampling may pick another particle: the Mapper holds the scans as
@@ -89,9 +107,23 @@ class CorrectedMapping {
   const Mapper& mapper() const { return mapper_; }
 
  private:
+  /// The Mapper's map at one step: per allocated tile of its grid, the cells observed by
+  /// then and those of them with p(occ) > 0.5.
+  struct MapSnapshot;
+  /// Whether the filter's correction passes the test (see above) for this scan.
+  bool correctionPasses(const Pose2D& candidate, const Scan& shifted) const;
+  void refreshSnapshots();
+
   Mapper& mapper_;
   std::unique_ptr<PoseFilter> filter_;
   Pose2D start_correction_;
+  Pose2D correction_;  ///< in use, in the filter's frame (after the start correction)
+  bool passed_last_update_ = false;
+  std::size_t corrections_taken_ = 0;
+  std::vector<TrajectoryNode> trajectory_;
+  std::shared_ptr<const MapSnapshot> settled_;  ///< 30 to 60 s old; null before
+  std::shared_ptr<const MapSnapshot> newest_;   ///< 0 to 30 s old
+  std::int64_t newest_step_ = 0;
 };
 
 }  // namespace core

@@ -34,6 +34,7 @@
 // ROS-free: standard library only.
 
 #include <array>
+#include <cmath>
 #include <cstddef>
 #include <cstdint>
 #include <memory>
@@ -136,12 +137,57 @@ struct TrajectoryNode {
 bool guardAccepts(const TrajectoryNode& anchor, const Pose2D& pose, const Pose2D& odometry, double travelled_m,
                   double heading_variance, double translation_variance, double sigmas, double floor_m);
 
+/// The distance, in cells, from the point (u, v) of a lattice (cell (x, y) covers
+/// [x, x + 1) x [y, y + 1)) to the centre of the nearest cell for which `occupied(x, y)`
+/// holds; `max_cells` if there is none within it. Rings of cells (Chebyshev radius r)
+/// around the point's cell: every centre in ring r is at least r - 0.5 cells away, so the
+/// search stops once that exceeds the best distance.
+template <typename Occupied>
+double nearestCellDistance(double u, double v, double max_cells, Occupied&& occupied) {
+  const auto cx = static_cast<std::int32_t>(std::floor(u));
+  const auto cy = static_cast<std::int32_t>(std::floor(v));
+  double best_squared = max_cells * max_cells;
+  const auto consider = [&](std::int32_t x, std::int32_t y) {
+    const double du = u - (x + 0.5);
+    const double dv = v - (y + 0.5);
+    const double squared = du * du + dv * dv;
+    if (squared < best_squared && occupied(x, y)) best_squared = squared;
+  };
+  const auto max_ring = static_cast<std::int32_t>(std::ceil(max_cells + 0.5));
+  for (std::int32_t r = 0; r <= max_ring; ++r) {
+    const double nearest = r - 0.5;
+    if (nearest > 0.0 && nearest * nearest >= best_squared) break;
+    if (r == 0) {
+      consider(cx, cy);
+      continue;
+    }
+    for (std::int32_t d = -r; d <= r; ++d) {
+      consider(cx + d, cy - r);
+      consider(cx + d, cy + r);
+    }
+    for (std::int32_t d = -r + 1; d <= r - 1; ++d) {
+      consider(cx - r, cy + d);
+      consider(cx + r, cy + d);
+    }
+  }
+  return std::sqrt(best_squared);
+}
+
 /// The distance (m) from (x_m, y_m) to the centre of the nearest cell that `map` has
 /// observed and predicts occupied (p > 0.5 at `step`), on a lattice of `resolution_m`;
 /// `max_distance_m` if there is none within it.
 double nearestOccupiedDistance(const ParticleMap& map, const TransitionSource& transitions, double x_m,
                                double y_m, double resolution_m, double max_distance_m, std::int64_t step,
                                double unknown_p_occ);
+
+/// One beam's term of the weight (PoseFilterConfig::weight_beams): log(weight_z_hit
+/// exp(-d^2 / 2 weight_sigma_m^2) + weight_z_rand) for an end `distance_m` from the nearest
+/// occupied cell.
+double beamLogLikelihood(const PoseFilterConfig& config, double distance_m);
+
+/// The beams the weight takes: at most `count` with a return (range_min <= r < range_max),
+/// evenly spread over those with one; their ends in the laser's frame (x, y).
+std::vector<std::array<double, 2>> weightBeams(const Scan& scan, std::size_t count);
 
 struct Particle {
   Pose2D pose;              ///< the laser's pose in the map frame at the last update
