@@ -520,21 +520,27 @@ struct DriveResult {
   std::size_t peak_map_bytes = 0;
 };
 
-// Two laps around the room's pillars with odometry that drifts (the motion model's noise,
-// rotation-heavy), the laser at the true pose, 5 scans per metre.
-DriveResult drive(std::uint64_t seed, dog::PoseFilterConfig config) {
-  const std::vector<Box> boxes = room();
+// `laps` laps around the room's pillars (a 5 m x 4 m rectangle), a pose every 0.2 m.
+std::vector<dog::Pose2D> loopLaps(int laps) {
   const std::vector<std::array<double, 2>> corners = {{1.5, 1.5}, {6.5, 1.5}, {6.5, 5.5}, {1.5, 5.5}};
-  std::vector<dog::Pose2D> truth;
-  for (int lap = 0; lap < 2; ++lap) {
+  std::vector<dog::Pose2D> poses;
+  for (int lap = 0; lap < laps; ++lap) {
     for (std::size_t c = 0; c < corners.size(); ++c) {
       const auto& a = corners[c];
       const auto& b = corners[(c + 1) % corners.size()];
       const double heading = std::atan2(b[1] - a[1], b[0] - a[0]);
       const double length = std::hypot(b[0] - a[0], b[1] - a[1]);
-      for (double s = 0.0; s < length; s += 0.2) truth.push_back({a[0] + s * std::cos(heading), a[1] + s * std::sin(heading), heading});
+      for (double s = 0.0; s < length; s += 0.2) poses.push_back({a[0] + s * std::cos(heading), a[1] + s * std::sin(heading), heading});
     }
   }
+  return poses;
+}
+
+// Two laps around the room's pillars with odometry that drifts (the motion model's noise,
+// rotation-heavy), the laser at the true pose, 5 scans per metre.
+DriveResult drive(std::uint64_t seed, dog::PoseFilterConfig config) {
+  const std::vector<Box> boxes = room();
+  const std::vector<dog::Pose2D> truth = loopLaps(2);
   const dog::OdometryNoise drift{0.02, 0.002, 0.01, 0.01};
   std::mt19937_64 rng(seed);
   std::normal_distribution<double> normal;
@@ -790,17 +796,7 @@ struct CorrectedDrive {
 // the filter's, by more than two cells (0.2 m), and that every scan is mapped at it.
 CorrectedDrive correctedDrive(std::uint64_t seed, const dog::OdometryNoise& drift, int laps) {
   const std::vector<Box> boxes = room();
-  const std::vector<std::array<double, 2>> corners = {{1.5, 1.5}, {6.5, 1.5}, {6.5, 5.5}, {1.5, 5.5}};
-  std::vector<dog::Pose2D> truth;
-  for (int lap = 0; lap < laps; ++lap) {
-    for (std::size_t c = 0; c < corners.size(); ++c) {
-      const auto& a = corners[c];
-      const auto& b = corners[(c + 1) % corners.size()];
-      const double heading = std::atan2(b[1] - a[1], b[0] - a[0]);
-      const double length = std::hypot(b[0] - a[0], b[1] - a[1]);
-      for (double s = 0.0; s < length; s += 0.2) truth.push_back({a[0] + s * std::cos(heading), a[1] + s * std::sin(heading), heading});
-    }
-  }
+  const std::vector<dog::Pose2D> truth = loopLaps(laps);
   dog::MapperConfig mapper_config;
   mapper_config.resolution_m = 0.1;
   dog::Mapper mapper(mapper_config);
