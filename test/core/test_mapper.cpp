@@ -1278,6 +1278,131 @@ TEST(MapperLearning, RecorderReceivesEveryAppliedCellStep) {
   EXPECT_EQ(got, expected);
 }
 
+// ---- checkpoints (CorrectedMapping maps the last seconds again from a copy) -----------
+
+// A walk of scans through a room, with several rays and two kinds of learners' state: each
+// scan moves the laser and turns it, some steps hold several scans.
+std::vector<dog::Scan> checkpointWalk() {
+  std::vector<dog::Scan> scans;
+  for (int i = 0; i < 24; ++i) {
+    const double stamp = 0.4 * i;
+    std::vector<float> ranges;
+    for (int b = 0; b < 16; ++b) ranges.push_back(static_cast<float>(2.0 + 0.5 * ((b + i) % 5) + (i % 3 == 0 ? 0.25 : 0.0)));
+    scans.push_back(makeScan(stamp, ranges, 0.1 * i, 0.0, 2.0 * kPi / 16.0, 0.0, 20.0, 0.2 * i, -0.1 * i));
+  }
+  return scans;
+}
+
+TEST(MapperCheckpoint, ACopyMadeMidStepGoesOnAsTheOriginalAndRecordsNothing) {
+  // Copied in the middle of a step (scans gathered, not applied), for both learners: the
+  // copy fed the rest of the scans ends as the original fed them, in every layer, cell
+  // state and pending count, and as a mapper never copied. The original's recorder is not
+  // the copy's; the copy stays as it was while the original goes on.
+  for (const dog::TransitionLearner learner : {dog::TransitionLearner::kCellEm, dog::TransitionLearner::kKinds}) {
+    SCOPED_TRACE(learner == dog::TransitionLearner::kKinds ? "kinds" : "cell EM");
+    dog::MapperConfig config = learningConfig();
+    config.learner = learner;
+    config.learn_sensor_model = true;
+    const std::vector<dog::Scan> scans = checkpointWalk();
+    dog::Mapper original(config);
+    dog::Mapper never_copied(config);
+    dog::SequenceBuilder recorder;
+    dog::SequenceBuilder never_copied_recorder;
+    original.recordObservations(&recorder);
+    never_copied.recordObservations(&never_copied_recorder);
+    const std::size_t cut = 12;  // step 4 holds scans 10, 11 and 12 (4.0, 4.4, 4.8 s)
+    for (std::size_t i = 0; i < cut; ++i) {
+      ASSERT_EQ(original.integrate(scans[i]).status, dog::ScanStatus::kIntegrated) << i;
+      ASSERT_EQ(never_copied.integrate(scans[i]).status, dog::ScanStatus::kIntegrated) << i;
+    }
+    ASSERT_EQ(original.gatheringStep(), std::optional<std::int64_t>(4));
+    dog::Mapper copy(original);
+    const Dump at_copy = dump(copy, dumpArea(), 4);
+    expectSameDump(at_copy, dump(original, dumpArea(), 4), "the copy as made");
+    for (std::size_t i = cut; i < scans.size(); ++i) {
+      ASSERT_EQ(original.integrate(scans[i]).status, dog::ScanStatus::kIntegrated) << i;
+      ASSERT_EQ(never_copied.integrate(scans[i]).status, dog::ScanStatus::kIntegrated) << i;
+    }
+    original.finishStep();
+    never_copied.finishStep();
+    expectSameDump(at_copy, dump(copy, dumpArea(), 4), "the copy while the original went on");
+    for (std::size_t i = cut; i < scans.size(); ++i) {
+      ASSERT_EQ(copy.integrate(scans[i]).status, dog::ScanStatus::kIntegrated) << i;
+    }
+    copy.finishStep();
+    const std::int64_t end = *original.lastAppliedStep();
+    expectSameDump(dump(copy, dumpArea(), end + 2), dump(original, dumpArea(), end + 2), "copy and original");
+    expectSameDump(dump(copy, dumpArea(), end + 2), dump(never_copied, dumpArea(), end + 2), "never copied");
+    EXPECT_EQ(dog::serializeModel(copy), dog::serializeModel(never_copied));
+    // Only the original's steps are recorded: what the mapper never copied records.
+    const dog::ObservationSequences sequences = recorder.build();
+    const dog::ObservationSequences expected = never_copied_recorder.build();
+    ASSERT_EQ(sequences.cellCount(), expected.cellCount());
+    ASSERT_EQ(sequences.observationCount(), expected.observationCount());
+    EXPECT_GT(sequences.observationCount(), 0u);
+    for (std::size_t c = 0; c < sequences.cellCount(); ++c) {
+      ASSERT_EQ(sequences.end(c) - sequences.begin(c), expected.end(c) - expected.begin(c));
+      for (const auto *o = sequences.begin(c), *e = expected.begin(c); o != sequences.end(c); ++o, ++e) {
+        EXPECT_EQ(o->step, e->step);
+        EXPECT_EQ(o->hits, e->hits);
+        EXPECT_EQ(o->misses, e->misses);
+      }
+    }
+  }
+}
+
+TEST(MapperCheckpoint, AdoptTakesTheRebuiltMapAndCountsEveryTileAsWritten) {
+  // The mapper maps the walk; a checkpoint from its middle maps the rest shifted by 0.5 m
+  // (a correction); adopting it, the mapper is the rebuilt map, every tile of both maps
+  // has a new version, the changed cells cover both, and the recorder and the settings
+  // revision are the mapper's own.
+  dog::MapperConfig config = learningConfig();
+  const std::vector<dog::Scan> scans = checkpointWalk();
+  dog::Mapper mapper(config);
+  dog::SequenceBuilder recorder;
+  mapper.recordObservations(&recorder);
+  std::optional<dog::Mapper> checkpoint;
+  for (std::size_t i = 0; i < scans.size(); ++i) {
+    if (i == 10) checkpoint.emplace(mapper);
+    mapper.integrate(scans[i]);
+  }
+  mapper.setSensorModel(0.8, 0.1);
+  EXPECT_NE(mapper.settingsRevision(), checkpoint->settingsRevision());
+  dog::Mapper rebuilt(*checkpoint);
+  dog::Mapper reference(*checkpoint);
+  for (std::size_t i = 10; i < scans.size(); ++i) {
+    dog::Scan shifted = scans[i];
+    shifted.laser_pose.x_m += 0.5;
+    rebuilt.integrate(shifted);
+    reference.integrate(shifted);
+  }
+  mapper.takeChangedCells();
+  std::map<std::pair<std::int32_t, std::int32_t>, std::uint64_t> versions;
+  mapper.grid().forEachTile([&](const dog::CellGrid::Tile& tile) {
+    versions[{tile.tile_x, tile.tile_y}] = mapper.tileVersions().version(tile.tile_x, tile.tile_y);
+  });
+  const dog::CellBox before = mapper.grid().bounds();
+  const std::uint64_t revision = mapper.settingsRevision();
+  mapper.adopt(std::move(rebuilt));
+  const std::int64_t end = *reference.lastAppliedStep() + 1;
+  expectSameDump(dump(mapper, dumpArea(), end), dump(reference, dumpArea(), end), "adopted");
+  EXPECT_EQ(mapper.settingsRevision(), revision);
+  const auto new_version = [&](std::int32_t tile_x, std::int32_t tile_y) {
+    const auto it = versions.find({tile_x, tile_y});
+    return it == versions.end() || mapper.tileVersions().version(tile_x, tile_y) > it->second;
+  };
+  for (const auto& [tile, version] : versions) EXPECT_TRUE(new_version(tile.first, tile.second));
+  mapper.grid().forEachTile([&](const dog::CellGrid::Tile& tile) { EXPECT_TRUE(new_version(tile.tile_x, tile.tile_y)); });
+  dog::CellBox both = before;
+  both.include(reference.grid().bounds());
+  expectSameBox(mapper.takeChangedCells(), both);
+  // The recorder goes on with the mapper's next steps.
+  const std::size_t recorded = recorder.observationCount();
+  mapper.integrate(makeScan(scans.back().stamp_s + 2.0, {1.0f}));
+  mapper.finishStep();
+  EXPECT_GT(recorder.observationCount(), recorded);
+}
+
 TEST(MapperLearning, BadOnlineEmSettingsAreRejected) {
   const auto bad = [](auto change) {
     dog::MapperConfig c = learningConfig();

@@ -1158,6 +1158,30 @@ TEST(OfflineEmSequenceBuilder, GroupsPerCellInFirstAppearanceOrder) {
   EXPECT_EQ(sequences.observationCount(), 6u);
 }
 
+TEST(OfflineEmSequenceBuilder, DropAfterForgetsTheLaterStepsAndCellsSeenOnlyThen) {
+  // A Mapper going back to a checkpoint at step 11: the observations of steps 12 on go, a
+  // cell seen only then goes, and the cells' steps go on from what is left.
+  dog::SequenceBuilder builder;
+  builder.add(3, 4, 10, 1, 0);
+  builder.add(-1, 0, 10, 0, 2);
+  builder.add(0, -1, 11, 2, 2);
+  builder.add(3, 4, 12, 0, 1);
+  builder.add(7, 7, 13, 1, 1);
+  builder.add(-1, 0, 15, 1, 1);
+  builder.dropAfter(11);
+  EXPECT_EQ(builder.observationCount(), 3u);
+  builder.add(3, 4, 12, 2, 0);  // step 12 again, with other counts: not added to the old ones
+  builder.add(5, 5, 12, 0, 1);
+  const auto sequences = builder.build();
+  const std::vector<CellSequence> expected = {
+      {dog::CellXY{3, 4}, {observation(10, 1, 0), observation(12, 2, 0)}},
+      {dog::CellXY{-1, 0}, {observation(10, 0, 2)}},
+      {dog::CellXY{0, -1}, {observation(11, 2, 2)}},
+      {dog::CellXY{5, 5}, {observation(12, 0, 1)}}};
+  EXPECT_TRUE(sameContents(contents(sequences), expected));
+  EXPECT_EQ(sequences.cellCount(), 4u);
+}
+
 TEST(OfflineEmSequenceBuilder, CoordinatesDoNotCollide) {
   // Cells that a key packing with sign extension or a narrow hash key would confuse.
   const std::int32_t kMax = std::numeric_limits<std::int32_t>::max();

@@ -342,6 +342,22 @@ void SequenceBuilder::add(std::int32_t x, std::int32_t y, std::int32_t step, std
   last_record_[index] = records_.size() - 1;
 }
 
+void SequenceBuilder::dropAfter(std::int32_t step) {
+  SequenceBuilder kept;
+  for (const Record& record : records_) {
+    const StepObservation& o = record.observation;
+    if (o.step <= step) kept.add(cells_[record.cell].x, cells_[record.cell].y, o.step, o.hits, o.misses);
+  }
+  *this = std::move(kept);
+}
+
+void SequenceBuilder::append(const SequenceBuilder& other) {
+  for (const Record& record : other.records_) {
+    const StepObservation& o = record.observation;
+    add(other.cells_[record.cell].x, other.cells_[record.cell].y, o.step, o.hits, o.misses);
+  }
+}
+
 ObservationSequences SequenceBuilder::build() {
   ObservationSequences sequences;
   // Counting sort by cell; records of a cell are already in step order.

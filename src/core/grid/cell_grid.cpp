@@ -59,6 +59,31 @@ CellGrid::CellGrid(double resolution_m, double anchor_x_m, double anchor_y_m,
   }
 }
 
+CellGrid::CellGrid(const CellGrid& other)
+    : resolution_m_(other.resolution_m_),
+      inverse_resolution_(other.inverse_resolution_),
+      anchor_x_m_(other.anchor_x_m_),
+      anchor_y_m_(other.anchor_y_m_),
+      fixed_cells_(other.fixed_cells_),
+      max_cells_per_side_(other.max_cells_per_side_),
+      defaults_(other.defaults_),
+      tile_min_x_(other.tile_min_x_),
+      tile_min_y_(other.tile_min_y_),
+      tiles_w_(other.tiles_w_),
+      tiles_h_(other.tiles_h_),
+      allocated_tiles_(other.allocated_tiles_),
+      allocated_cells_(other.allocated_cells_) {
+  tiles_.reserve(other.tiles_.size());
+  for (const std::unique_ptr<Tile>& tile : other.tiles_) {
+    tiles_.push_back(tile ? std::make_unique<Tile>(*tile) : nullptr);
+  }
+}
+
+CellGrid& CellGrid::operator=(const CellGrid& other) {
+  if (this != &other) *this = CellGrid(other);
+  return *this;
+}
+
 bool CellGrid::insideLimits(std::int32_t x, std::int32_t y) const {
   if (fixed_cells_) return fixed_cells_->contains(x, y);
   const std::int32_t half = max_cells_per_side_ / 2;

@@ -110,6 +110,47 @@ Mapper::Mapper(const MapperConfig& config)
                                    static_cast<float>(config.prior_transitions.p_free_given_occ)}),
       kinds_(config.kinds, std::max(config.online_em.p_min, 1e-6), std::min(config.online_em.p_max, 0.5)) {}
 
+Mapper::Mapper(const Mapper& other)
+    : config_(other.config_),
+      sensor_(other.sensor_),
+      static_sensor_(other.static_sensor_),
+      clock_(other.clock_),
+      grid_(other.grid_),
+      gathering_step_(other.gathering_step_),
+      last_applied_step_(other.last_applied_step_),
+      touched_tiles_(other.touched_tiles_),
+      scan_id_(other.scan_id_),
+      changed_cells_(other.changed_cells_),
+      tile_versions_(other.tile_versions_),
+      kinds_(other.kinds_),
+      sensor_stats_(other.sensor_stats_),
+      motion_cells_(other.motion_cells_),
+      last_laser_pose_(other.last_laser_pose_),
+      motion_at_step_(other.motion_at_step_),
+      motion_step_(other.motion_step_),
+      settings_revision_(other.settings_revision_) {
+  // The step being gathered: the same tiles of this grid.
+  for (TouchedTile& touched : touched_tiles_) {
+    touched.tile = grid_.findTile(touched.tile->cellX(0), touched.tile->cellY(0));
+  }
+}
+
+void Mapper::adopt(Mapper&& rebuilt) {
+  CellBox changed = changed_cells_;
+  changed.include(grid_.bounds());
+  changed.include(rebuilt.changed_cells_);
+  changed.include(rebuilt.grid_.bounds());
+  TileVersions versions = std::move(tile_versions_);
+  SequenceBuilder* recorder = recorder_;
+  const std::uint64_t revision = settings_revision_;
+  *this = std::move(rebuilt);
+  tile_versions_ = std::move(versions);
+  tile_versions_.bumpAll();
+  recorder_ = recorder;
+  changed_cells_ = changed;
+  settings_revision_ = revision;
+}
+
 ScanResult Mapper::integrate(const Scan& scan) {
   ScanResult result;
   const auto reject = [&result](ScanStatus status, std::string error) {
@@ -402,6 +443,7 @@ void Mapper::updateSensorModel() {
 }
 
 void Mapper::restoreSensorModelStats(const SensorModelStats& stats) {
+  ++settings_revision_;
   for (int state = 0; state < 2; ++state) {
     if (!std::isfinite(stats.trials[state]) || !std::isfinite(stats.hits[state]) || stats.hits[state] < 0.0 ||
         stats.hits[state] > stats.trials[state] * (1.0 + 1e-12)) {
@@ -564,6 +606,7 @@ void Mapper::replayObservations(const ObservationSequences& sequences) {
 }
 
 void Mapper::restartClockAt(double stamp_s) {
+  ++settings_revision_;
   if (!std::isfinite(stamp_s)) throw std::invalid_argument("restartClockAt: stamp is not finite");
   finishStep();
   clock_.anchor(stamp_s, last_applied_step_ ? *last_applied_step_ + 1 : 0);
@@ -571,6 +614,7 @@ void Mapper::restartClockAt(double stamp_s) {
 
 OfflineEmApplied Mapper::applyOfflineEm(const ObservationSequences& sequences, const OfflineEmResult& result,
                                         bool use_final_beliefs) {
+  ++settings_revision_;
   if (result.params.size() != sequences.cellCount() || result.final_p_occ.size() != sequences.cellCount() ||
       result.final_step.size() != sequences.cellCount()) {
     throw std::invalid_argument("applyOfflineEm: the result does not belong to these sequences");
@@ -637,6 +681,7 @@ OfflineEmApplied Mapper::applyOfflineEm(const ObservationSequences& sequences, c
 }
 
 void Mapper::restoreTime(std::optional<double> clock_origin_s, std::optional<std::int64_t> last_applied_step) {
+  ++settings_revision_;
   if (clock_.origin() || gathering_step_ || last_applied_step_) {
     throw std::logic_error("restoreTime: only a mapper that has integrated nothing can be restored");
   }
@@ -655,6 +700,7 @@ void Mapper::restoreTime(std::optional<double> clock_origin_s, std::optional<std
 }
 
 void Mapper::restoreCell(std::int32_t x, std::int32_t y, const CellState& state) {
+  ++settings_revision_;
   const auto probability = [](float p) { return p >= 0.0f && p <= 1.0f; };
   if (state.last_step == kNeverObserved || !last_applied_step_ || state.last_step > *last_applied_step_) {
     throw std::invalid_argument("restoreCell: cell (" + std::to_string(x) + ", " + std::to_string(y) +
@@ -706,6 +752,7 @@ void Mapper::restoreCell(std::int32_t x, std::int32_t y, const CellState& state)
 }
 
 void Mapper::setCellTransitions(std::int32_t x, std::int32_t y, const TransitionParams& params) {
+  ++settings_revision_;
   const std::string cell = "setCellTransitions: cell (" + std::to_string(x) + ", " + std::to_string(y) + ")";
   if (!params.isValid()) throw std::invalid_argument(cell + ": transition probabilities must be in [0, 1]");
   if (!grid_.insideLimits(x, y)) throw std::invalid_argument(cell + " is outside the map's limits");
@@ -729,6 +776,7 @@ void Mapper::setCellTransitions(std::int32_t x, std::int32_t y, const Transition
 }
 
 void Mapper::setSensorModel(double p_hit_given_occ, double p_hit_given_free) {
+  ++settings_revision_;
   // Throws for a bad model.
   sensor_ = ObservationModel(p_hit_given_occ, p_hit_given_free, config_.sensor_model_mixed_step_probability);
   static_sensor_ = ObservationModel(p_hit_given_occ, p_hit_given_free);
@@ -739,11 +787,13 @@ void Mapper::setSensorModel(double p_hit_given_occ, double p_hit_given_free) {
 }
 
 void Mapper::setViewSwitchProbability(double view_switch_probability) {
+  ++settings_revision_;
   kinds_.setViewSwitchProbability(view_switch_probability);
   config_.kinds.view_switch_probability = view_switch_probability;
 }
 
 void Mapper::setMixedStepProbability(double mixed_step_probability) {
+  ++settings_revision_;
   // Throws for a value outside [0, 0.5].
   sensor_ = ObservationModel(sensor_.pHitGivenOcc(), sensor_.pHitGivenFree(), mixed_step_probability);
   config_.sensor_model_mixed_step_probability = mixed_step_probability;

@@ -62,6 +62,11 @@ class SequenceBuilder {
   void add(std::int32_t x, std::int32_t y, std::int32_t step, std::uint32_t hits,
            std::uint32_t misses);
   std::size_t observationCount() const { return records_.size(); }
+  /// Forgets every observation of a step after `step` (a Mapper going back to a checkpoint
+  /// whose last applied step is `step`, to map its scans again: CorrectedMapping).
+  void dropAfter(std::int32_t step);
+  /// Adds every observation of `other`, in the order it got them.
+  void append(const SequenceBuilder& other);
   /// Groups the observations per cell (cells in order of first appearance) and empties the
   /// builder.
   ObservationSequences build();

@@ -131,6 +131,12 @@ class CellGrid {
   CellGrid(double resolution_m, double anchor_x_m, double anchor_y_m,
            std::optional<CellBox> fixed_cells, std::int32_t max_cells_per_side,
            CellDefaults defaults);
+  /// A deep copy: every allocated tile is copied (a checkpoint of the map).
+  CellGrid(const CellGrid& other);
+  CellGrid& operator=(const CellGrid& other);
+  CellGrid(CellGrid&&) noexcept = default;
+  CellGrid& operator=(CellGrid&&) noexcept = default;
+  ~CellGrid() = default;
 
   double resolution() const { return resolution_m_; }
   double anchorX() const { return anchor_x_m_; }

@@ -117,6 +117,23 @@ class Mapper {
  public:
   /// Throws std::invalid_argument for a bad configuration.
   explicit Mapper(const MapperConfig& config);
+  /// A checkpoint: the whole state, except that the copy records nothing
+  /// (recordObservations).
+  Mapper(const Mapper& other);
+  Mapper(Mapper&&) = default;
+  Mapper& operator=(const Mapper&) = delete;
+  Mapper& operator=(Mapper&&) = default;
+  ~Mapper() = default;
+
+  /// Takes `rebuilt`'s whole state: a checkpoint of this mapper that has mapped the scans
+  /// since again (CorrectedMapping's re-mapping when it takes a correction). This mapper's
+  /// recorder stays (what it recorded stays too), every tile counts as written
+  /// (tileVersions), and takeChangedCells() covers both maps.
+  void adopt(Mapper&& rebuilt);
+  /// Bumped by every change made other than by integrate() and finishStep() (the setters,
+  /// restoring, offline EM, a clock restart): a checkpoint with another revision does not
+  /// hold the mapper's settings.
+  std::uint64_t settingsRevision() const { return settings_revision_; }
 
   const MapperConfig& config() const { return config_; }
   /// The sensor model in use: the configured one, or with learn_sensor_model the one
@@ -150,6 +167,8 @@ class Mapper {
   /// From now on, every applied cell step is also added to `recorder` (offline EM input);
   /// nullptr stops. The recorder must outlive its use here.
   void recordObservations(SequenceBuilder* recorder) { recorder_ = recorder; }
+  /// The recorder in use (recordObservations), nullptr if none.
+  SequenceBuilder* recorder() const { return recorder_; }
 
   /// Time restarted (a bag played again, a simulator reset): applies the step being
   /// gathered, then re-anchors the clock so that `stamp_s` falls in the step after the last
@@ -207,11 +226,17 @@ class Mapper {
   void setViewSwitchProbability(double view_switch_probability);
   /// Turns online learning of the sensor model on or off while mapping. Off: the model
   /// learned so far stays in use, fixed; on again: learning goes on from its sums.
-  void setLearnSensorModel(bool learn_sensor_model) { config_.learn_sensor_model = learn_sensor_model; }
+  void setLearnSensorModel(bool learn_sensor_model) {
+    config_.learn_sensor_model = learn_sensor_model;
+    ++settings_revision_;
+  }
   /// Turns online learning of the transitions on or off while mapping. Off: each cell goes
   /// on with the transitions it has learned so far (fixed from now on); on again: learning
   /// resumes from the cell's statistics as they were when it was turned off.
-  void setLearnTransitions(bool learn_transitions) { config_.learn_transitions = learn_transitions; }
+  void setLearnTransitions(bool learn_transitions) {
+    config_.learn_transitions = learn_transitions;
+    ++settings_revision_;
+  }
 
   /// Model loading (model_io.h): the saved time, on a mapper that has integrated nothing.
   /// Throws std::logic_error otherwise, std::invalid_argument for inconsistent values.
@@ -226,6 +251,7 @@ class Mapper {
   /// std::invalid_argument for negative or non-finite sums or transitions out of bounds.
   void restoreKinds(const CellKinds::Sums& sums, const std::array<TransitionParams, kKindCount>& transitions) {
     kinds_.restore(sums, transitions);
+    ++settings_revision_;
   }
 
  private:
@@ -293,6 +319,7 @@ class Mapper {
   }
   std::vector<double> motion_at_step_ = std::vector<double>(kMotionSteps, 0.0);
   std::vector<std::int32_t> motion_step_ = std::vector<std::int32_t>(kMotionSteps, kNeverObserved);
+  std::uint64_t settings_revision_ = 0;
 };
 
 }  // namespace core
