@@ -216,11 +216,11 @@ int run(const Options& options) {
     if (!directory.empty()) std::filesystem::create_directories(directory);
     dog::core::writeFileAtomically(options.trajectory_path, tumTrajectory(trajectory));
     const dog::core::Pose2D correction_now = correction->mapToOdometry();
-    std::printf("pose correction: %zu particles, %zu updates, %zu resamplings; map -> odom changed %zu times, at the "
-                "end (%.3f m, %.3f m, %.4f rad); %zu poses -> %s\n",
+    std::printf("pose correction: %zu particles, %zu updates, %zu resamplings; map -> odom changed %zu times (%zu "
+                "scans mapped again), at the end (%.3f m, %.3f m, %.4f rad); %zu poses -> %s\n",
                 filter.particles().size(), filter.updates(), filter.resamplings(), correction->correctionsTaken(),
-                correction_now.x_m, correction_now.y_m, correction_now.yaw_rad, trajectory.size(),
-                options.trajectory_path.c_str());
+                correction->scansRemapped(), correction_now.x_m, correction_now.y_m, correction_now.yaw_rad,
+                trajectory.size(), options.trajectory_path.c_str());
     std::vector<double> n_eff = filter.effectiveSampleSizes();
     if (!n_eff.empty()) {
       std::sort(n_eff.begin(), n_eff.end());

@@ -51,7 +51,10 @@ BagMappingStats mapBag(BagScanSource& source, core::Mapper& mapper, bool continu
         if (after_scan) after_scan(scan);
       },
       progress);
-  if (!stats.source.cancelled) mapper.finishStep();
+  if (!stats.source.cancelled) {
+    if (correction != nullptr) correction->finish();
+    mapper.finishStep();
+  }
   return stats;
 }
 

@@ -503,9 +503,15 @@ core::ScanResult MappingNode::integrateHmm(const core::Scan& scan, std::optional
   }
   *corrected_scan = corrected.corrected;
   if (corrected.update.updated) {
+    const core::Pose2D map_to_odom = correction_->mapToOdometry();
     {
       std::lock_guard<std::mutex> lock(correction_mutex_);
-      map_to_odom_ = correction_->mapToOdometry();
+      map_to_odom_ = map_to_odom;
+    }
+    if (corrected.remapped > 0) {
+      ROS_INFO_THROTTLE(10.0, "pose correction: map -> odom is now (%.2f m, %.2f m, %.3f rad); the last %zu scans were "
+                        "mapped again with it",
+                        map_to_odom.x_m, map_to_odom.y_m, map_to_odom.yaw_rad, corrected.remapped);
     }
     std_msgs::Float64 value;
     last_effective_sample_size_ = corrected.update.effective_sample_size;

@@ -18,6 +18,7 @@
 #include <limits>
 #include <map>
 #include <memory>
+#include <optional>
 #include <random>
 #include <stdexcept>
 #include <utility>
@@ -787,25 +788,43 @@ double farthestMove(const dog::Pose2D& a, const dog::Pose2D& b, const dog::Scan&
 struct CorrectedDrive {
   std::size_t taken = 0;
   double first_taken_s = -1.0;
+  std::size_t remapped = 0;       ///< scans mapped again, over all corrections
   double odometry_error_m = 0.0;  ///< mean position error over the last lap, at the filter's updates
-  double mapped_error_m = 0.0;    ///< of the poses the scans were mapped at
+  double mapped_error_m = 0.0;    ///< of the poses the scans were mapped at when they came
+  double final_error_m = 0.0;     ///< of the poses they were mapped at in the end
 };
 
 // `laps` laps of drive()'s loop (0.2 m and 0.5 s a scan: 40 s a lap) through CorrectedMapping,
 // odometry drifting by `drift`. Checks on the way that the correction in use changes only to
-// the filter's, by more than two cells (0.2 m), and that every scan is mapped at it.
+// the filter's, by more than two cells (0.2 m), and that every scan is mapped at it; where
+// a change maps the last `remapped` scans again, computes their poses itself (each scan's
+// correction plus the change times its share of the laser's travel in odometry since the
+// last change, the first of them or 10 m back, whichever is nearest: path plus turns at 1 m
+// per radian). At the end the Mapper must be, cell for
+// cell, a Mapper fed every scan at those poses, and trajectory() must hold them.
 CorrectedDrive correctedDrive(std::uint64_t seed, const dog::OdometryNoise& drift, int laps) {
   const std::vector<Box> boxes = room();
   const std::vector<dog::Pose2D> truth = loopLaps(laps);
   dog::MapperConfig mapper_config;
   mapper_config.resolution_m = 0.1;
   dog::Mapper mapper(mapper_config);
+  dog::SequenceBuilder recorder;  // for offline EM: recorded again where scans are mapped again
+  mapper.recordObservations(&recorder);
   dog::CorrectedMapping mapping(mapper, dog::poseFilterConfigFor(mapper_config, driveConfig()), 1);
   std::mt19937_64 rng(seed);
   std::normal_distribution<double> normal;
   CorrectedDrive result;
   dog::Pose2D odometry = truth[0];
   std::size_t last_lap_updates = 0;
+  const auto wrapped = [](dog::Pose2D pose) {
+    pose.yaw_rad = std::remainder(pose.yaw_rad, 2.0 * kPi);
+    return pose;
+  };
+  std::vector<dog::Scan> scans;           // at odometry, the yaw wrapped (as the filter sees it)
+  std::vector<double> travel;             // the laser's, in odometry, up to each scan
+  std::vector<dog::Pose2D> corrections;   // each scan is mapped at, as of now
+  std::vector<bool> updated;
+  std::optional<std::size_t> last_taken;  // the scan that changed the correction in use last
   for (std::size_t i = 0; i < truth.size(); ++i) {
     if (i > 0) {
       odometry = dog::applyMotion(odometry, dog::perturbMotion(dog::odometryMotion(truth[i - 1], truth[i]), drift,
@@ -813,18 +832,46 @@ CorrectedDrive correctedDrive(std::uint64_t seed, const dog::OdometryNoise& drif
     }
     dog::Scan scan = simulatedScan(boxes, truth[i], 0.5 * static_cast<double>(i), rng, 0.01);
     scan.laser_pose = odometry;
+    const dog::Pose2D seen = wrapped(odometry);
+    travel.push_back(i == 0 ? 0.0
+                            : travel.back() + (std::hypot(seen.x_m - scans.back().laser_pose.x_m,
+                                                          seen.y_m - scans.back().laser_pose.y_m) +
+                                               1.0 * std::abs(std::remainder(
+                                                         seen.yaw_rad - scans.back().laser_pose.yaw_rad, 2.0 * kPi))));
+    scans.push_back(scan);
+    scans.back().laser_pose = seen;
     const dog::Pose2D before = mapping.mapToOdometry();
     const dog::CorrectedScan corrected = mapping.integrate(scan);
     EXPECT_EQ(corrected.mapped.status, dog::ScanStatus::kIntegrated) << corrected.mapped.error;
     const dog::Pose2D now = mapping.mapToOdometry();
     expectPose(corrected.corrected.laser_pose, dog::composePose(now, odometry), 1e-9);
+    corrections.push_back(now);
+    updated.push_back(corrected.update.updated);
     if (now.x_m != before.x_m || now.y_m != before.y_m || now.yaw_rad != before.yaw_rad) {
       ++result.taken;
       if (result.first_taken_s < 0.0) result.first_taken_s = scan.stamp_s;
       EXPECT_TRUE(corrected.update.updated) << i;
       expectPose(now, mapping.filter().mapToOdometry(), 0.0);
       EXPECT_GT(farthestMove(before, now, scan), 0.2) << i;
+      // The scans mapped again: from the first's correction to this one's, by travel.
+      EXPECT_LE(corrected.remapped, i);
+      EXPECT_LE(0.5 * static_cast<double>(corrected.remapped), 61.0) << "at most 60 s back";
+      if (corrected.remapped > 0) {
+        const std::size_t first = i - corrected.remapped;
+        const double start = std::max({travel[first], last_taken ? travel[*last_taken] : 0.0, travel[i] - 10.0});
+        const double span = travel[i] - start;
+        const double dyaw = std::remainder(now.yaw_rad - before.yaw_rad, 2.0 * kPi);
+        for (std::size_t j = first; j < i; ++j) {
+          const double f = span > 0.0 ? std::clamp((travel[j] - start) / span, 0.0, 1.0) : 1.0;
+          corrections[j] = wrapped({corrections[j].x_m + f * (now.x_m - before.x_m),
+                                    corrections[j].y_m + f * (now.y_m - before.y_m), corrections[j].yaw_rad + f * dyaw});
+        }
+      }
+      last_taken = i;
+    } else {
+      EXPECT_EQ(corrected.remapped, 0u) << i;
     }
+    result.remapped += corrected.remapped;
     if (corrected.update.updated && static_cast<int>(i) * laps >= (laps - 1) * static_cast<int>(truth.size())) {
       const dog::Pose2D& mapped = corrected.corrected.laser_pose;
       result.mapped_error_m += std::hypot(mapped.x_m - truth[i].x_m, mapped.y_m - truth[i].y_m);
@@ -832,9 +879,50 @@ CorrectedDrive correctedDrive(std::uint64_t seed, const dog::OdometryNoise& drif
       ++last_lap_updates;
     }
   }
+  mapping.finish();
   EXPECT_EQ(mapping.correctionsTaken(), result.taken);
+  EXPECT_EQ(mapping.scansRemapped(), result.remapped);
   result.mapped_error_m /= static_cast<double>(last_lap_updates);
   result.odometry_error_m /= static_cast<double>(last_lap_updates);
+  // The Mapper is the scans at the poses as of now, and so is what it recorded; so is the
+  // trajectory at the updates.
+  dog::Mapper reference(mapper_config);
+  dog::SequenceBuilder reference_recorder;
+  reference.recordObservations(&reference_recorder);
+  const std::vector<dog::TrajectoryNode> trajectory = mapping.trajectory();
+  std::size_t node = 0;
+  for (std::size_t i = 0; i < scans.size(); ++i) {
+    dog::Scan scan = scans[i];
+    scan.laser_pose = wrapped(dog::composePose(corrections[i], scans[i].laser_pose));
+    reference.integrate(scan);
+    if (!updated[i]) continue;
+    EXPECT_LT(node, trajectory.size());
+    if (node >= trajectory.size()) break;
+    expectPose(trajectory[node].pose, scan.laser_pose, 1e-9);
+    if (static_cast<int>(i) * laps >= (laps - 1) * static_cast<int>(truth.size())) {
+      result.final_error_m += std::hypot(scan.laser_pose.x_m - truth[i].x_m, scan.laser_pose.y_m - truth[i].y_m);
+    }
+    ++node;
+  }
+  EXPECT_EQ(node, trajectory.size());
+  result.final_error_m /= static_cast<double>(last_lap_updates);
+  mapper.finishStep();
+  reference.finishStep();
+  EXPECT_EQ(dog::serializeModel(mapper), dog::serializeModel(reference));
+  const dog::ObservationSequences recorded = recorder.build();
+  const dog::ObservationSequences expected = reference_recorder.build();
+  EXPECT_GT(expected.observationCount(), 0u);
+  EXPECT_EQ(recorded.observationCount(), expected.observationCount());
+  EXPECT_EQ(recorded.cellCount(), expected.cellCount());
+  std::map<std::pair<std::int32_t, std::int32_t>, std::vector<std::array<std::int64_t, 3>>> by_cell[2];
+  for (int k = 0; k < 2; ++k) {
+    const dog::ObservationSequences& sequences = k == 0 ? recorded : expected;
+    for (std::size_t c = 0; c < sequences.cellCount(); ++c) {
+      auto& list = by_cell[k][{sequences.cell(c).x, sequences.cell(c).y}];
+      for (const auto* o = sequences.begin(c); o != sequences.end(c); ++o) list.push_back({o->step, o->hits, o->misses});
+    }
+  }
+  EXPECT_TRUE(by_cell[0] == by_cell[1]) << "the recorded observations differ";
   return result;
 }
 
@@ -845,11 +933,63 @@ TEST(CorrectedMapping, TakesTheFiltersCorrectionWhereTheSettledMapShowsDrift) {
   for (const std::uint64_t seed : {1u}) {
     const CorrectedDrive result = correctedDrive(seed, dog::OdometryNoise{0.02, 0.002, 0.01, 0.01}, 3);
     std::cout << "seed " << seed << ": " << result.taken << " corrections taken, the first at " << result.first_taken_s
-              << " s; last lap's mean position error: mapped " << result.mapped_error_m << " m, odometry "
+              << " s, " << result.remapped << " scans mapped again; last lap's mean position error: mapped "
+              << result.mapped_error_m << " m (in the end " << result.final_error_m << " m), odometry "
               << result.odometry_error_m << " m\n";
     EXPECT_GT(result.taken, 0u);
     EXPECT_GE(result.first_taken_s, 30.0);  // no settled map before
+    EXPECT_GT(result.remapped, 0u);
     EXPECT_LT(result.mapped_error_m, 0.5 * result.odometry_error_m);
+    EXPECT_LT(result.final_error_m, 0.5 * result.odometry_error_m);
+  }
+}
+
+TEST(CorrectedMapping, SettingsChangedWhileMappingAgainKeepTheMapAsItCame) {
+  // The drift of TakesTheFiltersCorrection...: at the first correction taken the mapper's
+  // settings change (the node's dynamic_reconfigure), so the scans mapped again from the
+  // checkpoint, which holds the old ones, are not taken 5 s later: the Mapper is every scan
+  // at the pose it had when it came. A CorrectedMapping left with a re-mapping running
+  // (the second drive stops at the correction) waits for it when it goes.
+  const std::vector<Box> boxes = room();
+  const std::vector<dog::Pose2D> truth = loopLaps(2);
+  dog::MapperConfig mapper_config;
+  mapper_config.resolution_m = 0.1;
+  for (const bool stop_at_the_correction : {false, true}) {
+    dog::Mapper mapper(mapper_config);
+    dog::Mapper reference(mapper_config);
+    auto mapping = std::make_unique<dog::CorrectedMapping>(
+        mapper, dog::poseFilterConfigFor(mapper_config, driveConfig()), 1);
+    std::mt19937_64 rng(1);
+    std::normal_distribution<double> normal;
+    dog::Pose2D odometry = truth[0];
+    std::optional<double> taken_s;
+    for (std::size_t i = 0; i < truth.size(); ++i) {
+      if (i > 0) {
+        odometry = dog::applyMotion(odometry, dog::perturbMotion(dog::odometryMotion(truth[i - 1], truth[i]),
+                                                                 dog::OdometryNoise{0.02, 0.002, 0.01, 0.01},
+                                                                 {normal(rng), normal(rng), normal(rng)}));
+      }
+      dog::Scan scan = simulatedScan(boxes, truth[i], 0.5 * static_cast<double>(i), rng, 0.01);
+      scan.laser_pose = odometry;
+      const dog::CorrectedScan corrected = mapping->integrate(scan);
+      reference.integrate(corrected.corrected);
+      if (corrected.remapped > 0 && !taken_s) {
+        taken_s = scan.stamp_s;
+        if (stop_at_the_correction) break;
+        mapper.setLearnTransitions(true);  // as it was: only the revision changes
+        reference.setLearnTransitions(true);
+      }
+      if (taken_s && scan.stamp_s > *taken_s + 10.0) break;
+    }
+    ASSERT_TRUE(taken_s.has_value());
+    if (stop_at_the_correction) {
+      mapping.reset();  // waits for the re-mapping, takes nothing
+      continue;
+    }
+    mapping->finish();
+    mapper.finishStep();
+    reference.finishStep();
+    EXPECT_EQ(dog::serializeModel(mapper), dog::serializeModel(reference));
   }
 }
 
@@ -859,7 +999,9 @@ TEST(CorrectedMapping, PerfectOdometryIsNeverCorrected) {
   // it started.
   const CorrectedDrive result = correctedDrive(5, dog::OdometryNoise{0.0, 0.0, 0.0, 0.0}, 2);
   EXPECT_EQ(result.taken, 0u);
+  EXPECT_EQ(result.remapped, 0u);
   EXPECT_EQ(result.mapped_error_m, 0.0);
+  EXPECT_EQ(result.final_error_m, 0.0);
 }
 
 TEST(PoseFilter, BestAfterResamplingIsTheBestBefore) {

@@ -4,6 +4,7 @@
 #include <array>
 #include <bitset>
 #include <cmath>
+#include <future>
 #include <limits>
 #include <stdexcept>
 #include <unordered_map>
@@ -27,6 +28,20 @@ constexpr double kSmallestCorrectionCells = 2.0;
 /// The settled map is the Mapper's map as it was between this and twice this long ago
 /// (seconds of sensor time).
 constexpr double kSettledAge_s = 30.0;
+/// The laser's travel counts a turn as this many metres per radian (where a correction
+/// taken is spread over the scans mapped again).
+constexpr double kTravelPerRadian_m = 1.0;
+/// A correction taken is spread over at most this much of the laser's travel before it
+/// (the scans since the last change or the settled checkpoint, if either is nearer): the
+/// drift behind a correction need not have grown evenly, and spreading it evenly over a
+/// long stretch moves scans that were right (a patrol's sudden heading error, measured:
+/// pose_correction_real.md).
+constexpr double kRemapTravel_m = 10.0;
+/// The scans are mapped again beside the mapping; the result is taken at the first scan
+/// this long (sensor time) after the one that took the correction, waiting for it if need
+/// be: a fixed point, so that a replay maps the same (BM_RemapAfterCorrection: 0.5-4 s of
+/// work for 30-60 s of scans).
+constexpr double kRemapDelay_s = 5.0;
 
 Pose2D wrapped(Pose2D pose) {
   pose.yaw_rad = std::remainder(pose.yaw_rad, 2.0 * kPi);
@@ -123,6 +138,38 @@ struct CorrectedMapping::MapSnapshot {
   }
 };
 
+struct CorrectedMapping::Checkpoint {
+  Checkpoint(const Mapper& mapper_then, std::int64_t snapshot_step, double travel_then, std::size_t first)
+      : snapshot(std::make_shared<const MapSnapshot>(mapper_then, snapshot_step)),
+        mapper(mapper_then),
+        step(snapshot_step),
+        travel(travel_then),
+        first_scan(first) {}
+  /// The Mapper mapped again, the snapshot kept.
+  Checkpoint(const Checkpoint& taken, const Mapper& mapper_again)
+      : snapshot(taken.snapshot), mapper(mapper_again), step(taken.step), travel(taken.travel), first_scan(taken.first_scan) {}
+  std::shared_ptr<const MapSnapshot> snapshot;
+  Mapper mapper;        ///< as it was before scan first_scan
+  std::int64_t step;    ///< the snapshot's
+  double travel;        ///< the laser's travel at scan first_scan
+  std::size_t first_scan;
+};
+
+/// A re-mapping running beside the mapping (takeCorrection), adopted at the first scan
+/// kRemapDelay_s after the one that took the correction (completeRemap).
+struct CorrectedMapping::Remap {
+  struct Result {
+    std::unique_ptr<Mapper> rebuilt;
+    std::shared_ptr<const Checkpoint> newest;  ///< the newest checkpoint's Mapper mapped again; null: none
+    std::unique_ptr<SequenceBuilder> recorded;  ///< its steps, where the Mapper records
+  };
+  std::future<Result> result;
+  double adopt_at_s = 0.0;
+  std::size_t first_new = 0;           ///< the scan that took the correction
+  std::int64_t checkpoint_step = 0;    ///< the checkpoint's last applied step
+  std::uint64_t settings_revision = 0;  ///< the checkpoint Mapper's
+};
+
 PoseFilterConfig poseFilterConfigFor(const MapperConfig& mapper, PoseFilterConfig filter) {
   filter.resolution_m = mapper.resolution_m;
   filter.time_step_s = mapper.time_step_s;
@@ -139,6 +186,12 @@ CorrectedMapping::CorrectedMapping(Mapper& mapper, const PoseFilterConfig& filte
       filter_(std::make_unique<PoseFilter>(
           filter, std::make_shared<MapperTransitions>(mapper, filter.resolution_m, learned_min_observed_steps))),
       start_correction_(wrapped(start_correction)) {}
+
+CorrectedMapping::~CorrectedMapping() = default;
+
+void CorrectedMapping::finish() {
+  if (remap_) completeRemap();
+}
 
 CorrectedScan CorrectedMapping::integrate(const Scan& odometry_scan) {
   // The filter sees odometry moved by the start correction, so that its frame is the map
@@ -160,37 +213,135 @@ CorrectedScan CorrectedMapping::integrate(const Scan& odometry_scan) {
   }
   CorrectedScan result;
   result.update = filter_->integrate(shifted);
+  if (remap_ && odometry_scan.stamp_s >= remap_->adopt_at_s) completeRemap();
+  if (last_shifted_pose_) {
+    travel_ += std::hypot(shifted.laser_pose.x_m - last_shifted_pose_->x_m,
+                          shifted.laser_pose.y_m - last_shifted_pose_->y_m) +
+               kTravelPerRadian_m * std::abs(std::remainder(shifted.laser_pose.yaw_rad - last_shifted_pose_->yaw_rad,
+                                                            2.0 * kPi));
+  }
+  last_shifted_pose_ = shifted.laser_pose;
   if (result.update.updated) {
     refreshSnapshots();
     const Pose2D candidate = filter_->mapToOdometry();
     const bool passes = correctionPasses(candidate, shifted);
-    if (passes && passed_last_update_) {
-      correction_ = candidate;
-      ++corrections_taken_;
-    }
+    if (passes && passed_last_update_) result.remapped = takeCorrection(candidate, odometry_scan.stamp_s);
     passed_last_update_ = passes && !passed_last_update_;
   }
   result.corrected = odometry_scan;
   result.corrected.laser_pose = wrapped(composePose(correction_, shifted.laser_pose));
+  RecentScan recent;
+  recent.shifted = shifted;
+  recent.correction = correction_;
+  recent.travel = travel_;
   if (result.update.updated) {
     TrajectoryNode node;
     node.stamp_s = odometry_scan.stamp_s;
     node.pose = result.corrected.laser_pose;
     node.odometry = shifted.laser_pose;
     trajectory_.push_back(node);
+    recent.trajectory_node = trajectory_.size();
   }
+  if (newest_) recent_.push_back(std::move(recent));  // nothing to map again before a checkpoint
+  ++scans_seen_;
   result.mapped = mapper_.integrate(result.corrected);
   return result;
 }
 
 void CorrectedMapping::refreshSnapshots() {
   const std::optional<std::int64_t> now = mapper_.lastAppliedStep();
-  if (!now) return;
+  if (!now || remap_) return;  // a checkpoint of the map being mapped again would be stale
   const auto age_steps = static_cast<std::int64_t>(std::ceil(kSettledAge_s / mapper_.config().time_step_s));
-  if (newest_ && *now - newest_step_ < age_steps) return;
+  if (newest_ && *now - newest_->step < age_steps) return;
   settled_ = newest_;
-  newest_ = std::make_shared<const MapSnapshot>(mapper_, *now);
-  newest_step_ = *now;
+  newest_ = std::make_shared<const Checkpoint>(mapper_, *now, travel_, scans_seen_);
+  const std::size_t keep_from = settled_ ? settled_->first_scan : newest_->first_scan;
+  if (recent_.empty()) recent_first_ = keep_from;
+  while (!recent_.empty() && recent_first_ < keep_from) {
+    recent_.pop_front();
+    ++recent_first_;
+  }
+}
+
+std::size_t CorrectedMapping::takeCorrection(const Pose2D& correction, double stamp_s) {
+  ++corrections_taken_;
+  const Pose2D previous = correction_;
+  correction_ = correction;
+  if (remap_ || !settled_ || settled_->mapper.settingsRevision() != mapper_.settingsRevision() ||
+      recent_first_ != settled_->first_scan) {
+    last_taken_travel_ = travel_;
+    return 0;
+  }
+  // The change spread by travel over the scans since the last change, the settled
+  // checkpoint or kRemapTravel_m back, whichever is nearest: none at that start, all of it
+  // for this scan (not in recent_ yet). The scans before the start are mapped again as they
+  // were (the checkpoint holds the map before them).
+  const double start = std::max({settled_->travel, last_taken_travel_, travel_ - kRemapTravel_m});
+  last_taken_travel_ = travel_;
+  const double span = travel_ - start;
+  const double dx = correction.x_m - previous.x_m;
+  const double dy = correction.y_m - previous.y_m;
+  const double dyaw = std::remainder(correction.yaw_rad - previous.yaw_rad, 2.0 * kPi);
+  std::vector<Scan> scans;
+  scans.reserve(recent_.size());
+  for (RecentScan& recent : recent_) {
+    const double f = span > 0.0 ? std::clamp((recent.travel - start) / span, 0.0, 1.0) : 1.0;
+    recent.correction = wrapped(Pose2D{recent.correction.x_m + f * dx, recent.correction.y_m + f * dy,
+                                       recent.correction.yaw_rad + f * dyaw});
+    scans.push_back(recent.shifted);
+    scans.back().laser_pose = wrapped(composePose(recent.correction, recent.shifted.laser_pose));
+    if (recent.trajectory_node > 0) trajectory_[recent.trajectory_node - 1].pose = scans.back().laser_pose;
+  }
+  // Mapped again beside the mapping, from the checkpoint (immutable, shared): the newest
+  // checkpoint's Mapper where its first scan comes (this scan: after the last).
+  const std::size_t newest_at = newest_->first_scan - recent_first_;
+  const bool record = mapper_.recorder() != nullptr;
+  remap_ = std::make_unique<Remap>();
+  remap_->adopt_at_s = stamp_s + kRemapDelay_s;
+  remap_->first_new = scans_seen_;
+  remap_->checkpoint_step = *settled_->mapper.lastAppliedStep();
+  remap_->settings_revision = settled_->mapper.settingsRevision();
+  remap_->result = std::async(std::launch::async, [from = settled_, newest = newest_, scans = std::move(scans),
+                                                   newest_at, record]() {
+    Remap::Result result;
+    result.rebuilt = std::make_unique<Mapper>(from->mapper);
+    if (record) {
+      result.recorded = std::make_unique<SequenceBuilder>();
+      result.rebuilt->recordObservations(result.recorded.get());
+    }
+    for (std::size_t i = 0; i < scans.size(); ++i) {
+      if (i == newest_at) result.newest = std::make_shared<const Checkpoint>(*newest, *result.rebuilt);
+      result.rebuilt->integrate(scans[i]);
+    }
+    if (newest_at == scans.size()) result.newest = std::make_shared<const Checkpoint>(*newest, *result.rebuilt);
+    result.rebuilt->recordObservations(nullptr);
+    return result;
+  });
+  scans_remapped_ += recent_.size();
+  return recent_.size();
+}
+
+void CorrectedMapping::completeRemap() {
+  std::unique_ptr<Remap> remap = std::move(remap_);
+  Remap::Result result = remap->result.get();
+  // Settings changed since the checkpoint (the node's dynamic_reconfigure): the map goes on
+  // as it is.
+  if (mapper_.settingsRevision() != remap->settings_revision) return;
+  Mapper& rebuilt = *result.rebuilt;
+  if (SequenceBuilder* recorder = mapper_.recorder()) {
+    recorder->dropAfter(static_cast<std::int32_t>(remap->checkpoint_step));
+    if (result.recorded) recorder->append(*result.recorded);
+    rebuilt.recordObservations(recorder);
+  }
+  // The scans since the correction was taken, as the live map got them.
+  for (std::size_t index = remap->first_new; index < scans_seen_; ++index) {
+    const RecentScan& recent = recent_[index - recent_first_];
+    Scan scan = recent.shifted;
+    scan.laser_pose = wrapped(composePose(recent.correction, recent.shifted.laser_pose));
+    rebuilt.integrate(scan);
+  }
+  if (result.newest) newest_ = std::move(result.newest);
+  mapper_.adopt(std::move(rebuilt));
 }
 
 bool CorrectedMapping::correctionPasses(const Pose2D& candidate, const Scan& shifted) const {
@@ -202,8 +353,9 @@ bool CorrectedMapping::correctionPasses(const Pose2D& candidate, const Scan& shi
   }
   const std::vector<std::array<double, 2>> beams = weightBeams(shifted, config.weight_beams);
   const CellGrid& grid = mapper_.grid();
-  return settled_->logLikelihood(grid, config, beams, composePose(candidate, shifted.laser_pose)) >
-         settled_->logLikelihood(grid, config, beams, composePose(correction_, shifted.laser_pose));
+  const MapSnapshot& settled = *settled_->snapshot;
+  return settled.logLikelihood(grid, config, beams, composePose(candidate, shifted.laser_pose)) >
+         settled.logLikelihood(grid, config, beams, composePose(correction_, shifted.laser_pose));
 }
 
 Pose2D CorrectedMapping::mapToOdometry() const {

@@ -16,8 +16,24 @@
 // centimetres and hundredths of a radian; the map built in the last seconds was built at
 // odometry's poses and so always agrees with odometry best. The settled map is where drift
 // shows: a place seen again after a loop (docs/pose_correction_real.md, "Corrections taken
-// only where the settled map asks for them"). Until a settled map exists (the first 60 s)
+// only where the settled map asks for them"). Until a settled map exists (the first 30 s)
 // and where the scan sees none of it, the correction in use is kept.
+//
+// When it takes a correction, the recent map moves with it: the Mapper goes back to its
+// checkpoint at the settled map (a copy kept with each snapshot) and maps the scans since
+// again, each at its correction plus a share of the change (new minus the one in use) that
+// grows with the laser's travel (path plus turns at 1 m per radian) from none, at the last
+// change, the checkpoint or 10 m of travel back (whichever is nearest), to all of it at
+// the scan that takes it, as a graph optimizer spreads a loop's closure over the loop. So
+// the places seen in the last seconds agree with the scans that follow. That runs on a
+// thread of its own while the scans go on into the Mapper at the new correction; at the
+// first scan 5 s (sensor time) later the scans since are mapped into its result too and it
+// becomes the Mapper (waiting for it if need be: the same scans always give the same map).
+// No checkpoint is made and a correction taken meanwhile is not spread. The snapshots stay
+// as they were taken: the settled map is the map as it was. Not where the mapper's
+// settings changed since the checkpoint (Mapper::settingsRevision): then only the new
+// scans take the correction. What the Mapper records for offline EM (recordObservations)
+// is recorded again from the checkpoint on.
 //
 // Frames: the map frame starts at odometry's at the first scan, shifted by a start
 // correction (the map -> odom transform in use when mapping restarts: a reset, a loaded
@@ -29,7 +45,9 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <deque>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -68,6 +86,9 @@ struct CorrectedScan {
   PoseUpdate update;  ///< the filter's
   Scan corrected;     ///< the scan at the corrected laser pose, as the mapper was given it
   ScanResult mapped;  ///< the mapper's
+  /// The scans before this one that were mapped again because it changed the correction in
+  /// use: the last `remapped` (see CorrectedMapping); 0 if it changed nothing.
+  std::size_t remapped = 0;
 };
 
 class CorrectedMapping {
@@ -76,6 +97,14 @@ class CorrectedMapping {
   /// integrated). Throws std::invalid_argument for a bad filter config.
   CorrectedMapping(Mapper& mapper, const PoseFilterConfig& filter, std::uint32_t learned_min_observed_steps,
                    const Pose2D& start_correction = Pose2D{});
+  /// Waits for a re-mapping still running (see above), without taking it.
+  ~CorrectedMapping();
+  CorrectedMapping(const CorrectedMapping&) = delete;
+  CorrectedMapping& operator=(const CorrectedMapping&) = delete;
+
+  /// The end of the data: takes a re-mapping still running (waiting for it). The Mapper's
+  /// step being gathered stays open (Mapper::finishStep).
+  void finish();
 
   /// One scan whose laser_pose is the laser's odometry pose. Throws std::invalid_argument
   /// (nothing changed) for a scan the filter refuses (scanFieldsError, a stamp before the
@@ -91,6 +120,8 @@ class CorrectedMapping {
   std::vector<TrajectoryNode> trajectory() const;
   /// How often the correction in use changed.
   std::size_t correctionsTaken() const { return corrections_taken_; }
+  /// Scans mapped again when a correction was taken (see above), over all corrections.
+  std::size_t scansRemapped() const { return scans_remapped_; }
   /// The best particle's own map predicted to the filter's last update plus `horizon_steps`
   /// (>= 0; the node's `predicted` layer's horizon for its `~best_particle_predicted`), over
   /// its tiles (a later resampling may pick another particle: the Mapper holds the scans as
@@ -110,9 +141,29 @@ class CorrectedMapping {
   /// The Mapper's map at one step: per allocated tile of its grid, the cells observed by
   /// then and those of them with p(occ) > 0.5.
   struct MapSnapshot;
+  /// A snapshot with the Mapper as it was then, to map the scans since again.
+  struct Checkpoint;
+  /// A scan since the settled checkpoint, as the filter saw it (odometry after the start
+  /// correction).
+  struct RecentScan {
+    Scan shifted;
+    Pose2D correction;    ///< it is mapped at
+    double travel = 0.0;  ///< the laser's travel up to this scan since the first scan
+    std::size_t trajectory_node = 0;  ///< its node in trajectory_ + 1; 0: none
+  };
   /// Whether the filter's correction passes the test (see above) for this scan.
   bool correctionPasses(const Pose2D& candidate, const Scan& shifted) const;
+  /// A new checkpoint every 30 s (of the Mapper as it is before this scan); the one before
+  /// becomes the settled one.
   void refreshSnapshots();
+  /// The correction in use becomes `correction` at the scan stamped `stamp_s`; the scans
+  /// since the settled checkpoint are mapped again (see above), beside the mapping. Returns
+  /// how many.
+  std::size_t takeCorrection(const Pose2D& correction, double stamp_s);
+  /// Takes the re-mapping's result (waiting for it): the scans since the correction was
+  /// taken mapped into it too, it becomes the Mapper (Mapper::adopt).
+  void completeRemap();
+  struct Remap;
 
   Mapper& mapper_;
   std::unique_ptr<PoseFilter> filter_;
@@ -120,10 +171,18 @@ class CorrectedMapping {
   Pose2D correction_;  ///< in use, in the filter's frame (after the start correction)
   bool passed_last_update_ = false;
   std::size_t corrections_taken_ = 0;
+  std::size_t scans_remapped_ = 0;
   std::vector<TrajectoryNode> trajectory_;
-  std::shared_ptr<const MapSnapshot> settled_;  ///< 30 to 60 s old; null before
-  std::shared_ptr<const MapSnapshot> newest_;   ///< 0 to 30 s old
-  std::int64_t newest_step_ = 0;
+  std::shared_ptr<const Checkpoint> settled_;  ///< 30 to 60 s old; null before
+  std::shared_ptr<const Checkpoint> newest_;   ///< 0 to 30 s old
+  /// The scans since the settled checkpoint (since the newest while there is none).
+  std::deque<RecentScan> recent_;
+  std::size_t recent_first_ = 0;  ///< the number of scans before recent_.front()
+  std::size_t scans_seen_ = 0;    ///< scans the filter took
+  std::unique_ptr<Remap> remap_;  ///< running; null if none
+  double travel_ = 0.0;
+  double last_taken_travel_ = 0.0;  ///< travel_ when the correction in use was taken
+  std::optional<Pose2D> last_shifted_pose_;
 };
 
 }  // namespace core
