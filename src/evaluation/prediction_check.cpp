@@ -114,7 +114,8 @@ double PredictionScore::brier() const {
 }
 
 PredictionCheckResult checkPredictions(const core::MapperConfig& config, const ScanReplay& replay,
-                                       const std::vector<std::int64_t>& horizons_steps) {
+                                       const std::vector<std::int64_t>& horizons_steps,
+                                       const ScoredMap& scored_map) {
   config.validate();
   if (!replay) throw std::invalid_argument("checkPredictions: no scan replay given");
   if (horizons_steps.empty()) throw std::invalid_argument("checkPredictions: no horizon given");
@@ -178,11 +179,11 @@ PredictionCheckResult checkPredictions(const core::MapperConfig& config, const S
                          [](const Label& label, std::int64_t step) { return label.step < step; }) -
         labels.begin());
   }
-  core::Mapper mapper(config);
-  // Scores, with the map as it is now, every label not scored yet whose origin step s - h
+  core::Mapper own(config);
+  // Scores, with `mapper` as it is now, every label not scored yet whose origin step s - h
   // is before `end_origin` (all of them without one). The caller guarantees that the map is
   // the map after each of those origins.
-  const auto score_until = [&](std::optional<std::int64_t> end_origin) {
+  const auto score_until = [&](const core::Mapper& mapper, std::optional<std::int64_t> end_origin) {
     for (std::size_t k = 0; k < horizons_steps.size(); ++k) {
       const std::int64_t horizon = horizons_steps[k];
       while (cursor[k] < labels.size() &&
@@ -194,24 +195,30 @@ PredictionCheckResult checkPredictions(const core::MapperConfig& config, const S
   };
   ReplayTally second;
   replay([&](const core::Scan& scan) {
-    // The map changes only when the step being gathered is applied, i.e. within this
-    // integrate() if the scan belongs to a later step. Until then the map is the map after
-    // every step before the gathering one (the steps since the last applied step had no
-    // scans), so the labels of all those origins are scored now. Checking before every scan
-    // costs O(horizons) when there is nothing to score.
-    if (const std::optional<std::int64_t> gathering = mapper.gatheringStep()) score_until(*gathering);
-    second.add(mapper.integrate(scan));
+    if (scored_map) {
+      ++second.scans;  // the replay's map: its results are the replay's
+    } else {
+      second.add(own.integrate(scan));
+    }
+    // The map changes only when the step being gathered is applied, i.e. within the
+    // integrate() of a scan of a later step. After it the map is the map after every step
+    // before the gathering one (the steps since the last applied step had no scans), so the
+    // labels of all those origins are scored now. Checking after every scan costs
+    // O(horizons) when there is nothing to score.
+    const core::Mapper& mapper = scored_map ? scored_map() : own;
+    if (const std::optional<std::int64_t> gathering = mapper.gatheringStep()) score_until(mapper, *gathering);
   });
-  // The same before the last step is applied.
-  if (const std::optional<std::int64_t> gathering = mapper.gatheringStep()) score_until(*gathering);
+  core::Mapper& mapper = scored_map ? scored_map() : own;
   mapper.finishStep();
   second.last_applied_step = mapper.lastAppliedStep();
-  if (!second.sameAs(first)) {
+  const bool same = scored_map ? second.scans == first.scans && second.last_applied_step == first.last_applied_step
+                               : second.sameAs(first);
+  if (!same) {
     throw std::runtime_error("checkPredictions: the scan replay is not repeatable: the first pass saw " +
                              first.describe() + ", the second " + second.describe());
   }
   // The final map is the map after its last step and after every later origin.
-  score_until(std::nullopt);
+  score_until(mapper, std::nullopt);
   return result;
 }
 

@@ -18,6 +18,7 @@
 #include <cstdio>
 #include <cstring>
 #include <exception>
+#include <memory>
 #include <optional>
 #include <sstream>
 #include <stdexcept>
@@ -450,26 +451,32 @@ void checkAndReport(dog::ros_layer::BagScanSource& source, const Options& option
   dog::bag_tools::ProgressBar bar;
   int pass = 0;
   dog::ros_layer::BagScanStats first_pass;
-  // checkPredictions keeps the map it scores to itself: this mapper, with the same
-  // configuration and fed the same scans in the second pass, ends as the same map (the
-  // mapper is deterministic) for the end-of-run report.
+  // Without pose correction, checkPredictions keeps the map it scores to itself: this
+  // mapper, with the same configuration and fed the same scans in the second pass, ends as
+  // the same map (the mapper is deterministic) for the end-of-run report.
   dog::core::Mapper final_map(mapper);
+  // With it, the map scored and reported is the corrected mapping's own, as the node's: it
+  // maps the last seconds' scans again when it takes a correction. A filter and its learner
+  // made afresh for each pass: both passes see the same corrected poses.
+  std::unique_ptr<dog::core::Mapper> learner;
+  std::unique_ptr<dog::core::CorrectedMapping> correction;
   std::size_t correction_updates = 0;
   std::size_t correction_refused = 0;  // over both passes
   const dog::evaluation::ScanReplay replay = [&](const dog::evaluation::ScanConsumer& consumer) {
     ++pass;
     const std::string phase = "pass " + std::to_string(pass);
+    const bool corrected_run = options.correction.enabled;
     const dog::evaluation::ScanConsumer both = [&consumer, &final_map](const dog::core::Scan& scan) {
       consumer(scan);
       final_map.integrate(scan);
     };
-    const dog::evaluation::ScanConsumer& use = pass == 2 ? both : consumer;
-    // With pose correction, a filter and its learner made afresh for each pass: both passes
-    // see the same corrected poses.
-    dog::core::Mapper learner(mapper);
-    std::optional<dog::core::CorrectedMapping> correction;
-    if (options.correction.enabled) {
-      correction.emplace(learner, options.correction.filter, options.correction.learned_min_observed_steps);
+    const dog::evaluation::ScanConsumer& use = pass == 2 && !corrected_run ? both : consumer;
+    correction.reset();
+    learner.reset();
+    if (corrected_run) {
+      learner = std::make_unique<dog::core::Mapper>(mapper);
+      correction = std::make_unique<dog::core::CorrectedMapping>(*learner, options.correction.filter,
+                                                                 options.correction.learned_min_observed_steps);
     }
     const dog::evaluation::ScanConsumer corrected = [&use, &correction,
                                                      &correction_refused](const dog::core::Scan& scan) {
@@ -483,11 +490,14 @@ void checkAndReport(dog::ros_layer::BagScanSource& source, const Options& option
       use(result.corrected);
     };
     const dog::ros_layer::BagScanStats stats =
-        source.forEachScan(correction ? corrected : use, [&bar, &phase](double done) {
+        source.forEachScan(corrected_run ? corrected : use, [&bar, &phase](double done) {
           bar.show(phase, done);
           return true;
         });
-    if (correction) correction_updates = correction->filter().updates();
+    if (correction) {
+      correction->finish();  // the end of the data: the map scored last is the one mapped again
+      correction_updates = correction->filter().updates();
+    }
     if (pass > 1) return;
     first_pass = stats;
     // Said here, with what the bag reader knows (tf errors, time range), rather than as the
@@ -498,11 +508,13 @@ void checkAndReport(dog::ros_layer::BagScanSource& source, const Options& option
       throw std::runtime_error(dog::ros_layer::describeUnusableBag(options.shared.source.bag_path, mapping));
     }
   };
+  const dog::evaluation::ScoredMap scored_map = [&learner]() -> dog::core::Mapper& { return *learner; };
   const auto start = std::chrono::steady_clock::now();
   const dog::evaluation::PredictionCheckResult result =
-      dog::evaluation::checkPredictions(mapper, replay, options.horizons_steps);
+      dog::evaluation::checkPredictions(mapper, replay, options.horizons_steps,
+                                        options.correction.enabled ? scored_map : nullptr);
   final_map.finishStep();
-  const EndOfRun end = summarizeEnd(final_map, options.retention_after_steps, options.prediction_horizon_steps);
+  const EndOfRun end = summarizeEnd(learner ? *learner : final_map, options.retention_after_steps, options.prediction_horizon_steps);
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 
   std::printf("scans read: %zu, integrated: %zu, rejected: %zu", first_pass.scans_read, result.scans_integrated,
@@ -524,8 +536,9 @@ void checkAndReport(dog::ros_layer::BagScanSource& source, const Options& option
               result.observed_cell_steps, result.tied_cell_steps, first_pass.bag_duration_s, seconds);
   if (options.correction.enabled) {
     std::printf("pose correction: %zu particles, %zu filter updates a pass (the map is scored at the corrected "
-                "poses), %zu scans refused by the filter\n",
-                options.correction.filter.particles, correction_updates, correction_refused / 2);
+                "poses), %zu scans refused by the filter; map -> odom changed %zu times, %zu scans mapped again\n",
+                options.correction.filter.particles, correction_updates, correction_refused / 2,
+                correction->correctionsTaken(), correction->scansRemapped());
   }
   for (std::size_t k = 0; k < options.horizons_s.size(); ++k) {
     const double effective_s = static_cast<double>(options.horizons_steps[k]) * mapper.time_step_s;

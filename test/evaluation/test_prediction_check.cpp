@@ -348,6 +348,65 @@ TEST(PredictionCheck, MatchesBruteForceWithParameterSweep) {
   }
 }
 
+TEST(PredictionCheck, ScoresTheReplaysOwnMapWhenGivenOne) {
+  // check_bag --pose-correction scores the corrected mapping's Mapper, which the replay
+  // feeds itself. A replay whose map is fed the same scans with the same configuration
+  // scores as checkPredictions' own map; one whose map has other transitions (the same
+  // geometry: the same labels) scores as the brute force on that configuration.
+  const std::vector<std::int64_t> horizons{0, 1, 3};
+  for (unsigned seed = 1; seed <= 3; ++seed) {
+    const std::vector<TestScan> scans = randomRecording(seed, 30);
+    const dog::MapperConfig config = testConfig(true);
+    const dog::MapperConfig other = [] {
+      dog::MapperConfig changed = testConfig(false);
+      changed.prior_transitions = dog::TransitionParams{0.2, 0.1};
+      return changed;
+    }();
+    for (const dog::MapperConfig* map_config : {&config, &other}) {
+      const std::string what = "seed " + std::to_string(seed) + (map_config == &config ? ", same" : ", other");
+      std::unique_ptr<dog::Mapper> map;
+      std::size_t replays = 0;
+      const evaluation::ScanReplay replay = [&](const evaluation::ScanConsumer& consumer) {
+        ++replays;
+        map = std::make_unique<dog::Mapper>(*map_config);
+        for (const TestScan& test : scans) {
+          const dog::Scan scan = toScan(test);
+          map->integrate(scan);
+          consumer(scan);
+        }
+      };
+      const evaluation::PredictionCheckResult result =
+          evaluation::checkPredictions(config, replay, horizons, [&map]() -> dog::Mapper& { return *map; });
+      EXPECT_EQ(replays, 2u);
+      EXPECT_TRUE(map->gatheringStep() == std::nullopt) << "its last step applied";
+      const std::vector<evaluation::HorizonScore> expected = reference(*map_config, scans, horizons);
+      ASSERT_EQ(result.horizons.size(), expected.size());
+      for (std::size_t k = 0; k < expected.size(); ++k) {
+        const std::string at = what + ", horizon " + std::to_string(horizons[k]);
+        EXPECT_EQ(result.horizons[k].labels, expected[k].labels) << at;
+        EXPECT_EQ(result.horizons[k].unseen, expected[k].unseen) << at;
+        expectSameScore(result.horizons[k].dynamic_model, expected[k].dynamic_model, at + ", dynamic");
+        expectSameScore(result.horizons[k].static_model, expected[k].static_model, at + ", static");
+      }
+    }
+  }
+  // A replay that hands out other scans the second time is refused, as without a map.
+  std::unique_ptr<dog::Mapper> map;
+  bool first = true;
+  const std::vector<TestScan> scans = randomRecording(4, 20);
+  const evaluation::ScanReplay shorter = [&](const evaluation::ScanConsumer& consumer) {
+    map = std::make_unique<dog::Mapper>(testConfig(true));
+    for (std::size_t i = 0; i < scans.size() - (first ? 0 : 3); ++i) {
+      const dog::Scan scan = toScan(scans[i]);
+      map->integrate(scan);
+      consumer(scan);
+    }
+    first = false;
+  };
+  EXPECT_THROW(evaluation::checkPredictions(testConfig(true), shorter, {1}, [&map]() -> dog::Mapper& { return *map; }),
+               std::runtime_error);
+}
+
 TEST(PredictionCheck, HorizonZeroScoresTheMapThatHasJustSeenTheStep) {
   // +x: a wall at cell 4 for steps 0-4, then at cell 7: cells 5, 6 (missed) and 7 (hit) are
   // new at step 5. The other axes see walls at cells 2, 3, 2 all the time. One scan per

@@ -101,15 +101,25 @@ struct PredictionCheckResult {
   std::size_t observed_cells = 0;         ///< distinct cells observed at least once
 };
 
+/// The map the replay keeps itself, to be scored in the second replay instead of one that
+/// checkPredictions builds from the scans (check_bag --pose-correction: the corrected
+/// mapping's Mapper, which maps the last seconds' scans again when it takes a correction).
+/// Called after the consumer has seen each scan; the map returned must have integrated
+/// that scan by then, and have `config`'s geometry.
+using ScoredMap = std::function<core::Mapper&()>;
+
 /// Replays the scans twice through Mappers built from `config`: the first time to record
 /// every cell's hits and misses per step (the labels), the second time to map again and score
-/// each horizon's labels against the map as it was h steps before them (definitions above).
+/// each horizon's labels against the map as it was h steps before them (definitions above),
+/// as it was once that step was applied. With `scored_map`, the second replay scores that
+/// map instead (see ScoredMap; checkPredictions applies its last step).
 /// Throws std::invalid_argument for a bad config, an empty `replay` function, no horizon or a
 /// negative one; std::runtime_error if no scan could be integrated (the message says how
 /// many were handed out and why the last was rejected) or if the second replay handed out
 /// other scans than the first. Exceptions of `replay` pass through.
 PredictionCheckResult checkPredictions(const core::MapperConfig& config, const ScanReplay& replay,
-                                       const std::vector<std::int64_t>& horizons_steps);
+                                       const std::vector<std::int64_t>& horizons_steps,
+                                       const ScoredMap& scored_map = nullptr);
 
 }  // namespace evaluation
 }  // namespace dynamic_occupancy_grid
