@@ -37,11 +37,7 @@ constexpr double kTravelPerRadian_m = 1.0;
 /// long stretch moves scans that were right (a patrol's sudden heading error, measured:
 /// pose_correction_real.md).
 constexpr double kRemapTravel_m = 10.0;
-/// The scans are mapped again beside the mapping; the result is taken at the first scan
-/// this long (sensor time) after the one that took the correction, waiting for it if need
-/// be: a fixed point, so that a replay maps the same (BM_RemapAfterCorrection: 0.5-4 s of
-/// work for 30-60 s of scans).
-constexpr double kRemapDelay_s = 5.0;
+
 
 Pose2D wrapped(Pose2D pose) {
   pose.yaw_rad = std::remainder(pose.yaw_rad, 2.0 * kPi);
@@ -155,8 +151,9 @@ struct CorrectedMapping::Checkpoint {
   std::size_t first_scan;
 };
 
-/// A re-mapping running beside the mapping (takeCorrection), adopted at the first scan
-/// kRemapDelay_s after the one that took the correction (completeRemap).
+/// A re-mapping running beside the mapping (takeCorrection), taken at the next scan, once
+/// the filter has updated on it (completeRemap): a fixed point, so that a replay maps the
+/// same, which leaves it the filter's update to run in.
 struct CorrectedMapping::Remap {
   struct Result {
     std::unique_ptr<Mapper> rebuilt;
@@ -164,7 +161,7 @@ struct CorrectedMapping::Remap {
     std::unique_ptr<SequenceBuilder> recorded;  ///< its steps, where the Mapper records
   };
   std::future<Result> result;
-  double adopt_at_s = 0.0;
+  double adopt_after_s = 0.0;  ///< the stamp of the scan that took the correction
   std::size_t first_new = 0;           ///< the scan that took the correction
   std::int64_t checkpoint_step = 0;    ///< the checkpoint's last applied step
   std::uint64_t settings_revision = 0;  ///< the checkpoint Mapper's
@@ -213,7 +210,7 @@ CorrectedScan CorrectedMapping::integrate(const Scan& odometry_scan) {
   }
   CorrectedScan result;
   result.update = filter_->integrate(shifted);
-  if (remap_ && odometry_scan.stamp_s >= remap_->adopt_at_s) completeRemap();
+  if (remap_ && odometry_scan.stamp_s > remap_->adopt_after_s) completeRemap();
   if (last_shifted_pose_) {
     travel_ += std::hypot(shifted.laser_pose.x_m - last_shifted_pose_->x_m,
                           shifted.laser_pose.y_m - last_shifted_pose_->y_m) +
@@ -297,7 +294,7 @@ std::size_t CorrectedMapping::takeCorrection(const Pose2D& correction, double st
   const std::size_t newest_at = newest_->first_scan - recent_first_;
   const bool record = mapper_.recorder() != nullptr;
   remap_ = std::make_unique<Remap>();
-  remap_->adopt_at_s = stamp_s + kRemapDelay_s;
+  remap_->adopt_after_s = stamp_s;
   remap_->first_new = scans_seen_;
   remap_->checkpoint_step = *settled_->mapper.lastAppliedStep();
   remap_->settings_revision = settled_->mapper.settingsRevision();

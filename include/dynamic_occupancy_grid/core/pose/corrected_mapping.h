@@ -26,10 +26,9 @@
 // change, the checkpoint or 10 m of travel back (whichever is nearest), to all of it at
 // the scan that takes it, as a graph optimizer spreads a loop's closure over the loop. So
 // the places seen in the last seconds agree with the scans that follow. That runs on a
-// thread of its own while the scans go on into the Mapper at the new correction; at the
-// first scan 5 s (sensor time) later the scans since are mapped into its result too and it
-// becomes the Mapper (waiting for it if need be: the same scans always give the same map).
-// No checkpoint is made and a correction taken meanwhile is not spread. The snapshots stay
+// thread of its own; at the next scan (a later stamp), once the filter has updated on it,
+// the result becomes the Mapper (waiting for it if need be: the same scans always give the
+// same map), and that scan goes into it. The snapshots stay
 // as they were taken: the settled map is the map as it was. Not where the mapper's
 // settings changed since the checkpoint (Mapper::settingsRevision): then only the new
 // scans take the correction. What the Mapper records for offline EM (recordObservations)
