@@ -498,6 +498,42 @@ void BM_CorrectedMappingScan(benchmark::State& state) {
 }
 BENCHMARK(BM_CorrectedMappingScan)->Arg(30)->Iterations(120)->Unit(benchmark::kMillisecond)->UseRealTime();
 
+// What a taken correction costs the node (CorrectedMapping maps the scans since the settled
+// checkpoint again, core/pose/corrected_mapping.h): a copy of the Mapper as it was at the
+// checkpoint, after a whole loop of the hall, then the next 60 s of scans (0.5 m/s) mapped
+// into it, per iteration; argument = scans in those 60 s (120: 2 Hz, 600: a 10 Hz laser).
+// Counters: the copy alone (what a checkpoint every 30 s costs), ms; the map, MB.
+void BM_RemapAfterCorrection(benchmark::State& state) {
+  const Hall hall;
+  dog::MapperConfig mapper_config;
+  mapper_config.resolution_m = kResolution;
+  mapper_config.max_free_range_m = 29.0;
+  dog::Mapper mapper(mapper_config);
+  double travelled = 0.0;
+  double stamp = 0.0;
+  for (; travelled < 160.0; travelled += 0.5, stamp += 0.5) mapper.integrate(hall.scan(loopPose(travelled), stamp));
+  const auto scans = static_cast<std::size_t>(state.range(0));
+  std::vector<dog::Scan> since;
+  for (std::size_t i = 0; i < scans; ++i) {
+    const double share = static_cast<double>(i) / static_cast<double>(scans);
+    since.push_back(hall.scan(loopPose(travelled + 30.0 * share), stamp + 60.0 * share));
+  }
+  const dog::Mapper checkpoint(mapper);
+  double copy_ms = 0.0;
+  for (auto _ : state) {
+    const auto start = std::chrono::steady_clock::now();
+    dog::Mapper rebuilt(checkpoint);
+    copy_ms += std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+    for (const dog::Scan& scan : since) rebuilt.integrate(scan);
+    benchmark::DoNotOptimize(rebuilt.lastAppliedStep());
+  }
+  state.counters["copy_ms"] = copy_ms / static_cast<double>(state.iterations());
+  state.counters["map_MB"] =
+      static_cast<double>(checkpoint.grid().allocatedTiles()) * sizeof(dog::CellGrid::Tile) / 1e6;
+  state.SetLabel(std::to_string(scans) + " scans, 720 beams, 30 m, 0.05 m cells, 50 m hall explored");
+}
+BENCHMARK(BM_RemapAfterCorrection)->Arg(120)->Arg(600)->Unit(benchmark::kMillisecond)->UseRealTime();
+
 }  // namespace
 
 BENCHMARK_MAIN();
