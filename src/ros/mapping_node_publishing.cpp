@@ -31,6 +31,9 @@ void MappingNode::publishTimer(const ros::TimerEvent&) {
   std::lock_guard<std::mutex> lock(mutex_);
   if (memory_) publishMemory(false);
   if (!mapper_) return;
+  // A re-mapping after a correction is otherwise taken at the next scan: once the scans
+  // stop (the robot switched off, a bag ended) the layers would never show it.
+  if (correction_) correction_->takeFinishedRemap();
   // Apply the step being gathered once no scan of it can still come (scans of a later step
   // apply it anyway). Only when ROS time (on the scans' clock) and the scans' stamps agree:
   // not after stamps jumped back while ROS time ran on.

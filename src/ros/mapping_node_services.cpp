@@ -281,8 +281,10 @@ bool MappingNode::saveModel(SaveModel::Request& request, SaveModel::Response& re
   bool corrected = false;
   {
     std::lock_guard<std::mutex> lock(mutex_);
-    // With pose correction, the cells' beliefs are the best particle's own map.
+    // With pose correction, the cells' beliefs are the best particle's own map; a
+    // re-mapping still running is waited for (the map the next scan would find).
     corrected = correction_ != nullptr;
+    if (corrected) correction_->finish();
     bytes = corrected ? correction_->serializeModel(&best_particle) : core::serializeModel(*mapper_);
   }
   try {
@@ -358,6 +360,7 @@ bool MappingNode::exportLayers(ExportLayers::Request& request, ExportLayers::Res
   core::MapWindow window;
   {
     std::lock_guard<std::mutex> lock(mutex_);
+    if (correction_) correction_->finish();  // a re-mapping still running: the map it makes
     const std::optional<std::int64_t> step = mapper_->lastAppliedStep();
     if (!step) {
       response.success = false;
@@ -457,6 +460,7 @@ bool MappingNode::getCell(GetCell::Request& request, GetCell::Response& response
     return true;
   }
   std::lock_guard<std::mutex> lock(mutex_);
+  if (correction_) correction_->finish();  // a re-mapping still running: the map it makes
   const core::CellGrid& grid = mapper_->grid();
   const double u = std::floor(grid.toLatticeX(request.x));
   const double v = std::floor(grid.toLatticeY(request.y));
@@ -514,6 +518,7 @@ bool MappingNode::predictMap(PredictMap::Request& request, PredictMap::Response&
     return true;
   }
   std::lock_guard<std::mutex> lock(mutex_);
+  if (correction_) correction_->finish();  // a re-mapping still running: the map it makes
   const std::optional<std::int64_t> step = mapper_->lastAppliedStep();
   if (!step) {
     response.success = false;

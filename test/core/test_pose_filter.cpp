@@ -21,6 +21,8 @@
 #include <optional>
 #include <random>
 #include <stdexcept>
+#include <string>
+#include <thread>
 #include <utility>
 #include <vector>
 
@@ -990,6 +992,67 @@ TEST(CorrectedMapping, SettingsChangedWhileMappingAgainKeepTheMapAsItCame) {
     mapper.finishStep();
     reference.finishStep();
     EXPECT_EQ(dog::serializeModel(mapper), dog::serializeModel(reference));
+  }
+}
+
+TEST(CorrectedMapping, ARemappingTakenBetweenScansGivesTheMapTheNextScanWould) {
+  // The drift of TakesTheFiltersCorrection...: one run takes each re-mapping as the next
+  // scan does; the other takes it right after the scan that started it, before the next
+  // (the node's publish timer, takeFinishedRemap, waiting for it to end; or a service,
+  // finish()). The same Mapper, trajectory and corrections in the end.
+  const std::vector<Box> boxes = room();
+  const std::vector<dog::Pose2D> truth = loopLaps(3);
+  dog::MapperConfig mapper_config;
+  mapper_config.resolution_m = 0.1;
+  struct Run {
+    std::string model;
+    std::vector<dog::TrajectoryNode> trajectory;
+    std::size_t taken = 0;
+    std::size_t between_scans = 0;
+  };
+  const auto drive = [&](bool between_scans) {
+    dog::Mapper mapper(mapper_config);
+    dog::CorrectedMapping mapping(mapper, dog::poseFilterConfigFor(mapper_config, driveConfig()), 1);
+    std::mt19937_64 rng(1);
+    std::normal_distribution<double> normal;
+    dog::Pose2D odometry = truth[0];
+    Run run;
+    for (std::size_t i = 0; i < truth.size(); ++i) {
+      if (i > 0) {
+        odometry = dog::applyMotion(odometry, dog::perturbMotion(dog::odometryMotion(truth[i - 1], truth[i]),
+                                                                 dog::OdometryNoise{0.02, 0.002, 0.01, 0.01},
+                                                                 {normal(rng), normal(rng), normal(rng)}));
+      }
+      dog::Scan scan = simulatedScan(boxes, truth[i], 0.5 * static_cast<double>(i), rng, 0.01);
+      scan.laser_pose = odometry;
+      const dog::CorrectedScan corrected = mapping.integrate(scan);
+      if (between_scans && corrected.remapped > 0) {
+        if (run.between_scans % 2 == 0) {
+          while (!mapping.takeFinishedRemap()) std::this_thread::yield();
+        } else {
+          mapping.finish();
+        }
+        EXPECT_FALSE(mapping.takeFinishedRemap());  // nothing left running
+        ++run.between_scans;
+      }
+    }
+    mapping.finish();
+    mapper.finishStep();
+    run.model = dog::serializeModel(mapper);
+    run.trajectory = mapping.trajectory();
+    run.taken = mapping.correctionsTaken();
+    return run;
+  };
+  const Run at_next_scan = drive(false);
+  const Run between = drive(true);
+  ASSERT_GE(between.between_scans, 2u);  // both ways taken
+  EXPECT_EQ(between.taken, at_next_scan.taken);
+  EXPECT_TRUE(between.model == at_next_scan.model);
+  ASSERT_EQ(between.trajectory.size(), at_next_scan.trajectory.size());
+  for (std::size_t i = 0; i < between.trajectory.size(); ++i) {
+    EXPECT_EQ(between.trajectory[i].pose.x_m, at_next_scan.trajectory[i].pose.x_m) << i;
+    EXPECT_EQ(between.trajectory[i].pose.y_m, at_next_scan.trajectory[i].pose.y_m) << i;
+    EXPECT_EQ(between.trajectory[i].pose.yaw_rad, at_next_scan.trajectory[i].pose.yaw_rad) << i;
   }
 }
 

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <array>
 #include <bitset>
+#include <chrono>
 #include <cmath>
 #include <future>
 #include <limits>
@@ -188,6 +189,12 @@ CorrectedMapping::~CorrectedMapping() = default;
 
 void CorrectedMapping::finish() {
   if (remap_) completeRemap();
+}
+
+bool CorrectedMapping::takeFinishedRemap() {
+  if (!remap_ || remap_->result.wait_for(std::chrono::seconds(0)) != std::future_status::ready) return false;
+  completeRemap();
+  return true;
 }
 
 CorrectedScan CorrectedMapping::integrate(const Scan& odometry_scan) {

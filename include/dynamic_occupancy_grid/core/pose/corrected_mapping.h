@@ -104,6 +104,11 @@ class CorrectedMapping {
   /// The end of the data: takes a re-mapping still running (waiting for it). The Mapper's
   /// step being gathered stays open (Mapper::finishStep).
   void finish();
+  /// Takes a re-mapping that has ended, without waiting: the Mapper becomes what the next
+  /// scan would make it before that scan is mapped (the same map, as finish() between
+  /// scans). For a caller between scans, such as the node's publish timer, so that a map
+  /// whose scans stopped shows the last correction. false: none running, or not ended yet.
+  bool takeFinishedRemap();
 
   /// One scan whose laser_pose is the laser's odometry pose. Throws std::invalid_argument
   /// (nothing changed) for a scan the filter refuses (scanFieldsError, a stamp before the
