@@ -444,6 +444,40 @@ TEST(PoseFilter, WeightIsTheLikelihoodFieldOfTheSubsampledBeams) {
   EXPECT_THROW(filter.integrate(simulatedScan(boxes, {4.0, 2.0, 0.0}, 1.0, rng, 0.01)), std::invalid_argument);
 }
 
+TEST(PoseFilter, TheCorrectionTestComparesTwoPosesOnTheSameBeams) {
+  // One wall (its face at x = 4 m) mapped from (2, 0, 0); the same scan again. A pose 0.3 m
+  // nearer the wall puts every end behind its face, in cells no beam has reached: there
+  // each end counts as explained, so alone that pose scores better than the true one. On the
+  // same beams (compared_with) none is left to tell them apart, and nothing is gained.
+  const std::vector<Box> wall = {{4.0, -30.0, 4.2, 30.0}};
+  auto transitions = std::make_shared<dog::UniformTransitions>(dog::TransitionParams{0.0, 0.0});
+  dog::PoseFilterConfig config;
+  config.particles = 1;
+  config.resolution_m = 0.05;
+  config.motion_noise = {};
+  config.scan_matching = false;
+  dog::PoseFilter filter(config, transitions);
+  std::mt19937_64 rng(4);
+  const dog::Pose2D truth{2.0, 0.0, 0.0};
+  const dog::Scan scan = simulatedScan(wall, truth, 0.0, rng, 0.0);
+  ASSERT_TRUE(filter.integrate(scan).updated);
+  const dog::ParticleMap& map = filter.particles()[0].map;
+  const std::vector<std::array<double, 2>> beams = dog::weightBeams(scan, config.weight_beams);
+  ASSERT_EQ(beams.size(), 60u);
+  const auto field = [&](const dog::Pose2D& pose, const dog::Pose2D* compared_with) {
+    return dog::fieldLogLikelihood(map, *transitions, config, beams, pose, 0, compared_with);
+  };
+  const dog::Pose2D behind{2.3, 0.0, 0.0};
+  EXPECT_LT(field(truth, nullptr), -0.05);  // the ends 0-2.5 cm from the hit cells' centres
+  EXPECT_EQ(field(behind, nullptr), 0.0);   // every end explained
+  EXPECT_EQ(field(behind, &truth), 0.0);
+  EXPECT_EQ(field(truth, &behind), 0.0);
+  // A pose whose ends fall in front of the wall, on cells its beams crossed, still loses
+  // to the truth on the beams both have.
+  const dog::Pose2D short_of{1.85, 0.0, 0.0};
+  EXPECT_LT(field(short_of, &truth), field(truth, &short_of) - 5.0);
+}
+
 TEST(PoseFilter, ARefusedPoseTakesOdometrysIncrementAndItsWeight) {
   // Noisy samples that the guard (a bound of almost 0 sigma) or the correction test (a gain
   // no scan reaches) refuses: the particle moves by odometry's increment and is weighed

@@ -229,6 +229,26 @@ bool endInMappedPlace(ParticleMap::Reader& map, const PoseFilterConfig& config, 
 
 }  // namespace
 
+double fieldLogLikelihood(const ParticleMap& map, const TransitionSource& transitions, const PoseFilterConfig& config,
+                          const std::vector<std::array<double, 2>>& beams, const Pose2D& pose, std::int64_t step,
+                          const Pose2D* compared_with) {
+  ParticleMap::Reader reader(map);
+  const double c = std::cos(pose.yaw_rad);
+  const double s = std::sin(pose.yaw_rad);
+  double sum = 0.0;
+  for (const LaserPoint& beam : beams) {
+    double d = 0.0;
+    if (endInMappedPlace(reader, config, beam, pose) &&
+        (compared_with == nullptr || endInMappedPlace(reader, config, beam, *compared_with))) {
+      d = nearestOccupiedDistance(map, transitions, pose.x_m + c * beam[0] - s * beam[1],
+                                  pose.y_m + s * beam[0] + c * beam[1], config.resolution_m,
+                                  config.weight_max_distance_m, step, config.unknown_p_occ);
+    }
+    sum += beamLogLikelihood(config, d);
+  }
+  return sum;
+}
+
 Pose2D PoseFilter::matchPose(const Particle& particle, const std::vector<LaserPoint>& match_beams, const Pose2D& start,
                              std::int64_t step) const {
   // Only the beams that end where the map has been, seen from the proposal's pose, and the
@@ -295,21 +315,8 @@ bool PoseFilter::updateParticle(Particle& particle, const Scan& scan, const std:
       last.translation_variance + noise.trans_from_trans * t2 + noise.trans_from_rot * (r1 * r1 + r2 * r2);
   const double travelled = last.travelled_m + motion.trans_m;
   // amcl's likelihood field over the subsampled beams, at a pose.
-  ParticleMap::Reader reader(particle.map);
-  const auto field_log_likelihood = [&](const Pose2D& at) {
-    const double c = std::cos(at.yaw_rad);
-    const double s = std::sin(at.yaw_rad);
-    double sum = 0.0;
-    for (const LaserPoint& beam : weight_beams) {
-      double d = 0.0;
-      if (endInMappedPlace(reader, config_, beam, at)) {
-        d = nearestOccupiedDistance(particle.map, *transitions_, at.x_m + c * beam[0] - s * beam[1],
-                                    at.y_m + s * beam[0] + c * beam[1], config_.resolution_m,
-                                    config_.weight_max_distance_m, step, config_.unknown_p_occ);
-      }
-      sum += beamLogLikelihood(config_, d);
-    }
-    return sum;
+  const auto field_log_likelihood = [&](const Pose2D& at, const Pose2D* compared_with = nullptr) {
+    return fieldLogLikelihood(particle.map, *transitions_, config_, weight_beams, at, step, compared_with);
   };
   double log_likelihood = field_log_likelihood(pose);
   bool refused = false;
@@ -330,6 +337,11 @@ bool PoseFilter::updateParticle(Particle& particle, const Scan& scan, const std:
       // motion model's (a Gaussian with this update's heading and position variances) must
       // reach correction_min_gain.
       odometry_log_likelihood = field_log_likelihood(odometry_pose);
+      // On the same beams: a beam whose end either pose puts where the map has not been
+      // (behind a wall, say) counts as explained at both, so that no pose gains beams by
+      // putting them there (docs/pose_correction_real.md, "Comparing on the same beams").
+      const double scan_gain =
+          field_log_likelihood(pose, &odometry_pose) - field_log_likelihood(odometry_pose, &pose);
       const double step_heading_var = heading_variance - last.heading_variance;
       const double step_position_var =
           translation_variance - last.translation_variance + t2 * step_heading_var / 3.0;
@@ -338,7 +350,7 @@ bool PoseFilter::updateParticle(Particle& particle, const Scan& scan, const std:
                             (pose.y_m - odometry_pose.y_m) * (pose.y_m - odometry_pose.y_m);
       const double prior = -0.5 * (turn * turn / std::max(step_heading_var, 1e-300) +
                                    shift2 / std::max(step_position_var, 1e-300));
-      refused = log_likelihood - *odometry_log_likelihood + prior < config_.correction_min_gain;
+      refused = scan_gain + prior < config_.correction_min_gain;
     }
     if (refused) {
       if (!odometry_log_likelihood) odometry_log_likelihood = field_log_likelihood(odometry_pose);

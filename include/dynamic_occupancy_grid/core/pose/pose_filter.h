@@ -75,7 +75,8 @@ struct PoseFilterConfig {
   double guard_window_m = 10.0;
   /// A particle's pose other than odometry's increment from its last pose is taken only if
   /// the scan supports it: its likelihood-field log-likelihood minus that of odometry's
-  /// increment, plus the motion model's log prior ratio of the two (-m^2 / 2, m the
+  /// increment, on the beams that end where the map has been from both
+  /// (fieldLogLikelihood's compared_with), plus the motion model's log prior ratio of the two (-m^2 / 2, m the
   /// correction's Mahalanobis distance under this update's heading and position variances),
   /// is at least correction_min_gain (nats; 0: the more probable of the two under the
   /// motion model and the scan). false: no such test.
@@ -184,6 +185,17 @@ double nearestOccupiedDistance(const ParticleMap& map, const TransitionSource& t
 /// exp(-d^2 / 2 weight_sigma_m^2) + weight_z_rand) for an end `distance_m` from the nearest
 /// occupied cell.
 double beamLogLikelihood(const PoseFilterConfig& config, double distance_m);
+
+/// The likelihood field's log-likelihood of `beams` (ends in the laser's frame) from `pose`
+/// under `map` predicted to `step`: the sum of beamLogLikelihood over the beams, a beam whose
+/// end the map has not been near (no observed cell in the 3 x 3 around it) explained
+/// (d = 0). With `compared_with`, a beam also counts as explained when its end from
+/// `compared_with` is where the map has not been: two poses scored against each other this
+/// way are compared on the same beams. (Without it, a pose that puts ends behind a wall, in
+/// cells never observed, gains them over a pose that puts them on the wall.)
+double fieldLogLikelihood(const ParticleMap& map, const TransitionSource& transitions, const PoseFilterConfig& config,
+                          const std::vector<std::array<double, 2>>& beams, const Pose2D& pose, std::int64_t step,
+                          const Pose2D* compared_with = nullptr);
 
 /// The beams the weight takes: at most `count` with a return (range_min <= r < range_max),
 /// evenly spread over those with one; their ends in the laser's frame (x, y).
