@@ -4,7 +4,6 @@
 #include <chrono>
 #include <cmath>
 #include <stdexcept>
-#include <optional>
 #include <string>
 
 #include <Eigen/Dense>
@@ -318,7 +317,6 @@ bool PoseFilter::updateParticle(Particle& particle, const Scan& scan, const std:
   const auto field_log_likelihood = [&](const Pose2D& at, const Pose2D* compared_with = nullptr) {
     return fieldLogLikelihood(particle.map, *transitions_, config_, weight_beams, at, step, compared_with);
   };
-  double log_likelihood = field_log_likelihood(pose);
   bool refused = false;
   if (config_.guard_sigmas > 0.0 || config_.correction_test) {
     // Odometry's increment from the particle's last pose: what the particle falls back to.
@@ -331,12 +329,10 @@ bool PoseFilter::updateParticle(Particle& particle, const Scan& scan, const std:
       refused = !guardAccepts(*anchor, pose, scan.laser_pose, travelled, heading_variance, translation_variance,
                               config_.guard_sigmas, config_.resolution_m);
     }
-    std::optional<double> odometry_log_likelihood;
     if (!refused && config_.correction_test) {
       // The pose against odometry's increment: the scan's log-likelihood ratio minus the
       // motion model's (a Gaussian with this update's heading and position variances) must
       // reach correction_min_gain.
-      odometry_log_likelihood = field_log_likelihood(odometry_pose);
       // On the same beams: a beam whose end either pose puts where the map has not been
       // (behind a wall, say) counts as explained at both, so that no pose gains beams by
       // putting them there (docs/pose_correction_real.md, "Comparing on the same beams").
@@ -353,14 +349,12 @@ bool PoseFilter::updateParticle(Particle& particle, const Scan& scan, const std:
       refused = scan_gain + prior < config_.correction_min_gain;
     }
     if (refused) {
-      if (!odometry_log_likelihood) odometry_log_likelihood = field_log_likelihood(odometry_pose);
       refused = std::abs(pose.x_m - odometry_pose.x_m) > 1e-9 || std::abs(pose.y_m - odometry_pose.y_m) > 1e-9 ||
                 std::abs(std::remainder(pose.yaw_rad - odometry_pose.yaw_rad, 2.0 * kPi)) > 1e-9;
       pose = odometry_pose;
-      log_likelihood = *odometry_log_likelihood;
     }
   }
-  particle.log_weight += log_likelihood;
+  particle.log_weight += field_log_likelihood(pose);
   particle.pose = pose;
   auto node = std::make_shared<TrajectoryNode>(TrajectoryNode{scan.stamp_s, pose, particle.trajectory});
   node->odometry = scan.laser_pose;
