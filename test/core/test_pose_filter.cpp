@@ -519,6 +519,37 @@ TEST(PoseFilter, ARefusedPoseTakesOdometrysIncrementAndItsWeight) {
   EXPECT_LT(filters[0]->particles()[0].log_weight, -0.5);  // a weight, not the maximum 0
 }
 
+TEST(PoseFilter, ARefusedSampleLeavesOdometrysIncrementMatched) {
+  // A corridor, the second scan's odometry turned by 0.04 rad too much: the scan shows the
+  // heading (its walls) but not the position along the corridor. A sample of the motion model
+  // keeps its shift along the corridor after matching, and the correction test's prior charges
+  // for that shift, so a sample with a large one is refused though its heading is right (8 of
+  // these 30 without the second candidate). Odometry's increment matched is then the
+  // particle's pose: every particle's heading comes out corrected.
+  const std::vector<Box> corridor = {{-30.0, -1.725, 30.0, -1.525}, {-30.0, 1.525, 30.0, 1.725}};  // faces on cell centres
+  auto transitions = std::make_shared<dog::UniformTransitions>(dog::TransitionParams{0.0, 0.0});
+  dog::PoseFilterConfig config;
+  config.particles = 30;
+  config.resolution_m = 0.05;
+  config.motion_noise = {0.002, 0.002, 0.002, 0.002};
+  config.resample_below = 0.0;
+  const auto scanAt = [&](const dog::Pose2D& truth, const dog::Pose2D& odometry, double stamp_s) {
+    std::mt19937_64 rng(5);
+    dog::Scan scan = simulatedScan(corridor, truth, stamp_s, rng, 0.0, 361);
+    scan.range_max_m = 4.0;  // the walls in view end 3.7 m along the corridor
+    scan.laser_pose = odometry;
+    return scan;
+  };
+  dog::PoseFilter filter(config, transitions);
+  ASSERT_TRUE(filter.integrate(scanAt({0.0, 0.0, 0.0}, {0.0, 0.0, 0.0}, 0.0)).updated);
+  ASSERT_TRUE(filter.integrate(scanAt({0.5, 0.0, 0.0}, {0.5, 0.0, 0.04}, 1.0)).updated);
+  for (const dog::Particle& particle : filter.particles()) {
+    EXPECT_NEAR(particle.pose.yaw_rad, 0.0, 0.01);
+    EXPECT_NEAR(particle.pose.y_m, 0.0, 0.02);
+  }
+  EXPECT_EQ(filter.guardRefusals(), 0u);
+}
+
 TEST(PoseFilter, WeightsOfNearbyPosesDifferByAFewNats) {
   // The point of the likelihood field: two particles 5 cm apart differ by a few nats, not
   // the tens of a product over every cell. One particle each, a room mapped from the true

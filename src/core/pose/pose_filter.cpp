@@ -322,14 +322,18 @@ bool PoseFilter::updateParticle(Particle& particle, const Scan& scan, const std:
     // Odometry's increment from the particle's last pose: what the particle falls back to.
     Pose2D odometry_pose = applyMotion(particle.pose, motion);
     odometry_pose.yaw_rad = std::remainder(odometry_pose.yaw_rad, 2.0 * kPi);
-    if (config_.guard_sigmas > 0.0) {
-      // The anchor: the lineage's state guard_window_m of travel ago (or its first).
-      const TrajectoryNode* anchor = &last;
-      while (anchor->parent && travelled - anchor->travelled_m < config_.guard_window_m) anchor = anchor->parent.get();
-      refused = !guardAccepts(*anchor, pose, scan.laser_pose, travelled, heading_variance, translation_variance,
-                              config_.guard_sigmas, config_.resolution_m);
-    }
-    if (!refused && config_.correction_test) {
+    // Whether `candidate` is refused: by the guard, or by the correction test.
+    const auto refuses = [&](const Pose2D& candidate) {
+      if (config_.guard_sigmas > 0.0) {
+        // The anchor: the lineage's state guard_window_m of travel ago (or its first).
+        const TrajectoryNode* anchor = &last;
+        while (anchor->parent && travelled - anchor->travelled_m < config_.guard_window_m) anchor = anchor->parent.get();
+        if (!guardAccepts(*anchor, candidate, scan.laser_pose, travelled, heading_variance, translation_variance,
+                          config_.guard_sigmas, config_.resolution_m)) {
+          return true;
+        }
+      }
+      if (!config_.correction_test) return false;
       // The pose against odometry's increment: the scan's log-likelihood ratio minus the
       // motion model's (a Gaussian with this update's heading and position variances) must
       // reach correction_min_gain.
@@ -337,21 +341,34 @@ bool PoseFilter::updateParticle(Particle& particle, const Scan& scan, const std:
       // (behind a wall, say) counts as explained at both, so that no pose gains beams by
       // putting them there (docs/pose_correction_real.md, "Comparing on the same beams").
       const double scan_gain =
-          field_log_likelihood(pose, &odometry_pose) - field_log_likelihood(odometry_pose, &pose);
+          field_log_likelihood(candidate, &odometry_pose) - field_log_likelihood(odometry_pose, &candidate);
       const double step_heading_var = heading_variance - last.heading_variance;
       const double step_position_var =
           translation_variance - last.translation_variance + t2 * step_heading_var / 3.0;
-      const double turn = std::remainder(pose.yaw_rad - odometry_pose.yaw_rad, 2.0 * kPi);
-      const double shift2 = (pose.x_m - odometry_pose.x_m) * (pose.x_m - odometry_pose.x_m) +
-                            (pose.y_m - odometry_pose.y_m) * (pose.y_m - odometry_pose.y_m);
+      const double turn = std::remainder(candidate.yaw_rad - odometry_pose.yaw_rad, 2.0 * kPi);
+      const double shift2 = (candidate.x_m - odometry_pose.x_m) * (candidate.x_m - odometry_pose.x_m) +
+                            (candidate.y_m - odometry_pose.y_m) * (candidate.y_m - odometry_pose.y_m);
       const double prior = -0.5 * (turn * turn / std::max(step_heading_var, 1e-300) +
                                    shift2 / std::max(step_position_var, 1e-300));
-      refused = scan_gain + prior < config_.correction_min_gain;
-    }
-    if (refused) {
-      refused = std::abs(pose.x_m - odometry_pose.x_m) > 1e-9 || std::abs(pose.y_m - odometry_pose.y_m) > 1e-9 ||
-                std::abs(std::remainder(pose.yaw_rad - odometry_pose.yaw_rad, 2.0 * kPi)) > 1e-9;
-      pose = odometry_pose;
+      return scan_gain + prior < config_.correction_min_gain;
+    };
+    const auto same = [](const Pose2D& a, const Pose2D& b) {
+      return std::abs(a.x_m - b.x_m) <= 1e-9 && std::abs(a.y_m - b.y_m) <= 1e-9 &&
+             std::abs(std::remainder(a.yaw_rad - b.yaw_rad, 2.0 * kPi)) <= 1e-9;
+    };
+    if (refuses(pose)) {
+      // The sample keeps the motion model's noise where the scan cannot see it (along a
+      // corridor, say), and the prior charges for it, so a correction the scan supports can
+      // be refused with it. The second candidate: odometry's increment matched, which leaves
+      // odometry's pose where the scan says nothing (docs/pose_correction_real.md, "Matching
+      // odometry's increment").
+      Pose2D taken = odometry_pose;
+      if (config_.scan_matching) {
+        const Pose2D rematched = matchPose(particle, match_beams, odometry_pose, step);
+        if (!same(rematched, odometry_pose) && !refuses(rematched)) taken = rematched;
+      }
+      refused = !same(pose, odometry_pose) && same(taken, odometry_pose);
+      pose = taken;
     }
   }
   particle.log_weight += field_log_likelihood(pose);

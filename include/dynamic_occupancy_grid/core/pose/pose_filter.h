@@ -9,10 +9,13 @@
 //      model's noise (motion_model.h), then refined by scan matching against the
 //      particle's map *predicted* to the scan's step (a hill climb of gmapping's kind on the
 //      beam end points' distance to predicted-occupied cells);
-//      The pose is refused, and odometry's increment from the particle's last pose taken
-//      instead, when its correction of odometry is more than the motion model allows over
-//      the last guard_window_m of travel (guardAccepts), or when the scan does not support
-//      it (its likelihood is not correction_min_gain nats above odometry's increment's);
+//      The pose is refused when its correction of odometry is more than the motion model
+//      allows over the last guard_window_m of travel (guardAccepts), or when the scan does
+//      not support it (its likelihood is not correction_min_gain nats above odometry's
+//      increment's). A refused sample is followed by a second candidate, odometry's
+//      increment from the particle's last pose matched (the sample's noise where the scan
+//      cannot see it, along a corridor, costs it the test though its heading is right), taken
+//      if neither test refuses it; otherwise odometry's increment itself;
 //   2. weight: times the scan's likelihood under the particle's predicted map, amcl's
 //      likelihood field: weight_beams beams evenly subsampled, each end's distance d to the
 //      nearest cell the map predicts occupied scored z_hit exp(-d^2 / 2 sigma^2) + z_rand.
@@ -73,7 +76,8 @@ struct PoseFilterConfig {
   /// that motion (heading; position with the heading's lateral error). 0: no guard.
   double guard_sigmas = 3.0;
   double guard_window_m = 10.0;
-  /// A particle's pose other than odometry's increment from its last pose is taken only if
+  /// A particle's pose other than odometry's increment from its last pose (the matched
+  /// sample, or else that increment matched) is taken only if
   /// the scan supports it: its likelihood-field log-likelihood minus that of odometry's
   /// increment, on the beams that end where the map has been from both
   /// (fieldLogLikelihood's compared_with), plus the motion model's log prior ratio of the two (-m^2 / 2, m the
@@ -280,7 +284,8 @@ class PoseFilter {
   /// The step of the last update (0 before the first scan's).
   std::int64_t lastUpdateStep() const { return last_step_; }
   std::size_t resamplings() const { return resamplings_; }
-  /// Particle-updates whose pose the guard refused (odometry's increment taken instead).
+  /// Particle-updates whose sample the guard or the correction test refused and that took
+  /// odometry's increment (its match refused too, or not moved).
   std::size_t guardRefusals() const { return guard_refusals_; }
   /// N_eff before resampling of every update after the first, in order.
   const std::vector<double>& effectiveSampleSizes() const { return effective_sample_sizes_; }
