@@ -322,16 +322,15 @@ bool PoseFilter::updateParticle(Particle& particle, const Scan& scan, const std:
     // Odometry's increment from the particle's last pose: what the particle falls back to.
     Pose2D odometry_pose = applyMotion(particle.pose, motion);
     odometry_pose.yaw_rad = std::remainder(odometry_pose.yaw_rad, 2.0 * kPi);
+    // The guard's anchor: the lineage's state guard_window_m of travel ago (or its first).
+    const TrajectoryNode* anchor = &last;
+    while (anchor->parent && travelled - anchor->travelled_m < config_.guard_window_m) anchor = anchor->parent.get();
     // Whether `candidate` is refused: by the guard, or by the correction test.
     const auto refuses = [&](const Pose2D& candidate) {
-      if (config_.guard_sigmas > 0.0) {
-        // The anchor: the lineage's state guard_window_m of travel ago (or its first).
-        const TrajectoryNode* anchor = &last;
-        while (anchor->parent && travelled - anchor->travelled_m < config_.guard_window_m) anchor = anchor->parent.get();
-        if (!guardAccepts(*anchor, candidate, scan.laser_pose, travelled, heading_variance, translation_variance,
-                          config_.guard_sigmas, config_.resolution_m)) {
-          return true;
-        }
+      if (config_.guard_sigmas > 0.0 &&
+          !guardAccepts(*anchor, candidate, scan.laser_pose, travelled, heading_variance, translation_variance,
+                        config_.guard_sigmas, config_.resolution_m)) {
+        return true;
       }
       if (!config_.correction_test) return false;
       // The pose against odometry's increment: the scan's log-likelihood ratio minus the
