@@ -76,6 +76,14 @@ fi
 import glob, os, sys
 import xml.etree.ElementTree as ET
 passed = failed = skipped = 0
+
+
+def reason(problem):
+    """A failure's gist for the log: its message's first line, at most 300 characters."""
+    text = (problem.get("message") or problem.text or "").strip()
+    return text.splitlines()[0][:300] if text else "(no message)"
+
+
 failures = list(sys.argv[2:])
 failed += len(failures)
 for path in sorted(glob.glob(os.path.join(sys.argv[1], "**", "*.xml"), recursive=True)):
@@ -83,13 +91,15 @@ for path in sorted(glob.glob(os.path.join(sys.argv[1], "**", "*.xml"), recursive
         root = ET.parse(path).getroot()
     except ET.ParseError as error:
         failed += 1
-        failures.append(f"{os.path.basename(path)}: unreadable result file ({error})")
+        failures.append(f"{os.path.relpath(path, sys.argv[1])}: unreadable result file ({error})")
         continue
+    where = os.path.relpath(path, sys.argv[1])
     for case in root.iter("testcase"):
         name = f"{case.get('classname', '')}.{case.get('name', '')}"
-        if case.find("failure") is not None or case.find("error") is not None:
+        problem = case.find("failure") if case.find("failure") is not None else case.find("error")
+        if problem is not None:
             failed += 1
-            failures.append(f"{os.path.basename(path)}: {name}")
+            failures.append(f"{where}: {name}: {reason(problem)}")
         elif case.find("skipped") is not None or case.get("status") == "notrun":
             skipped += 1
         else:
@@ -102,7 +112,7 @@ for path in sorted(glob.glob(os.path.join(sys.argv[1], "**", "*.xml"), recursive
                      if case.find("failure") is not None or case.find("error") is not None)
         if declared > inside:
             failed += declared - inside
-            failures.append(f"{os.path.basename(path)}: {suite.get('name', '')}: {declared - inside} error(s) outside "
+            failures.append(f"{where}: {suite.get('name', '')}: {declared - inside} error(s) outside "
                             "any testcase (setUpClass?)")
 for line in failures:
     print("FAILED:", line)

@@ -102,13 +102,13 @@ def map_status_values(array):
 
 class TestBagReplay(unittest.TestCase):
 
-    @classmethod
+    @wall_scene.reported_set_up
     def setUpClass(cls):
         rospy.init_node('test_bag_replay')
         cls.tmp = tempfile.mkdtemp(prefix='dog_bag_replay_')
         cls.log = TopicRecorder('/rosout', Log)
         cls.diagnostics = TopicRecorder('/diagnostics', DiagnosticArray)
-        rospy.wait_for_service(NODE + '/get_status', 30.0)
+        rospy.wait_for_service(NODE + '/get_status', wall_scene.STARTUP_TIMEOUT)
         cls.get_status = rospy.ServiceProxy(NODE + '/get_status', wall_scene.dog_srv.GetStatus)
 
     @classmethod

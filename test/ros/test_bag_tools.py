@@ -28,6 +28,8 @@ import rospy
 import rostest
 from catkin.find_in_workspaces import find_in_workspaces
 
+import wall_scene
+
 PKG = "dynamic_occupancy_grid"
 LAYERS = ("belief", "predicted", "stationary", "p_occ_given_free", "p_free_given_occ", "static_map")
 PACKAGE_DIR = rospkg.RosPack().get_path(PKG)
@@ -151,7 +153,7 @@ class TestBagTools(unittest.TestCase):
     tmp = None
     runs = {}
 
-    @classmethod
+    @wall_scene.reported_set_up
     def setUpClass(cls):
         cls.tmp = tempfile.mkdtemp(prefix="test_bag_tools_")
 

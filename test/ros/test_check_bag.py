@@ -42,6 +42,8 @@ import rospy
 import rostest
 from catkin.find_in_workspaces import find_in_workspaces
 
+import wall_scene
+
 PKG = "dynamic_occupancy_grid"
 PACKAGE_DIR = rospkg.RosPack().get_path(PKG)
 STATIONARY_BAG = os.path.join(PACKAGE_DIR, "data", "example", "stationary_laser_people.bag")
@@ -176,7 +178,7 @@ class TestCheckBag(unittest.TestCase):
     tmp = None
     runs = {}
 
-    @classmethod
+    @wall_scene.reported_set_up
     def setUpClass(cls):
         cls.tmp = tempfile.mkdtemp(prefix="test_check_bag_")
 

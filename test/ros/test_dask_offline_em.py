@@ -29,6 +29,7 @@ from sensor_msgs.msg import LaserScan
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from test_bag_tools import NEATO_ARGS, NEATO_BAG, STATIONARY_ARGS, STATIONARY_BAG, executable  # noqa: E402
+import wall_scene  # noqa: E402
 
 PKG = 'dynamic_occupancy_grid'
 PACKAGE_DIR = rospkg.RosPack().get_path(PKG)
@@ -66,7 +67,7 @@ def write_scan_bag(path, stamps):
 
 class DaskOfflineEmTest(unittest.TestCase):
 
-    @classmethod
+    @wall_scene.reported_set_up
     def setUpClass(cls):
         from distributed import Client, LocalCluster
         cls.tmp = tempfile.mkdtemp(prefix='dog_dask_test_')

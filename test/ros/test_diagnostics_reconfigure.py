@@ -4,7 +4,6 @@ sensor model refused, a good one used by the next step, sensor-model learning on
 the sensor model in use in the map status) and the `map` topic's map_server thresholds, on
 the wall scene. The tests run in order (test_01 ...) on one node."""
 
-import math
 import os
 import sys
 import unittest
@@ -46,7 +45,7 @@ def describe(array):
 
 class TestDiagnosticsReconfigure(unittest.TestCase):
 
-    @classmethod
+    @wall_scene.reported_set_up
     def setUpClass(cls):
         rospy.init_node('test_diagnostics_reconfigure')
         cls.scene = wall_scene.WallScene(NODE)

@@ -27,7 +27,7 @@ TRANSITION_SCALE = 0.1
 
 class TestMappingNode(unittest.TestCase):
 
-    @classmethod
+    @wall_scene.reported_set_up
     def setUpClass(cls):
         rospy.init_node('test_mapping_node')
         cls.scene = wall_scene.WallScene(NODE)

@@ -115,7 +115,7 @@ def patched_grid(full_recorder, updates_recorder, stamp):
 
 class TestMemoryNode(unittest.TestCase):
 
-    @classmethod
+    @wall_scene.reported_set_up
     def setUpClass(cls):
         rospy.init_node('test_memory_node')
         cls.clock = wall_scene.SimClock()
@@ -129,13 +129,13 @@ class TestMemoryNode(unittest.TestCase):
         scan_publisher = rospy.Publisher('/scan', wall_scene.LaserScan, queue_size=100)
         tf_publisher = rospy.Publisher('/tf', TFMessage, queue_size=100)
         # Both nodes listen to the scans and to /tf (not latched: wait for the connections).
-        deadline = time.time() + 30.0
+        deadline = time.time() + wall_scene.STARTUP_TIMEOUT
         while scan_publisher.get_num_connections() < 2 or tf_publisher.get_num_connections() < 2:
             if time.time() > deadline:
                 raise AssertionError('the nodes did not subscribe to /scan and /tf')
             threading.Event().wait(0.05)
-        rospy.wait_for_service(MEMORY + '/reset', 30.0)
-        rospy.wait_for_service(BOTH + '/get_cell', 30.0)
+        rospy.wait_for_service(MEMORY + '/reset', wall_scene.STARTUP_TIMEOUT)
+        rospy.wait_for_service(BOTH + '/get_cell', wall_scene.STARTUP_TIMEOUT)
         cls.stamps = []  # stamp of the scan that completed each update
         for k, (pose, objects) in enumerate(SCANS):
             stamp = cls.clock.now + SCAN_PERIOD

@@ -20,6 +20,8 @@ import rospy
 import rostest
 from catkin.find_in_workspaces import find_in_workspaces
 
+import wall_scene
+
 PKG = "dynamic_occupancy_grid"
 
 
@@ -36,7 +38,7 @@ def data_dirs():
 
 
 class OfficeWalls(unittest.TestCase):
-    @classmethod
+    @wall_scene.reported_set_up
     def setUpClass(cls):
         rospy.init_node("test_office_walls", anonymous=True)
         name = rospy.get_param("~bag")

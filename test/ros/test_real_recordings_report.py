@@ -25,6 +25,7 @@ import rostest
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from test_check_bag import NEATO_ARGS, NEATO_BAG, executable  # noqa: E402
+import wall_scene  # noqa: E402
 
 PKG = "dynamic_occupancy_grid"
 PACKAGE_DIR = rospkg.RosPack().get_path(PKG)
@@ -76,7 +77,7 @@ def percent(part, whole):
 
 class TestRealRecordingsReport(unittest.TestCase):
 
-    @classmethod
+    @wall_scene.reported_set_up
     def setUpClass(cls):
         cls.tmp = tempfile.mkdtemp(prefix="test_real_report_")
         cls.empty = os.path.join(cls.tmp, "empty_data")

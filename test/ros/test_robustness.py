@@ -39,7 +39,7 @@ QUICK = 5.0
 
 class TestRobustness(unittest.TestCase):
 
-    @classmethod
+    @wall_scene.reported_set_up
     def setUpClass(cls):
         rospy.init_node('test_robustness')
         cls.scene = wall_scene.WallScene(NODE)
@@ -475,7 +475,7 @@ class TestRobustness(unittest.TestCase):
         node = wall_scene.NodeProcess('file_node', ['_file_directory:=' + root, '_model_file:=' + model])
         try:
             try:
-                rospy.wait_for_service('/file_node/save_model', 30.0)
+                rospy.wait_for_service('/file_node/save_model', wall_scene.STARTUP_TIMEOUT)
             except rospy.ROSException:
                 self.fail('the node with ~file_directory offers no services:\n' + node.output())
             self.assertTrue(node.wait_for_line('stale temporary file'), node.output())

@@ -91,7 +91,7 @@ def read_pgm(data):
 
 class TestServices(unittest.TestCase):
 
-    @classmethod
+    @wall_scene.reported_set_up
     def setUpClass(cls):
         rospy.init_node('test_services')
         cls.tmp = tempfile.mkdtemp(prefix='dog_services_')

@@ -33,6 +33,7 @@ import rostest
 import yaml
 # This directory is on the path (the script's own): the bag tools' test has the helpers.
 from test_bag_tools import executable, read_pgm
+import wall_scene
 
 PKG = "dynamic_occupancy_grid"
 sys.path.insert(0, os.path.join(rospkg.RosPack().get_path(PKG), "scripts"))
@@ -122,7 +123,7 @@ class TestSimulate(unittest.TestCase):
     bag_path = None
     topics = None
 
-    @classmethod
+    @wall_scene.reported_set_up
     def setUpClass(cls):
         cls.tmp = tempfile.mkdtemp(prefix="test_simulate_")
         cls.bag_path = os.path.join(cls.tmp, "dynamic_5_5.bag")

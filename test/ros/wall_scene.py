@@ -14,6 +14,7 @@ timer keeps running while the test waits for a message or a condition.
 
 import errno
 import fcntl
+import functools
 import math
 import os
 import queue
@@ -21,6 +22,7 @@ import signal
 import subprocess
 import threading
 import time
+import traceback
 
 import rosbag
 import rospy
@@ -63,6 +65,29 @@ WALL_CELL = (30, 20)  # lattice cell of (WALL_X, 2.05) with origin (0, 0)
 # Wall seconds; the sanitized run (test/sanitizers/run_sanitized.sh) scales it, its nodes
 # being several times slower.
 DEFAULT_TIMEOUT = 15.0 * float(os.environ.get('DOG_TEST_TIMEOUT_SCALE', '1'))
+# Wall seconds for a node to start (subscribe, offer its services), scaled alike.
+STARTUP_TIMEOUT = 30.0 * float(os.environ.get('DOG_TEST_TIMEOUT_SCALE', '1'))
+
+
+def reported_set_up(set_up_class):
+    """Use instead of @classmethod on a setUpClass: an error it raises reaches the JUnit file.
+    rosunit writes an error raised in setUpClass as errors="1" with neither testcase nor
+    message, so a CI log can say only that something failed. Decorated, the error is kept,
+    tearDownClass is skipped (as unittest does after a raising setUpClass) and every test of
+    the class fails with the traceback."""
+    @functools.wraps(set_up_class)
+    def wrapper(cls):
+        try:
+            set_up_class(cls)
+        except Exception as exception:  # noqa: BLE001 (reported by every test below)
+            error = 'setUpClass: %s\n%s' % (''.join(traceback.format_exception_only(exception)).strip(),
+                                            traceback.format_exc())
+
+            def fail(test):
+                test.fail(error)
+            cls.setUp = fail
+            cls.tearDownClass = classmethod(lambda _: None)
+    return classmethod(wrapper)
 
 
 def wall_ranges():
@@ -136,7 +161,7 @@ def _check_bad_parameter_nodes(test, numbered_cases, node_prefix):
             test.assertIn(text, output, '%s: the error does not name %s:\n%s' % (' '.join(command), text, output))
 
 
-def node_startup_output(test, node_name, arguments, until, timeout=30.0):
+def node_startup_output(test, node_name, arguments, until, timeout=STARTUP_TIMEOUT):
     """Starts mapping_node as `node_name` with `arguments` (a list of rosrun arguments),
     reads its output (stdout and stderr, line-buffered) until a line contains `until`, stops
     it and returns all lines read; fails if it exits or `timeout` (wall s) passes first."""
@@ -328,7 +353,7 @@ class WallScene(object):
         self._static_transforms[transform.child_frame_id] = transform
         self._tf_broadcaster.sendTransform(list(self._static_transforms.values()))
 
-    def wait_for_node(self, timeout=30.0):
+    def wait_for_node(self, timeout=STARTUP_TIMEOUT):
         """Waits until the node subscribes to the scans and offers its services."""
         deadline = time.time() + timeout
         while self.scan_publisher.get_num_connections() == 0:
@@ -646,7 +671,7 @@ class NodeProcess(object):
         with self._condition:
             return ''.join(self._lines)
 
-    def wait_for_line(self, text, timeout=30.0):
+    def wait_for_line(self, text, timeout=STARTUP_TIMEOUT):
         """True once a line holds `text`; False if the node exits or `timeout` passes first."""
         deadline = time.monotonic() + timeout
         with self._condition:
