@@ -23,6 +23,7 @@ import subprocess
 import threading
 import time
 import traceback
+import unittest
 
 import rosbag
 import rospy
@@ -74,11 +75,13 @@ def reported_set_up(set_up_class):
     rosunit writes an error raised in setUpClass as errors="1" with neither testcase nor
     message, so a CI log can say only that something failed. Decorated, the error is kept,
     tearDownClass is skipped (as unittest does after a raising setUpClass) and every test of
-    the class fails with the traceback."""
+    the class fails with the traceback; unittest.SkipTest still skips the class."""
     @functools.wraps(set_up_class)
     def wrapper(cls):
         try:
             set_up_class(cls)
+        except unittest.SkipTest:
+            raise
         except Exception as exception:  # noqa: BLE001 (reported by every test below)
             error = 'setUpClass: %s\n%s' % (''.join(traceback.format_exception_only(exception)).strip(),
                                             traceback.format_exc())
