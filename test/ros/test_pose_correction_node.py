@@ -35,8 +35,8 @@ from tf2_msgs.msg import TFMessage
 
 # This directory is on the path (the script's own): the other tests' helpers.
 from test_bag_tools import executable
-import wall_scene
-from wall_scene import DEFAULT_TIMEOUT, SimClock, TopicRecorder, assert_bad_parameters_stop_node
+from wall_scene import (DEFAULT_TIMEOUT, STARTUP_TIMEOUT, SimClock, TopicRecorder, assert_bad_parameters_stop_node,
+                        reported_set_up)
 
 import dynamic_occupancy_grid.srv as dog_srv
 
@@ -92,7 +92,7 @@ def pose_of(transform):
 
 class PoseCorrectionNodeTest(unittest.TestCase):
 
-    @wall_scene.reported_set_up
+    @reported_set_up
     def setUpClass(cls):
         rospy.init_node('test_pose_correction_node')
         for name in PARAMS:
@@ -112,12 +112,12 @@ class PoseCorrectionNodeTest(unittest.TestCase):
         cls.ess = TopicRecorder(NODE + '/effective_sample_size', Float64)
         cls.entropy = TopicRecorder(NODE + '/pose_entropy', Float64)
         cls.belief = TopicRecorder(NODE + '/belief', OccupancyGrid)
-        rospy.wait_for_service(NODE + '/get_status', wall_scene.STARTUP_TIMEOUT)
+        rospy.wait_for_service(NODE + '/get_status', STARTUP_TIMEOUT)
         cls.get_status = rospy.ServiceProxy(NODE + '/get_status', dog_srv.GetStatus)
         # /tf is not latched: a transform published before the node's subscription is
         # connected is lost, and the scan of its stamp then waits in the tf2 filter for ever
         # (a sanitized run in CI lost the first one). Wait for both connections.
-        deadline = time.time() + wall_scene.STARTUP_TIMEOUT
+        deadline = time.time() + STARTUP_TIMEOUT
         while cls.scans.get_num_connections() == 0 or cls.tf.get_num_connections() == 0:
             if time.time() > deadline:
                 raise AssertionError('the node never subscribed to /scan and /tf')
