@@ -313,10 +313,6 @@ bool PoseFilter::updateParticle(Particle& particle, const Scan& scan, const std:
   const double translation_variance =
       last.translation_variance + noise.trans_from_trans * t2 + noise.trans_from_rot * (r1 * r1 + r2 * r2);
   const double travelled = last.travelled_m + motion.trans_m;
-  // amcl's likelihood field over the subsampled beams, at a pose.
-  const auto field_log_likelihood = [&](const Pose2D& at, const Pose2D* compared_with = nullptr) {
-    return fieldLogLikelihood(particle.map, *transitions_, config_, weight_beams, at, step, compared_with);
-  };
   bool refused = false;
   if (config_.guard_sigmas > 0.0 || config_.correction_test) {
     // Odometry's increment from the particle's last pose: what the particle falls back to.
@@ -325,6 +321,12 @@ bool PoseFilter::updateParticle(Particle& particle, const Scan& scan, const std:
     // The guard's anchor: the lineage's state guard_window_m of travel ago (or its first).
     const TrajectoryNode* anchor = &last;
     while (anchor->parent && travelled - anchor->travelled_m < config_.guard_window_m) anchor = anchor->parent.get();
+    // The correction test's field: the weight's with the matcher's kernel.
+    PoseFilterConfig test_config = config_;
+    test_config.weight_sigma_m = config_.match_sigma_m;
+    const auto test_log_likelihood = [&](const Pose2D& at, const Pose2D& compared_with) {
+      return fieldLogLikelihood(particle.map, *transitions_, test_config, weight_beams, at, step, &compared_with);
+    };
     // Whether `candidate` is refused: by the guard, or by the correction test.
     const auto refuses = [&](const Pose2D& candidate) {
       if (config_.guard_sigmas > 0.0 &&
@@ -340,7 +342,7 @@ bool PoseFilter::updateParticle(Particle& particle, const Scan& scan, const std:
       // (behind a wall, say) counts as explained at both, so that no pose gains beams by
       // putting them there (docs/pose_correction_real.md, "Comparing on the same beams").
       const double scan_gain =
-          field_log_likelihood(candidate, &odometry_pose) - field_log_likelihood(odometry_pose, &candidate);
+          test_log_likelihood(candidate, odometry_pose) - test_log_likelihood(odometry_pose, candidate);
       const double step_heading_var = heading_variance - last.heading_variance;
       const double step_position_var =
           translation_variance - last.translation_variance + t2 * step_heading_var / 3.0;
@@ -370,7 +372,8 @@ bool PoseFilter::updateParticle(Particle& particle, const Scan& scan, const std:
       pose = taken;
     }
   }
-  particle.log_weight += field_log_likelihood(pose);
+  // The weight: amcl's likelihood field over the subsampled beams.
+  particle.log_weight += fieldLogLikelihood(particle.map, *transitions_, config_, weight_beams, pose, step);
   particle.pose = pose;
   auto node = std::make_shared<TrajectoryNode>(TrajectoryNode{scan.stamp_s, pose, particle.trajectory});
   node->odometry = scan.laser_pose;

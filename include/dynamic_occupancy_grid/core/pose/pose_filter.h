@@ -11,8 +11,8 @@
 //      beam end points' distance to predicted-occupied cells);
 //      The pose is refused when its correction of odometry is more than the motion model
 //      allows over the last guard_window_m of travel (guardAccepts), or when the scan does
-//      not support it (its likelihood is not correction_min_gain nats above odometry's
-//      increment's). A refused sample is followed by a second candidate, odometry's
+//      not support it (its likelihood, scored with the matcher's kernel, is not
+//      correction_min_gain nats above odometry's increment's). A refused sample is followed by a second candidate, odometry's
 //      increment from the particle's last pose matched (the sample's noise where the scan
 //      cannot see it, along a corridor, costs it the test though its heading is right), taken
 //      if neither test refuses it; otherwise odometry's increment itself;
@@ -84,6 +84,10 @@ struct PoseFilterConfig {
   /// correction's Mahalanobis distance under this update's heading and position variances),
   /// is at least correction_min_gain (nats; 0: the more probable of the two under the
   /// motion model and the scan). false: no such test.
+  /// The field here is the matcher's kernel: weight_sigma_m is replaced by match_sigma_m. The
+  /// weight's 0.15 m is flat on purpose, and with it a heading the matcher got right lost
+  /// to the prior at most updates (docs/pose_correction_real.md, "The correction test
+  /// scored with the matcher's kernel").
   bool correction_test = true;
   double correction_min_gain = 0.0;
   /// An update once odometry moved this far or turned this much since the last (gmapping's
