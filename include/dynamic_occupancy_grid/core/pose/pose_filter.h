@@ -12,10 +12,11 @@
 //      The pose is refused when its correction of odometry is more than the motion model
 //      allows over the last guard_window_m of travel (guardAccepts), or when the scan does
 //      not support it (its likelihood, scored with the matcher's kernel, is not
-//      correction_min_gain nats above odometry's increment's). A refused sample is followed by a second candidate, odometry's
-//      increment from the particle's last pose matched (the sample's noise where the scan
-//      cannot see it, along a corridor, costs it the test though its heading is right), taken
-//      if neither test refuses it; otherwise odometry's increment itself;
+//      correction_min_gain nats above odometry's increment's). A refused sample is followed
+//      by a second candidate, odometry's increment from the particle's last pose matched
+//      (the sample's noise where the scan cannot see it, along a corridor, costs it the test
+//      though its heading is right), taken if neither test refuses it; otherwise odometry's
+//      increment itself;
 //   2. weight: times the scan's likelihood under the particle's predicted map, amcl's
 //      likelihood field: weight_beams beams evenly subsampled, each end's distance d to the
 //      nearest cell the map predicts occupied scored z_hit exp(-d^2 / 2 sigma^2) + z_rand.
