@@ -519,19 +519,16 @@ TEST(PoseFilter, ARefusedPoseTakesOdometrysIncrementAndItsWeight) {
   EXPECT_LT(filters[0]->particles()[0].log_weight, -0.5);  // a weight, not the maximum 0
 }
 
-TEST(PoseFilter, ARefusedSampleLeavesOdometrysIncrementMatched) {
-  // A corridor, the second scan's odometry turned by 0.04 rad too much: the scan shows the
-  // heading (its walls) but not the position along the corridor. A sample of the motion model
-  // keeps its shift along the corridor after matching, and the correction test's prior charges
-  // for that shift, so a sample with a large one is refused though its heading is right (8 of
-  // these 30 without the second candidate). Odometry's increment matched is then the
-  // particle's pose: every particle's heading comes out corrected.
-  const std::vector<Box> corridor = {{-30.0, -1.725, 30.0, -1.525}, {-30.0, 1.525, 30.0, 1.725}};  // faces on cell centres
+// A corridor (faces on cell centres), 30 particles of motion noise `alpha` (all four), two
+// scans 0.5 m apart whose second odometry is turned `turn_rad` too far: the filter after them.
+// The scan shows the heading (the walls) but not the position along the corridor.
+std::unique_ptr<dog::PoseFilter> corridorAfterATurn(double alpha, double turn_rad) {
+  const std::vector<Box> corridor = {{-30.0, -1.725, 30.0, -1.525}, {-30.0, 1.525, 30.0, 1.725}};
   auto transitions = std::make_shared<dog::UniformTransitions>(dog::TransitionParams{0.0, 0.0});
   dog::PoseFilterConfig config;
   config.particles = 30;
   config.resolution_m = 0.05;
-  config.motion_noise = {0.002, 0.002, 0.002, 0.002};
+  config.motion_noise = {alpha, alpha, alpha, alpha};
   config.resample_below = 0.0;
   const auto scanAt = [&](const dog::Pose2D& truth, const dog::Pose2D& odometry, double stamp_s) {
     std::mt19937_64 rng(5);
@@ -540,41 +537,35 @@ TEST(PoseFilter, ARefusedSampleLeavesOdometrysIncrementMatched) {
     scan.laser_pose = odometry;
     return scan;
   };
-  dog::PoseFilter filter(config, transitions);
-  ASSERT_TRUE(filter.integrate(scanAt({0.0, 0.0, 0.0}, {0.0, 0.0, 0.0}, 0.0)).updated);
-  ASSERT_TRUE(filter.integrate(scanAt({0.5, 0.0, 0.0}, {0.5, 0.0, 0.04}, 1.0)).updated);
-  for (const dog::Particle& particle : filter.particles()) {
+  auto filter = std::make_unique<dog::PoseFilter>(config, transitions);
+  EXPECT_TRUE(filter->integrate(scanAt({0.0, 0.0, 0.0}, {0.0, 0.0, 0.0}, 0.0)).updated);
+  EXPECT_TRUE(filter->integrate(scanAt({0.5, 0.0, 0.0}, {0.5, 0.0, turn_rad}, 1.0)).updated);
+  return filter;
+}
+
+TEST(PoseFilter, ARefusedSampleLeavesOdometrysIncrementMatched) {
+  // The corridor, the second scan's odometry turned by 0.04 rad too much. A sample of the
+  // motion model keeps its shift along the corridor after matching, and the correction test's
+  // prior charges for that shift, so a sample with a large one is refused though its heading
+  // is right (8 of these 30 without the second candidate). Odometry's increment matched is
+  // then the particle's pose: every particle's heading comes out corrected.
+  const auto filter = corridorAfterATurn(0.002, 0.04);
+  for (const dog::Particle& particle : filter->particles()) {
     EXPECT_NEAR(particle.pose.yaw_rad, 0.0, 0.01);
     EXPECT_NEAR(particle.pose.y_m, 0.0, 0.02);
   }
-  EXPECT_EQ(filter.guardRefusals(), 0u);
+  EXPECT_EQ(filter->guardRefusals(), 0u);
 }
 
 TEST(PoseFilter, TheCorrectionTestTakesAHeadingTheMatcherFound) {
-  // The corridor of the test above, with the default noise's size (alphas 0.001, as
-  // process_bag's and the node's) and odometry turned by 0.05 rad too much, about 2 sigma of
-  // one update's heading: the fast drift of a 5 % odometry. Matching finds the heading; the
-  // scan's gain over odometry's increment, scored with the weight's flat 0.15 m field, did
-  // not make up for the prior's cost, and the particles kept odometry's error. Scored with
-  // the matcher's kernel (0.05 m) it does: every particle's heading comes out corrected.
-  const std::vector<Box> corridor = {{-30.0, -1.725, 30.0, -1.525}, {-30.0, 1.525, 30.0, 1.725}};
-  auto transitions = std::make_shared<dog::UniformTransitions>(dog::TransitionParams{0.0, 0.0});
-  dog::PoseFilterConfig config;
-  config.particles = 30;
-  config.resolution_m = 0.05;
-  config.motion_noise = {0.001, 0.001, 0.001, 0.001};
-  config.resample_below = 0.0;
-  const auto scanAt = [&](const dog::Pose2D& truth, const dog::Pose2D& odometry, double stamp_s) {
-    std::mt19937_64 rng(5);
-    dog::Scan scan = simulatedScan(corridor, truth, stamp_s, rng, 0.0, 361);
-    scan.range_max_m = 4.0;
-    scan.laser_pose = odometry;
-    return scan;
-  };
-  dog::PoseFilter filter(config, transitions);
-  ASSERT_TRUE(filter.integrate(scanAt({0.0, 0.0, 0.0}, {0.0, 0.0, 0.0}, 0.0)).updated);
-  ASSERT_TRUE(filter.integrate(scanAt({0.5, 0.0, 0.0}, {0.5, 0.0, 0.05}, 1.0)).updated);
-  for (const dog::Particle& particle : filter.particles()) {
+  // The corridor with the default noise's size (alphas 0.001, as process_bag's and the
+  // node's) and odometry turned by 0.05 rad too much, about 2 sigma of one update's heading:
+  // the fast drift of a 5 % odometry. Matching finds the heading; the scan's gain over
+  // odometry's increment, scored with the weight's flat 0.15 m field, did not make up for
+  // the prior's cost, and the particles kept odometry's error. Scored with the matcher's
+  // kernel (0.05 m) it does: every particle's heading comes out corrected.
+  const auto filter = corridorAfterATurn(0.001, 0.05);
+  for (const dog::Particle& particle : filter->particles()) {
     EXPECT_NEAR(particle.pose.yaw_rad, 0.0, 0.01);
     EXPECT_NEAR(particle.pose.y_m, 0.0, 0.02);
   }
